@@ -1,0 +1,1 @@
+"""Stereo calibration, rectification and LiDAR-to-disparity projection."""

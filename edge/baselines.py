@@ -1,0 +1,59 @@
+"""Classical baselines every learned result is compared against, in the same run.
+
+- OpenCV StereoSGBM (MODE_SGBM_3WAY, 64 disparities, grey input).
+- LiDAR-only densification of a sparse disparity map: nearest valid point, or linear
+  interpolation over a Delaunay triangulation (nearest outside the hull).
+"""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+
+def make_sgbm(num_disparities: int = 64, block_size: int = 5) -> cv2.StereoSGBM:
+    """The SGBM matcher used as the classical baseline (3-way, grey, P1/P2 per OpenCV's docs)."""
+    return cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=num_disparities, blockSize=block_size,
+        P1=8 * block_size**2, P2=32 * block_size**2, disp12MaxDiff=1, uniquenessRatio=10,
+        speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+
+
+def sgbm_disparity(left: np.ndarray, right: np.ndarray,
+                   matcher: cv2.StereoSGBM | None = None) -> np.ndarray:
+    """(H, W) float32 disparity in pixels; 0 where SGBM found no match."""
+    matcher = matcher or make_sgbm()
+    raw = matcher.compute(left, right).astype(np.float32) / 16.0
+    raw[raw <= 0] = 0.0
+    return raw
+
+
+def lidar_nearest(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Each pixel takes the disparity of the nearest valid sparse pixel; (H, W) float32."""
+    if not valid.any():
+        return np.zeros_like(sparse, np.float32)
+    _, labels = cv2.distanceTransformWithLabels((~valid).astype(np.uint8), cv2.DIST_L2, 5,
+                                                labelType=cv2.DIST_LABEL_PIXEL)
+    ys, xs = np.nonzero(valid)
+    # labels count valid pixels in row-major scan order, the same order np.nonzero returns.
+    lookup = np.concatenate([[0.0], sparse[ys, xs]]).astype(np.float32)
+    return lookup[labels]
+
+
+def lidar_linear(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """Linear interpolation of the sparse disparity over its Delaunay triangulation; pixels
+    outside the convex hull take the nearest point's value. (H, W) float32."""
+    from scipy.interpolate import LinearNDInterpolator
+
+    nearest = lidar_nearest(sparse, valid)
+    ys, xs = np.nonzero(valid)
+    if len(ys) < 3:
+        return nearest
+    h, w = sparse.shape
+    try:
+        interp = LinearNDInterpolator(np.stack([xs, ys], 1), sparse[ys, xs])
+    except Exception:  # degenerate (collinear) points, e.g. one planar scan line
+        return nearest
+    gy, gx = np.mgrid[0:h, 0:w]
+    dense = interp(gx.ravel(), gy.ravel()).reshape(h, w).astype(np.float32)
+    return np.where(np.isfinite(dense), dense, nearest).astype(np.float32)

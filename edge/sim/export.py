@@ -1,0 +1,47 @@
+"""`edge-depth synth`: write a batch of synthetic scene folders, all or nothing."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+from pathlib import Path
+
+from edge.errors import EdgeError
+from edge.sim.folder import write_scene_folder
+from edge.sim.rig import make_sample
+from edge.sim.scene import RigConfig
+
+
+class OutputError(EdgeError):
+    """The output location cannot be written."""
+
+
+def synth_command(out: Path, count: int, seed: int, size: tuple[int, int], lidar: str) -> int:
+    """Write `count` scene folders OUT/000000 ... seeded seed, seed+1, ...
+
+    The output directory is checked for writability before any scene is rendered; if a scene
+    fails midway, the scenes written by this call are removed again.
+    """
+    rig = RigConfig(width=size[0], height=size[1])
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output directory {out}: {exc.strerror}") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise OutputError(f"output directory {out} is not writable")
+    written: list[Path] = []
+    try:
+        for i in range(count):
+            sample = make_sample(seed + i, rig, lidar)
+            folder = out / f"{seed + i:06d}"
+            write_scene_folder(folder, sample, lidar_name=lidar)
+            written.append(folder)
+            print(f"\rsynth: {i + 1}/{count} scenes", end="", file=sys.stderr, flush=True)
+        print(file=sys.stderr)
+    except BaseException:
+        for folder in written:
+            shutil.rmtree(folder, ignore_errors=True)
+        raise
+    print(f"wrote {count} scene folders to {out} ({size[0]}x{size[1]}, lidar {lidar})")
+    return 0

@@ -1,0 +1,1 @@
+"""Workstation scripts (train, export, quantize, evaluate, bench), each a main(argv=None) -> int."""
