@@ -6,6 +6,8 @@ Pure numpy. A sparse disparity map is (H, W) float32 with 0 where there is no po
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 
@@ -49,3 +51,109 @@ def project_rectified(points_cam: np.ndarray, focal_px: float, cx: float, cy: fl
     disparity.ravel()[flat] = d
     valid.ravel()[flat] = True
     return disparity, valid
+
+
+@dataclass(frozen=True)
+class OcclusionFilterConfig:
+    """Settings of the parallax-aware occlusion filter (pixels; `relative` is a fraction).
+
+    A point is removed when a markedly nearer point (disparity > d (1 + relative) + margin_px)
+    lies within `window` (width, height) around it, or along the parallax direction at a
+    distance up to |t_xy| / B times the disparity difference plus `slack_px` (see
+    `filter_occluded`).
+    """
+
+    window: tuple[int, int] = (7, 5)
+    relative: float = 0.03
+    margin_px: float = 0.5
+    search_width_px: int = 5
+    slack_px: float = 3.0
+    step_px: int = 1
+    max_search_px: int = 96
+    both_directions: bool = False
+
+    def __post_init__(self) -> None:
+        if min(self.window) < 1 or self.window[0] % 2 == 0 or self.window[1] % 2 == 0:
+            raise ValueError(f"window: expected odd (width, height) >= 1, got {self.window}")
+        if self.relative < 0 or self.margin_px < 0 or self.slack_px < 0:
+            raise ValueError("relative, margin_px and slack_px must be >= 0")
+        if self.step_px < 1 or self.max_search_px < 0 or self.search_width_px < 1:
+            raise ValueError("step_px and search_width_px must be >= 1, max_search_px >= 0")
+
+
+def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.ndarray,
+                    baseline_m: float, config: OcclusionFilterConfig | None = None
+                    ) -> np.ndarray:
+    """Valid mask with the points the camera cannot see removed. (H, W) bool.
+
+    The LiDAR sits at `lidar_offset_m` (x, y, z metres in the rectified camera frame), so
+    behind every foreground edge it sees background the camera cannot. Such a background point
+    projects inside the foreground, displaced from the occluding edge by
+    (-t_xy / B) * (d_near - d_far) pixels. Following the KITTI ground-truth cleaning, a point is
+    dropped when a markedly nearer point lies (a) inside a small window around it, or (b)
+    along that displacement direction no farther than the disparity difference allows.
+    """
+    cfg = config or OcclusionFilterConfig()
+    import cv2
+
+    sparse = np.where(valid, sparse, 0).astype(np.float32)
+    keep = valid.copy()
+    ys, xs = np.nonzero(valid)
+    if ys.size == 0:
+        return keep
+    d = sparse[ys, xs]
+    threshold = d * (1 + cfg.relative) + cfg.margin_px
+    local = cv2.dilate(sparse, cv2.getStructuringElement(cv2.MORPH_RECT, cfg.window))
+    occluded = local[ys, xs] > threshold
+    t_xy = np.asarray(lidar_offset_m, np.float64)[:2]
+    norm = float(np.hypot(*t_xy))
+    if norm > 1e-6 and cfg.max_search_px > 0:
+        gain = norm / baseline_m  # displacement (px) per pixel of disparity difference
+        # The hidden background lands up to gain * (d_near - d) px from the occluding edge,
+        # displaced away from the LiDAR; the nearer surface's own points lie towards it.
+        direction = t_xy / norm
+        h, w = sparse.shape
+        wide = sparse
+        if cfg.search_width_px > 1:
+            across = (cfg.search_width_px, 1) if abs(direction[1]) >= abs(direction[0]) \
+                else (1, cfg.search_width_px)
+            wide = cv2.dilate(sparse, cv2.getStructuringElement(cv2.MORPH_RECT, across))
+        signs = (1.0, -1.0) if cfg.both_directions else (1.0,)
+        for sign in signs:
+            for k in range(cfg.step_px, cfg.max_search_px + 1, cfg.step_px):
+                qx = np.rint(xs + sign * k * direction[0]).astype(np.int64)
+                qy = np.rint(ys + sign * k * direction[1]).astype(np.int64)
+                inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
+                if not inside.any():
+                    break
+                near = np.zeros_like(d)
+                near[inside] = wide[qy[inside], qx[inside]]
+                occluded |= (near > threshold) & (k <= gain * (near - d) + cfg.slack_px)
+    keep[ys[occluded], xs[occluded]] = False
+    return keep
+
+
+def project_to_disparity(points: np.ndarray, calib, T_cam_lidar: np.ndarray,
+                         side: str = "left", occlusion: OcclusionFilterConfig | None = None,
+                         filter_occlusions: bool = True) -> tuple[np.ndarray, np.ndarray]:
+    """LiDAR points (N, 3) metres in the LiDAR frame -> sparse disparity in a rectified image.
+
+    Transform by T_cam_lidar into the left camera, rotate by the rectification R1, project with
+    P1 (nearest point wins per pixel, d = f B / z), then drop points the camera cannot see
+    (`filter_occluded`, with the LiDAR's rectified position as the parallax source).
+    calib: a `calibration.model.StereoCalibration`. Returns ((H, W) float32, (H, W) bool).
+    """
+    R1 = calib.rect["R1"]
+    T_rect = np.eye(4)
+    T_rect[:3, :3] = R1
+    T = T_rect @ np.asarray(T_cam_lidar, np.float64)
+    cam = transform_points(T, points)
+    cx, cy = calib.principal_point
+    sparse, valid = project_rectified(cam, calib.focal_px, cx, cy, calib.baseline_m,
+                                      calib.image_size, side)
+    if filter_occlusions:
+        # seen from the right camera the LiDAR sits B metres further left
+        offset = T[:3, 3] - (np.array([calib.baseline_m, 0, 0]) if side == "right" else 0)
+        valid = filter_occluded(sparse, valid, offset, calib.baseline_m, occlusion)
+        sparse = np.where(valid, sparse, 0).astype(np.float32)
+    return sparse, valid

@@ -5,6 +5,7 @@
     occ.png               255 where a left pixel is not visible in the right image
     lidar.npy             (N, 3) float32 LiDAR points in the LiDAR frame, metres
     sparse.pfm            LiDAR projected into the left image as disparity, 0 = no point
+                          (occlusion-filtered, calibration.projection.project_to_disparity)
     meta.json             focal_px, baseline_m, cx, cy, T_cam_lidar (4x4), seed, lidar pattern
 
 Only left.png and right.png are required when reading; the rest is optional.

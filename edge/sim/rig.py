@@ -7,7 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calibration.projection import project_rectified, transform_points
+from calibration.model import StereoCalibration
+from calibration.projection import project_to_disparity, transform_points
 from edge.sim.lidar import PATTERNS, LidarPattern, default_T_cam_lidar, simulate_scan
 from edge.sim.scene import LEFT, RIGHT, Layer, RigConfig, Scene
 from edge.sim.textures import photo_textures, procedural_texture
@@ -40,11 +41,17 @@ class SyntheticSample:
         """(N, 3) float64 LiDAR points in the left camera frame, metres."""
         return transform_points(self.T_cam_lidar, self.scan.points)
 
-    def sparse_disparity(self, side: str = "left") -> tuple[np.ndarray, np.ndarray]:
-        """Plain z-buffered projection of the scan (no occlusion filtering)."""
+    def calibration(self) -> StereoCalibration:
+        """The rig as a (rectified, distortion-free) stereo calibration."""
         r = self.rig
-        return project_rectified(self.lidar_in_camera(), r.focal_px, r.cx, r.cy, r.baseline_m,
-                                 (r.width, r.height), side)
+        return StereoCalibration.ideal(r.focal_px, r.baseline_m, (r.width, r.height), r.cx, r.cy)
+
+    def sparse_disparity(self, side: str = "left", filtered: bool = True
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The scan projected into one view as disparity, with the occlusion filter
+        (`calibration.projection.project_to_disparity`) unless filtered=False."""
+        return project_to_disparity(self.scan.points, self.calibration(), self.T_cam_lidar,
+                                    side, filter_occlusions=filtered)
 
 
 def _convex_polygon(rng: np.random.Generator, centre: np.ndarray, radius: float) -> np.ndarray:

@@ -1,0 +1,147 @@
+"""Calibration data: a stereo pair's intrinsics and extrinsics, its rectification, and the
+LiDAR-to-camera extrinsics. Units: pixels for K, metres for T, nanoseconds for time offsets."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from calibration.errors import CalibrationError
+
+
+def _array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
+    arr = np.asarray(value, np.float64)
+    if arr.shape != shape:
+        raise CalibrationError(f"expected shape {shape}, got {arr.shape}", key=name)
+    if not np.isfinite(arr).all():
+        raise CalibrationError("expected finite numbers, got NaN or inf", key=name)
+    return arr
+
+
+def check_rotation(name: str, R: np.ndarray, tol: float = 1e-4) -> None:
+    """Raise CalibrationError unless R is a proper rotation (R Rᵀ = I, det = +1)."""
+    if np.abs(R @ R.T - np.eye(3)).max() > tol or abs(np.linalg.det(R) - 1) > tol:
+        raise CalibrationError("expected a rotation matrix (R Rᵀ = I, det R = 1)", key=name)
+
+
+def _check_K(name: str, K: np.ndarray) -> None:
+    if K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise CalibrationError(f"expected positive focal lengths, got fx={K[0, 0]}, "
+                               f"fy={K[1, 1]}", key=name)
+    if K[2, 2] != 1 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0:
+        raise CalibrationError("expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]", key=name)
+
+
+@dataclass(frozen=True)
+class StereoCalibration:
+    """Two pinhole cameras with OpenCV distortion; R, T map left-camera points to the right
+    camera (X_r = R X_l + T, metres). image_size: (width, height) pixels.
+
+    The rectification (R1, R2, P1, P2, Q) is derived once with cv2.stereoRectify
+    (CALIB_ZERO_DISPARITY, alpha 0).
+    """
+
+    K_left: np.ndarray
+    dist_left: np.ndarray
+    K_right: np.ndarray
+    dist_right: np.ndarray
+    R: np.ndarray
+    T: np.ndarray
+    image_size: tuple[int, int]
+    rect: dict = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        set_ = object.__setattr__
+        set_(self, "K_left", _array("left.K", self.K_left, (3, 3)))
+        set_(self, "K_right", _array("right.K", self.K_right, (3, 3)))
+        set_(self, "dist_left", _array("left.dist", self.dist_left, (len(self.dist_left),)))
+        set_(self, "dist_right", _array("right.dist", self.dist_right,
+                                        (len(self.dist_right),)))
+        for name, dist in (("left.dist", self.dist_left), ("right.dist", self.dist_right)):
+            if dist.size not in (4, 5, 8, 12, 14):
+                raise CalibrationError(f"expected 4, 5, 8, 12 or 14 coefficients, got "
+                                       f"{dist.size}", key=name)
+        set_(self, "R", _array("extrinsics.R", self.R, (3, 3)))
+        set_(self, "T", _array("extrinsics.T", self.T, (3,)))
+        _check_K("left.K", self.K_left)
+        _check_K("right.K", self.K_right)
+        check_rotation("extrinsics.R", self.R)
+        if np.linalg.norm(self.T) <= 0:
+            raise CalibrationError("expected a non-zero baseline", key="extrinsics.T")
+        w, h = (int(v) for v in self.image_size)
+        if w <= 0 or h <= 0:
+            raise CalibrationError(f"expected positive (width, height), got {self.image_size}",
+                                   key="image_size")
+        set_(self, "image_size", (w, h))
+        R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
+            self.K_left, self.dist_left, self.K_right, self.dist_right, (w, h), self.R, self.T.reshape(3, 1),
+            flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+        set_(self, "rect", dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q))
+
+    @classmethod
+    def ideal(cls, focal_px: float, baseline_m: float, size: tuple[int, int],
+              cx: float | None = None, cy: float | None = None) -> StereoCalibration:
+        """An already-rectified, distortion-free rig (what the synthetic rig renders)."""
+        w, h = size
+        cx = (w - 1) / 2 if cx is None else cx
+        cy = (h - 1) / 2 if cy is None else cy
+        K = np.array([[focal_px, 0, cx], [0, focal_px, cy], [0, 0, 1]])
+        return cls(K, np.zeros(5), K.copy(), np.zeros(5), np.eye(3),
+                   np.array([-baseline_m, 0.0, 0.0]), (w, h))
+
+    @property
+    def focal_px(self) -> float:
+        """Rectified focal length, pixels."""
+        return float(self.rect["P1"][0, 0])
+
+    @property
+    def baseline_m(self) -> float:
+        """Rectified baseline, metres."""
+        P2 = self.rect["P2"]
+        return float(-P2[0, 3] / P2[0, 0])
+
+    @property
+    def principal_point(self) -> tuple[float, float]:
+        """Rectified (cx, cy) of the left image, pixels."""
+        P1 = self.rect["P1"]
+        return float(P1[0, 2]), float(P1[1, 2])
+
+    def rectifier(self) -> Rectifier:
+        return Rectifier(self)
+
+
+class Rectifier:
+    """Rectification maps computed once; `rectify` is then two remaps."""
+
+    def __init__(self, calib: StereoCalibration) -> None:
+        r = calib.rect
+        size = calib.image_size
+        self.maps = [
+            cv2.initUndistortRectifyMap(calib.K_left, calib.dist_left, r["R1"], r["P1"], size,
+                                        cv2.CV_16SC2),
+            cv2.initUndistortRectifyMap(calib.K_right, calib.dist_right, r["R2"], r["P2"], size,
+                                        cv2.CV_16SC2),
+        ]
+
+    def rectify(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        return tuple(cv2.remap(img, m[0], m[1], cv2.INTER_LINEAR)  # type: ignore[return-value]
+                     for img, m in zip((left, right), self.maps, strict=True))
+
+
+@dataclass(frozen=True)
+class LidarExtrinsics:
+    """T_cam_lidar (4, 4): LiDAR frame -> left (unrectified) camera frame, metres.
+    time_offset_ns: add to LiDAR stamps to express them in the camera's clock."""
+
+    T_cam_lidar: np.ndarray
+    time_offset_ns: int = 0
+
+    def __post_init__(self) -> None:
+        T = _array("lidar.T_cam_lidar", self.T_cam_lidar, (4, 4))
+        if not np.allclose(T[3], [0, 0, 0, 1]):
+            raise CalibrationError("expected last row [0, 0, 0, 1]", key="lidar.T_cam_lidar")
+        check_rotation("lidar.T_cam_lidar", T[:3, :3])
+        object.__setattr__(self, "T_cam_lidar", T)
+        object.__setattr__(self, "time_offset_ns", int(self.time_offset_ns))
