@@ -17,5 +17,5 @@ class CalibrationFileError(CalibrationError):
     """A calibration file is missing, unparsable or has a bad value."""
 
 
-class CalibrationFailed(CalibrationError):
+class CalibrationFailedError(CalibrationError):
     """A calibration could not be computed from the given views (too few, mismatched...)."""

@@ -76,8 +76,8 @@ class StereoCalibration:
                                    key="image_size")
         set_(self, "image_size", (w, h))
         R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
-            self.K_left, self.dist_left, self.K_right, self.dist_right, (w, h), self.R, self.T.reshape(3, 1),
-            flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
+            self.K_left, self.dist_left, self.K_right, self.dist_right, (w, h), self.R,
+            self.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
         set_(self, "rect", dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q))
 
     @classmethod
