@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--out", type=Path, default=Path("out"))
     demo.add_argument("--frames", type=_positive_int, default=3)
     demo.add_argument("--seed", type=int, default=1000)
+    from calibration.cli import add_parsers
+
+    add_parsers(sub)
     return parser
 
 
@@ -65,6 +68,10 @@ def main(argv: list[str] | None = None) -> int:
             from edge.sim.export import synth_command
 
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
+        if args.command == "calibrate":
+            from calibration.cli import run
+
+            return run(args)
         if args.command == "demo":
             from edge.demo import demo_command
 
