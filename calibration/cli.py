@@ -37,11 +37,12 @@ def add_parsers(sub) -> None:
     exp.add_argument("--calib", required=True, type=Path)
     exp.add_argument("--out-dir", required=True, type=Path)
 
-    lid = csub.add_parser("lidar", help="check and refine T_cam_lidar against stereo (SGBM)")
+    lid = csub.add_parser("lidar", help="check T_cam_lidar against stereo (SGBM)")
     lid.add_argument("--recording", required=True, type=Path,
                      help="scene folders (a folder of them) with lidar.npy")
     lid.add_argument("--calib", required=True, type=Path)
-    lid.add_argument("--out", type=Path, default=None, help="write the refined calibration")
+    lid.add_argument("--out", type=Path, default=None,
+                     help="also write the calibration (unchanged until refinement lands)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -15,9 +15,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from edge.errors import ConfigError
+from edge.sampling import sample_bilinear
 
 LEFT, RIGHT = "left", "right"
 
@@ -135,21 +137,6 @@ class Layer:
         return np.array([a1 * focal_px, a2 * focal_px, a0], np.float64)
 
 
-def _sample_wrapped(texture: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a tiled texture at float positions (N,); returns (N,) float32."""
-    import cv2
-
-    n = x.size
-    cols = 1024  # cv2.remap wants maps narrower than SHRT_MAX
-    rows = -(-n // cols)
-    map_x = np.zeros(rows * cols, np.float32)
-    map_y = np.zeros(rows * cols, np.float32)
-    map_x[:n], map_y[:n] = x, y
-    out = cv2.remap(texture, map_x.reshape(rows, cols), map_y.reshape(rows, cols),
-                    cv2.INTER_LINEAR, borderMode=cv2.BORDER_WRAP)
-    return out.ravel()[:n]
-
-
 class Scene:
     """A set of layers seen by a rig: renders views and answers visibility queries exactly."""
 
@@ -234,7 +221,8 @@ class Scene:
                 u_left = u_left + disparity[ys, xs]
             coords = layer.tex_affine @ np.stack([u_left, ys.astype(np.float64),
                                                   np.ones_like(u_left)])
-            sample = _sample_wrapped(self.textures[layer.texture], coords[0], coords[1])
+            sample = sample_bilinear(self.textures[layer.texture], coords[0], coords[1],
+                                     cv2.BORDER_WRAP)
             image[ys, xs] = layer.brightness + layer.contrast * sample
         return image
 

@@ -1,0 +1,53 @@
+"""`calibrate lidar`: LiDAR and SGBM disparities agree best at the true extrinsics."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+from calibration.extrinsics import disagreement, make_frame, pose_difference
+from calibration.io import save_calibration
+from calibration.model import LidarExtrinsics
+from edge.cli import main
+from edge.sim import RigConfig, make_sample
+
+
+def _perturbed(T, degrees, metres, seed=0):
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    dR, _ = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))
+    D = np.eye(4)
+    D[:3, :3] = dR
+    D[:3, 3] = rng.normal(size=3) / np.sqrt(3) * metres
+    return D @ T
+
+
+def test_disagreement_grows_when_the_extrinsics_are_wrong():
+    rig = RigConfig(width=320, height=200, focal_px=225.0, max_disparity_px=30.0)
+    samples = [make_sample(300 + i, rig, "beams64") for i in range(4)]
+    frames = [make_frame(s.left, s.right, s.scan.points) for s in samples]
+    calib, T = samples[0].calibration(), samples[0].T_cam_lidar
+    good = disagreement(frames, calib, T)
+    assert good["points"] > 1000
+    assert good["median_px"] < 0.5
+    for seed in range(3):
+        bad = disagreement(frames, calib, _perturbed(T, 2.0, 0.05, seed))
+        assert bad["median_px"] > 1.1 * good["median_px"]
+    angle, shift = pose_difference(_perturbed(T, 2.0, 0.0), T)
+    assert abs(angle - 2.0) < 1e-6 and shift < 1e-12
+
+
+def test_calibrate_lidar_command_reports_the_check(tmp_path, capsys):
+    assert main(["synth", "--out", str(tmp_path / "rec"), "--count", "2", "--size", "160x100",
+                 "--lidar", "beams64"]) == 0
+    sample = make_sample(0, RigConfig(width=160, height=100))
+    save_calibration(tmp_path / "c.toml", sample.calibration(),
+                     LidarExtrinsics(sample.T_cam_lidar))
+    assert main(["calibrate", "lidar", "--recording", str(tmp_path / "rec"), "--calib",
+                 str(tmp_path / "c.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "2 frames" in out and "median" in out and "p90" in out
+    save_calibration(tmp_path / "nolidar.toml", sample.calibration())
+    assert main(["calibrate", "lidar", "--recording", str(tmp_path / "rec"), "--calib",
+                 str(tmp_path / "nolidar.toml")]) == 1
+    assert "[lidar]" in capsys.readouterr().err
