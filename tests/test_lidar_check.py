@@ -33,8 +33,10 @@ def test_disagreement_grows_when_the_extrinsics_are_wrong():
     for seed in range(3):
         bad = disagreement(frames, calib, _perturbed(T, 2.0, 0.05, seed))
         assert bad["median_px"] > 1.1 * good["median_px"]
-    angle, shift = pose_difference(_perturbed(T, 2.0, 0.0), T)
-    assert abs(angle - 2.0) < 1e-6 and shift < 1e-12
+    angle, _ = pose_difference(_perturbed(T, 2.0, 0.0), T)
+    assert abs(angle - 2.0) < 1e-6
+    angle, shift = pose_difference(_perturbed(T, 0.0, 0.05), T)
+    assert angle < 1e-6 and abs(shift - 0.05) < 1e-9
 
 
 def test_calibrate_lidar_command_reports_the_check(tmp_path, capsys):
