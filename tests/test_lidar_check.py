@@ -18,7 +18,8 @@ def _perturbed(T, degrees, metres, seed=0):
     dR, _ = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))
     D = np.eye(4)
     D[:3, :3] = dR
-    D[:3, 3] = rng.normal(size=3) / np.sqrt(3) * metres
+    direction = rng.normal(size=3)
+    D[:3, 3] = direction / np.linalg.norm(direction) * metres
     return D @ T
 
 
