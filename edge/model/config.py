@@ -1,0 +1,52 @@
+"""Model configuration: a frozen dataclass validated on construction."""
+
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+from edge.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """widths: channels of the shared backbone at strides 2, 4, 8 (and 16 if downsample 8 uses
+    it); feature_dim: correlation features; hidden_dim: ConvGRU state; downsample: 4 or 8;
+    gru_levels: 1 or 2 (the second runs at half the GRU resolution); corr_levels and
+    corr_radius: pyramid depth and lookup radius (pixels of each level)."""
+
+    widths: tuple[int, ...] = (16, 32, 48)
+    feature_dim: int = 64
+    context_dim: int = 48
+    hidden_dim: int = 64
+    downsample: int = 8
+    gru_levels: int = 1
+    corr_levels: int = 4
+    corr_radius: int = 4
+    gru_iters: int = 4
+    cspn_steps: int = 4
+    use_cspn: bool = True
+    use_sparse: bool = True
+
+    def __post_init__(self) -> None:
+        if self.downsample not in (4, 8):
+            raise ConfigError("downsample", "4 or 8", self.downsample)
+        if len(self.widths) != 3 or min(self.widths) < 1:
+            raise ConfigError("widths", "three positive channel counts", self.widths)
+        if self.gru_levels not in (1, 2):
+            raise ConfigError("gru_levels", "1 or 2", self.gru_levels)
+        for key in ("feature_dim", "context_dim", "hidden_dim", "corr_levels", "gru_iters"):
+            if getattr(self, key) < 1:
+                raise ConfigError(key, ">= 1", getattr(self, key))
+        if self.corr_radius < 1 or self.cspn_steps < 0:
+            raise ConfigError("corr_radius/cspn_steps", ">= 1 / >= 0",
+                              (self.corr_radius, self.cspn_steps))
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+    @classmethod
+    def from_dict(cls, data: dict) -> ModelConfig:
+        data = dict(data)
+        if "widths" in data:
+            data["widths"] = tuple(data["widths"])
+        return cls(**data)

@@ -1,0 +1,101 @@
+"""The sparse-LiDAR-assisted RAFT-Stereo network (Zhao et al.), split for deployment.
+
+`encode` runs once per frame (features, correlation pyramid, context, affinity, sparse input at
+the GRU's resolution, and the first CSPN that seeds the disparity from the LiDAR); `step` is
+one update (lookup, GRU, d + Δd, CSPN with re-injection, upsampling mask); `upsample` is the
+convex upsampling to full resolution. `forward` chains them for training.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from edge.model.config import ModelConfig
+from edge.model.corr import correlation_pyramid, correlation_volume, lookup
+from edge.model.cspn import cspn, normalise_affinity
+from edge.model.extractor import Encoders
+from edge.model.update import UpdateBlock
+
+
+def downsample_sparse(sparse: torch.Tensor, valid: torch.Tensor, factor: int
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Full-resolution sparse disparity (B, 1, H, W) px -> mean of the valid points in each
+    factor x factor cell, in low-resolution pixels, and the cell's validity (0/1 float)."""
+    total = F.avg_pool2d(sparse * valid, factor) * factor * factor
+    count = F.avg_pool2d(valid, factor) * factor * factor
+    low_valid = (count > 0.5).to(sparse.dtype)
+    return total / count.clamp(min=1.0) / factor * low_valid, low_valid
+
+
+def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
+    """(B, 1, h, w) low-res disparity and (B, 9 f², h, w) mask logits -> (B, 1, f h, f w) in
+    full-resolution pixels. Softmax as exp / sum over the 9 weights (at most 5-D), then
+    depth-to-space, which ONNX Runtime runs far faster than a 7-D softmax."""
+    b, _, h, w = disparity.shape
+    logits = mask.view(b, 9, factor * factor, h, w)
+    weights = torch.exp(logits - logits.amax(1, keepdim=True))
+    weights = weights / weights.sum(1, keepdim=True)
+    patches = F.unfold(F.pad(disparity * factor, (1, 1, 1, 1), mode="replicate"), 3)
+    patches = patches.view(b, 9, 1, h, w)
+    up = (weights * patches).sum(1)  # (B, f², h, w)
+    return F.pixel_shuffle(up, factor)
+
+
+class SparseStereoNet(nn.Module):
+    def __init__(self, config: ModelConfig | None = None) -> None:
+        super().__init__()
+        self.config = cfg = config or ModelConfig()
+        self.encoders = Encoders(cfg.widths, cfg.downsample, cfg.feature_dim, cfg.hidden_dim,
+                                 cfg.context_dim)
+        corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
+        self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
+                                  cfg.downsample, cfg.gru_levels)
+
+    def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
+               valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
+        """Images (B, 1, H, W) grey 0-255; sparse (B, 1, H, W) px, valid (B, 1, H, W) 0/1."""
+        cfg = self.config
+        f_l, f_r, hidden, context, affinity = self.encoders(left, right)
+        pyramid = correlation_pyramid(correlation_volume(f_l, f_r), cfg.corr_levels)
+        weights, centre = normalise_affinity(affinity)
+        sparse_low, valid_low = downsample_sparse(sparse, valid, cfg.downsample)
+        disparity = torch.zeros_like(sparse_low)
+        disparity = self._propagate(disparity, weights, centre, sparse_low, valid_low)
+        hidden_low = F.avg_pool2d(hidden, 2) if cfg.gru_levels == 2 else hidden[:, :0]
+        return dict(pyramid=pyramid, hidden=hidden, hidden_low=hidden_low, context=context,
+                    weights=weights, centre=centre, sparse=sparse_low, valid=valid_low,
+                    disparity=disparity)
+
+    def _propagate(self, d, weights, centre, sparse, valid):
+        cfg = self.config
+        if not cfg.use_sparse:
+            sparse = valid = None
+        if cfg.use_cspn:
+            return cspn(d, weights, centre, cfg.cspn_steps, sparse, valid)
+        if sparse is not None:
+            return (1 - valid) * d + valid * sparse
+        return d
+
+    def step(self, state: dict, disparity: torch.Tensor, hidden: torch.Tensor,
+             hidden_low: torch.Tensor):
+        """One GRU iteration; returns (disparity, hidden, hidden_low, upsampling mask)."""
+        corr = lookup(state["pyramid"], disparity, self.config.corr_radius)
+        hidden, hidden_low, delta, mask = self.update(hidden, hidden_low, state["context"],
+                                                      corr, disparity)
+        disparity = self._propagate(disparity + delta, state["weights"], state["centre"],
+                                    state["sparse"], state["valid"])
+        return disparity, hidden, hidden_low, mask
+
+    def forward(self, left, right, sparse, valid, iters: int | None = None
+                ) -> list[torch.Tensor]:
+        """Full-resolution disparity (B, 1, H, W) px after each of `iters` GRU steps."""
+        iters = self.config.gru_iters if iters is None else iters
+        state = self.encode(left, right, sparse, valid)
+        d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
+        outputs = []
+        for _ in range(iters):
+            d, h, hl, mask = self.step(state, d, h, hl)
+            outputs.append(convex_upsample(d, mask, self.config.downsample))
+        return outputs

@@ -1,0 +1,66 @@
+"""The update operator: motion encoder, ConvGRU and the heads for Δd and the upsampling mask."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+
+class ConvGRU(nn.Module):
+    def __init__(self, hidden_dim: int, input_dim: int) -> None:
+        super().__init__()
+        self.convzr = nn.Conv2d(hidden_dim + input_dim, 2 * hidden_dim, 3, 1, 1)
+        self.convq = nn.Conv2d(hidden_dim + input_dim, hidden_dim, 3, 1, 1)
+
+    def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+        hx = torch.cat([h, x], 1)
+        z, r = torch.sigmoid(self.convzr(hx)).chunk(2, 1)
+        q = torch.tanh(self.convq(torch.cat([r * h, x], 1)))
+        return (1 - z) * h + z * q
+
+
+class MotionEncoder(nn.Module):
+    def __init__(self, corr_channels: int, out_dim: int) -> None:
+        super().__init__()
+        self.corr = nn.Conv2d(corr_channels, 64, 1)
+        self.disp = nn.Conv2d(1, 16, 7, 1, 3)
+        self.out = nn.Conv2d(64 + 16, out_dim - 1, 3, 1, 1)
+
+    def forward(self, corr: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+        c = F.relu(self.corr(corr))
+        d = F.relu(self.disp(disparity))
+        return torch.cat([F.relu(self.out(torch.cat([c, d], 1))), disparity], 1)
+
+
+class UpdateBlock(nn.Module):
+    """One GRU step: (hidden, context, correlation features, disparity) -> hidden, Δd, mask.
+
+    gru_levels 2 adds a GRU at half resolution whose state feeds the full one.
+    """
+
+    def __init__(self, hidden_dim: int, context_dim: int, corr_channels: int, factor: int,
+                 gru_levels: int = 1) -> None:
+        super().__init__()
+        motion_dim = 64
+        self.motion = MotionEncoder(corr_channels, motion_dim)
+        self.gru_levels = gru_levels
+        extra = hidden_dim if gru_levels == 2 else 0
+        self.gru = ConvGRU(hidden_dim, motion_dim + context_dim + extra)
+        if gru_levels == 2:
+            self.gru_low = ConvGRU(hidden_dim, motion_dim + context_dim)
+        self.delta = nn.Sequential(nn.Conv2d(hidden_dim, 64, 3, 1, 1), nn.ReLU(),
+                                   nn.Conv2d(64, 1, 3, 1, 1))
+        self.mask = nn.Sequential(nn.Conv2d(hidden_dim, 64, 3, 1, 1), nn.ReLU(),
+                                  nn.Conv2d(64, 9 * factor * factor, 1))
+
+    def forward(self, hidden, hidden_low, context, corr, disparity):
+        motion = self.motion(corr, disparity)
+        x = torch.cat([motion, context], 1)
+        if self.gru_levels == 2:
+            hidden_low = self.gru_low(hidden_low, F.avg_pool2d(x, 2))
+            up = F.interpolate(hidden_low, size=hidden.shape[-2:], mode="bilinear",
+                               align_corners=False)
+            x = torch.cat([x, up], 1)
+        hidden = self.gru(hidden, x)
+        return hidden, hidden_low, self.delta(hidden), 0.25 * self.mask(hidden)

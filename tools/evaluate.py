@@ -1,0 +1,158 @@
+"""Evaluate disparity methods on scene folders against their ground truth, in one run.
+
+    python tools/evaluate.py DATA_DIR [--model CHECKPOINT] [--methods net,sgbm,lidar-nearest,
+        lidar-linear] [--iters 4] [--json OUT] [--plot OUT.png]
+
+Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
+focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
+`ms` is the median time per pair. `--iters 1,2,4,8` evaluates the network at each count
+(keys net@1, net@2, ...) and plots the EPE-vs-iterations curve with --plot.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge.baselines import lidar_linear, lidar_nearest, make_sgbm, sgbm_disparity  # noqa: E402
+from edge.metrics import depth_metrics, disparity_metrics  # noqa: E402
+from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
+
+METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
+
+
+class TorchNet:
+    """A training checkpoint run with PyTorch (the training extra)."""
+
+    def __init__(self, path: Path) -> None:
+        import torch
+
+        from edge.model.config import ModelConfig
+        from edge.model.network import SparseStereoNet
+
+        ckpt = torch.load(path, map_location="cpu", weights_only=False)
+        self.net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
+        self.net.load_state_dict(ckpt["model"])
+        self.net.eval()
+        self.torch = torch
+
+    def __call__(self, left, right, sparse, iters: int) -> np.ndarray:
+        torch = self.torch
+        f = self.net.config.downsample
+        h, w = left.shape
+        ph, pw = -h % f, -w % f  # pad to a multiple of the downsample factor
+        def t(a):  # noqa: E306
+            a = np.pad(a.astype(np.float32), ((0, ph), (0, pw)), mode="edge")
+            return torch.from_numpy(a)[None, None]
+        valid = (sparse > 0).astype(np.float32)
+        with torch.no_grad():
+            out = self.net(t(left), t(right), t(sparse * valid), t(valid), iters)[-1]
+        return out[0, 0, :h, :w].numpy()
+
+
+def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
+             model: Path | None) -> dict[str, dict[str, float]]:
+    net = TorchNet(model) if "net" in methods else None
+    sgbm = make_sgbm()
+    per_method: dict[str, list[dict]] = {}
+    for folder in folders:
+        scene = read_scene_folder(folder)
+        if scene.disp is None or scene.sparse is None:
+            raise SystemExit(f"{folder}: needs disp.pfm and sparse.pfm")
+        valid = scene.sparse > 0
+        runs = []
+        for method in methods:
+            if method == "net":
+                for iters in iters_list:
+                    runs.append((f"net@{iters}" if len(iters_list) > 1 else "net",
+                                 lambda it=iters: net(scene.left, scene.right, scene.sparse,
+                                                      it)))
+            elif method == "sgbm":
+                runs.append(("sgbm", lambda: sgbm_disparity(scene.left, scene.right, sgbm)))
+            elif method == "lidar-nearest":
+                runs.append((method, lambda: lidar_nearest(scene.sparse, valid)))
+            elif method == "lidar-linear":
+                runs.append((method, lambda: lidar_linear(scene.sparse, valid)))
+        for name, run in runs:
+            start = time.perf_counter()
+            pred = run()
+            ms = (time.perf_counter() - start) * 1000
+            m = disparity_metrics(pred, scene.disp)
+            if "focal_px" in scene.meta and "baseline_m" in scene.meta:
+                m.update(depth_metrics(pred, scene.disp, scene.meta["focal_px"],
+                                       scene.meta["baseline_m"]))
+            m["ms"] = ms
+            per_method.setdefault(name, []).append(m)
+    summary = {}
+    for name, rows in per_method.items():
+        summary[name] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "ms"}
+        summary[name]["ms"] = float(np.median([r["ms"] for r in rows]))
+        summary[name]["samples"] = len(rows)
+    return summary
+
+
+def markdown_table(summary: dict[str, dict[str, float]]) -> str:
+    cols = ["epe", "bad1", "bad2", "bad3", "density", "rmse_mm", "mae_mm", "irmse", "imae",
+            "ms"]
+    cols = [c for c in cols if any(c in v for v in summary.values())]
+    lines = ["| method | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
+    for name, m in summary.items():
+        lines.append(f"| {name} | " + " | ".join(f"{m.get(c, float('nan')):.2f}" for c in cols)
+                     + " |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("data", type=Path, help="a scene folder or a folder of them")
+    p.add_argument("--model", type=Path, default=None, help="training checkpoint (.pt)")
+    p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
+    p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
+    args = p.parse_args(argv)
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        p.error(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+    try:
+        iters_list = [int(v) for v in args.iters.split(",")]
+    except ValueError:
+        p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
+    if "net" in methods and args.model is None:
+        p.error("--model is needed for the net method (no shipped model yet)")
+    folders = list_scene_folders(args.data)
+    if not folders:
+        p.error(f"no scene folders under {args.data}")
+    summary = evaluate(folders, methods, iters_list, args.model)
+    print(markdown_table(summary))
+    if args.json:
+        args.json.write_text(json.dumps(summary, indent=2))
+    if args.plot and "net" in methods:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        keys = [f"net@{i}" if len(iters_list) > 1 else "net" for i in iters_list]
+        fig, ax = plt.subplots(figsize=(5, 3.5))
+        ax.plot(iters_list, [summary[k]["epe"] for k in keys], marker="o", label="net")
+        for base in ("sgbm", "lidar-nearest", "lidar-linear"):
+            if base in summary:
+                ax.axhline(summary[base]["epe"], ls="--", label=base, color=None)
+        ax.set(xlabel="GRU iterations", ylabel="EPE (px)", xscale="log", title=str(args.data))
+        ax.legend()
+        fig.tight_layout()
+        fig.savefig(args.plot, dpi=90)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

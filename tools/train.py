@@ -1,0 +1,202 @@
+"""Train the sparse-LiDAR stereo network on the synthetic rig (supervised or self-supervised).
+
+    python tools/train.py --out runs/sup --steps 6000 [--mode supervised|self]
+        [--split half2] [--resume] [--init CHECKPOINT]
+
+Checkpoints (`last.pt`, every --ckpt-every steps) make long runs resumable; metrics go to
+`metrics.csv` and `loss.png` in the output folder.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import time
+from pathlib import Path
+
+import torch
+from torch.utils.data import DataLoader
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from edge.model.config import ModelConfig  # noqa: E402
+from edge.model.data import VAL_SEED0, FixedSplit, SyntheticTrainSet  # noqa: E402
+from edge.model.losses import (  # noqa: E402
+    self_supervised_loss,
+    sequence_loss,
+    split_sparse,
+    view_loss,
+)
+from edge.model.network import SparseStereoNet  # noqa: E402
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--steps", type=int, default=6000)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--crop", default="320x192")
+    p.add_argument("--lr", type=float, default=2e-4)
+    p.add_argument("--iters", type=int, default=6, help="GRU iterations while training")
+    p.add_argument("--mode", choices=["supervised", "self"], default="supervised")
+    p.add_argument("--split", choices=["all", "half1", "half2"], default="half2")
+    p.add_argument("--no-cspn", action="store_true")
+    p.add_argument("--no-sparse", action="store_true")
+    p.add_argument("--patterns", default="beams16")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--ckpt-every", type=int, default=250)
+    p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
+    p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
+    p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
+    return p.parse_args(argv)
+
+
+def self_supervised_step(net, batch, split: str, iters: int):
+    """The paper's loss on the left view and on the flipped, swapped pair for the right."""
+    inp_l, sup_l = split_sparse(batch["valid"], split)
+    inp_r, sup_r = split_sparse(batch["valid_right"], split)
+    preds_l = net(batch["left"], batch["right"], batch["sparse"] * inp_l, inp_l, iters)
+    flip = lambda t: torch.flip(t, [-1])  # noqa: E731
+    preds_r = net(flip(batch["right"]), flip(batch["left"]), flip(batch["sparse_right"] * inp_r),
+                  flip(inp_r), iters)
+    total, terms = 0.0, {}
+    n = len(preds_l)
+    for i, (d_l, d_r_flipped) in enumerate(zip(preds_l, preds_r, strict=True)):
+        d_r = flip(d_r_flipped)
+        t_l = view_loss(batch["left"], batch["right"], d_l, d_r, batch["sparse"], sup_l, -1.0)
+        t_r = view_loss(batch["right"], batch["left"], d_r, d_l, batch["sparse_right"], sup_r,
+                        1.0)
+        loss, terms = self_supervised_loss(t_l, t_r)
+        total = total + 0.9 ** (n - 1 - i) * loss
+    return total, {k: float(v) for k, v in terms.items()}, preds_l[-1]
+
+
+def validate(net, iters: int, count: int = 8) -> dict[str, float]:
+    net.eval()
+    epes, bad3 = [], []
+    with torch.no_grad():
+        for item in FixedSplit(VAL_SEED0, count):
+            batch = {k: v[None] for k, v in item.items()}
+            pred = net(batch["left"], batch["right"], batch["sparse"], batch["valid"], iters)[-1]
+            err = (pred - batch["gt"]).abs()
+            epes.append(float(err.mean()))
+            bad3.append(float((err > 3).float().mean() * 100))
+    net.train()
+    return dict(val_epe=sum(epes) / len(epes), val_bad3=sum(bad3) / len(bad3))
+
+
+def plot_metrics(csv_path: Path, png_path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    with open(csv_path) as f:
+        rows = list(csv.DictReader(f))
+    if not rows:
+        return
+    steps = [int(r["step"]) for r in rows]
+    fig, ax = plt.subplots(1, 2, figsize=(10, 4))
+    ax[0].plot(steps, [float(r["loss"]) for r in rows])
+    ax[0].set(xlabel="step", ylabel="loss", yscale="log", title="training loss")
+    val = [(int(r["step"]), float(r["val_epe"])) for r in rows if r.get("val_epe")]
+    if val:
+        ax[1].plot(*zip(*val, strict=True), marker="o")
+    ax[1].set(xlabel="step", ylabel="EPE (px)", title="validation EPE (8 scenes)")
+    fig.tight_layout()
+    fig.savefig(png_path, dpi=80)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    from tqdm import tqdm
+
+    args.out.mkdir(parents=True, exist_ok=True)
+    # denormal floats (early training, tiny activations) make CPU convolutions crawl
+    torch.set_flush_denormal(True)
+    cw, ch = (int(v) for v in args.crop.split("x"))
+    config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
+                         use_sparse=not args.no_sparse)
+    net = SparseStereoNet(config)
+    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-5)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, args.lr, total_steps=args.steps + 100,
+                                                pct_start=0.05, anneal_strategy="linear")
+    step = 0
+    last = args.out / "last.pt"
+    if args.resume and last.exists():
+        ckpt = torch.load(last, weights_only=False)
+        net.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        sched.load_state_dict(ckpt["scheduler"])
+        step = ckpt["step"]
+        print(f"resumed from {last} at step {step}")
+    elif args.init is not None:
+        ckpt = torch.load(args.init, weights_only=False)
+        net.load_state_dict(ckpt["model"])
+        print(f"initialised from {args.init}")
+    data = SyntheticTrainSet(seed=args.seed * 1000 + step, crop=(cw, ch),
+                             patterns=tuple(args.patterns.split(",")))
+    loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
+    log_path = args.out / "metrics.csv"
+    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "epe", "val_epe",
+              "val_bad3", "lr_now", "seconds"]
+    new_log = not log_path.exists() or step == 0
+    log = open(log_path, "w" if new_log else "a", newline="")
+    writer = csv.DictWriter(log, fieldnames=fields)
+    if new_log:
+        writer.writeheader()
+
+    def save(path: Path) -> None:
+        tmp = path.with_suffix(".tmp")
+        torch.save(dict(model=net.state_dict(), optimizer=opt.state_dict(),
+                        scheduler=sched.state_dict(), step=step, config=config.to_dict(),
+                        args=vars(args) | {"out": str(args.out), "init": str(args.init)}), tmp)
+        tmp.replace(path)
+
+    net.train()
+    bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True)
+    start = time.time()
+    while step < args.steps:
+        batch = next(loader)
+        if args.mode == "supervised":
+            preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
+                        args.iters)
+            loss = sequence_loss(preds, batch["gt"], torch.ones_like(batch["gt"]))
+            terms, final = {}, preds[-1]
+        else:
+            loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
+        if not math.isfinite(float(loss.detach())):
+            print(f"step {step}: non-finite loss, batch skipped", file=sys.stderr)
+            continue
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        sched.step()
+        step += 1
+        epe = float((final.detach() - batch["gt"]).abs().mean())
+        row = dict(step=step, loss=float(loss.detach()), epe=epe, lr_now=sched.get_last_lr()[0],
+                   seconds=round(time.time() - start, 1), **terms)
+        if args.val_every and (step % args.val_every == 0 or step == args.steps):
+            row.update(validate(net, 4))
+        writer.writerow(row)
+        log.flush()
+        bar.update(1)
+        bar.set_postfix(loss=f"{float(loss.detach()):.3f}", epe=f"{epe:.2f}",
+                        **{k: f"{v:.3f}" for k, v in terms.items()})
+        if step % args.ckpt_every == 0 or step == args.steps:
+            save(last)
+    bar.close()
+    log.close()
+    save(args.out / "final.pt")
+    plot_metrics(log_path, args.out / "loss.png")
+    print(f"done: {step} steps, checkpoint {args.out / 'final.pt'}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
