@@ -67,22 +67,24 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
         if scene.disp is None or scene.sparse is None:
             raise SystemExit(f"{folder}: needs disp.pfm and sparse.pfm")
         valid = scene.sparse > 0
-        runs = []
+        runs = []  # (name, method, iterations)
         for method in methods:
             if method == "net":
                 for iters in iters_list:
-                    runs.append((f"net@{iters}" if len(iters_list) > 1 else "net",
-                                 lambda it=iters: net(scene.left, scene.right, scene.sparse,
-                                                      it)))
-            elif method == "sgbm":
-                runs.append(("sgbm", lambda: sgbm_disparity(scene.left, scene.right, sgbm)))
-            elif method == "lidar-nearest":
-                runs.append((method, lambda: lidar_nearest(scene.sparse, valid)))
-            elif method == "lidar-linear":
-                runs.append((method, lambda: lidar_linear(scene.sparse, valid)))
-        for name, run in runs:
+                    runs.append((f"net@{iters}" if len(iters_list) > 1 else "net", method,
+                                 iters))
+            else:
+                runs.append((method, method, 0))
+        for name, method, iters in runs:
             start = time.perf_counter()
-            pred = run()
+            if method == "net":
+                pred = net(scene.left, scene.right, scene.sparse, iters)
+            elif method == "sgbm":
+                pred = sgbm_disparity(scene.left, scene.right, sgbm)
+            elif method == "lidar-nearest":
+                pred = lidar_nearest(scene.sparse, valid)
+            else:
+                pred = lidar_linear(scene.sparse, valid)
             ms = (time.perf_counter() - start) * 1000
             m = disparity_metrics(pred, scene.disp)
             if "focal_px" in scene.meta and "baseline_m" in scene.meta:
