@@ -55,3 +55,15 @@ def test_evaluate_reports_every_method_and_writes_json(tmp_path, capsys):
     assert summary["lidar-nearest"]["density"] == 100.0
     assert "| sgbm |" in capsys.readouterr().out
     assert (tmp_path / "curve.png").stat().st_size > 0
+
+
+def test_bench_reports_medians_for_each_stage(tmp_path):
+    from tools import bench
+
+    out = tmp_path / "bench.json"
+    assert bench.main(["--size", "160x100", "--repeat", "3", "--json", str(out)]) == 0
+    result = json.loads(out.read_text())
+    for stage in ("rectify", "project_filter", "sgbm"):
+        assert result[stage]["runs"] == 3
+        assert 0 < result[stage]["median_ms"] <= result[stage]["p95_ms"]
+    assert result["sgbm_ms"] == result["sgbm"]["median_ms"] and result["points"] > 0
