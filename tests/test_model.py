@@ -181,7 +181,7 @@ def test_a_few_steps_on_one_batch_reduce_the_loss():
     from edge.sim import RigConfig, make_sample
 
     rig = RigConfig(width=128, height=64, focal_px=90.0, max_disparity_px=20.0)
-    arrays = sample_to_arrays(make_sample(1, rig), 1)
+    arrays = sample_to_arrays(make_sample(1, rig))
     batch = {k: v[None] for k, v in to_tensors(arrays, None, np.random.default_rng(0),
                                                 False).items()}
     net = SparseStereoNet(ModelConfig(gru_iters=3))

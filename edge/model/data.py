@@ -18,7 +18,8 @@ VAL_SEED0 = 2_000_000
 TRAIN_SEED_LIMIT = 1_000_000
 
 
-def sample_to_arrays(sample, lidar_split_seed: int) -> dict[str, np.ndarray]:
+def sample_to_arrays(sample) -> dict[str, np.ndarray]:
+    """Left/right images, GT disparities and filtered sparse LiDAR of both views, as arrays."""
     sparse_l, valid_l = sample.sparse_disparity("left")
     sparse_r, valid_r = sample.sparse_disparity("right")
     return dict(left=sample.left, right=sample.right, gt=sample.disp_left,
@@ -68,7 +69,7 @@ class SyntheticTrainSet(IterableDataset):
             scene_seed = int(rng.integers(0, TRAIN_SEED_LIMIT))
             pattern = self.patterns[int(rng.integers(len(self.patterns)))]
             sample = make_sample(scene_seed, self.rig, pattern)
-            yield to_tensors(sample_to_arrays(sample, scene_seed), self.crop, rng, self.augment)
+            yield to_tensors(sample_to_arrays(sample), self.crop, rng, self.augment)
 
 
 class FixedSplit(Dataset):
@@ -84,4 +85,4 @@ class FixedSplit(Dataset):
 
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         sample = make_sample(self.first_seed + i, self.rig, self.pattern)
-        return to_tensors(sample_to_arrays(sample, i), None, np.random.default_rng(0), False)
+        return to_tensors(sample_to_arrays(sample), None, np.random.default_rng(0), False)

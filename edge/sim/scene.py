@@ -131,7 +131,7 @@ class Layer:
         return (float(self.vertices[:, 0].min()), float(self.vertices[:, 0].max()),
                 float(self.vertices[:, 1].min()), float(self.vertices[:, 1].max()))
 
-    def plane_normal(self, focal_px: float, cx: float, cy: float) -> np.ndarray:
+    def plane_normal(self, focal_px: float) -> np.ndarray:
         """n with n . P = f B for points P (metres, left camera frame) on this plane."""
         a0, a1, a2 = self.plane
         return np.array([a1 * focal_px, a2 * focal_px, a0], np.float64)
@@ -233,7 +233,7 @@ class Scene:
         f, cx, cy, b = self.rig.focal_px, self.rig.cx, self.rig.cy, self.rig.baseline_m
         best = np.full(len(directions), np.inf)
         for layer in self.layers:
-            n = layer.plane_normal(f, cx, cy)
+            n = layer.plane_normal(f)
             denom = directions @ n
             with np.errstate(divide="ignore", invalid="ignore"):
                 t = (f * b - n @ origin) / denom
