@@ -7,7 +7,13 @@ import pytest
 import torch
 
 from edge.model.config import ModelConfig
-from edge.model.corr import correlation_pyramid, correlation_volume, lookup
+from edge.model.corr import (
+    correlation_pyramid,
+    correlation_volume,
+    flatten_pyramid,
+    lookup,
+    lookup_flat,
+)
 from edge.model.cspn import cspn, neighbours, normalise_affinity
 from edge.model.losses import (
     occlusion_from_range_map,
@@ -40,6 +46,17 @@ def test_pyramid_pools_by_two_and_lookup_interpolates_linearly():
     # outside the row the correlation is zero
     far = lookup(pyramid, torch.full((1, 1, 1, 8), 20.0), radius=1)
     assert float(far.abs().max()) == 0.0
+
+
+def test_single_gather_lookup_equals_the_per_level_lookup():
+    g = torch.Generator().manual_seed(3)
+    pyramid = correlation_pyramid(torch.randn(2, 3, 21, 21, generator=g), 4)
+    # disparities inside, at the edges of and far outside the row, negative included
+    disparity = torch.empty(2, 1, 3, 21).uniform_(-30, 30, generator=g)
+    disparity[0, 0, 0, :5] = torch.tensor([0.0, 1.0, 20.0, 21.0, -1.0])
+    expected = lookup(pyramid, disparity, radius=3)
+    got = lookup_flat(flatten_pyramid(pyramid), disparity, radius=3, levels=4)
+    torch.testing.assert_close(got, expected, atol=1e-5, rtol=1e-5)
 
 
 def test_cspn_follows_the_equations_on_a_hand_built_case():

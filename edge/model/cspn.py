@@ -19,13 +19,20 @@ def normalise_affinity(affinity: torch.Tensor, eps: float = 1e-6
     return weights, 1.0 - weights.sum(1, keepdim=True)
 
 
-def neighbours(d: torch.Tensor) -> torch.Tensor:
-    """(B, 1, H, W) -> (B, 8, H, W): the 3x3 neighbourhood without its centre, in row-major
-    order (-1,-1), (-1,0), (-1,1), (0,-1), (0,1), (1,-1), (1,0), (1,1); borders replicate."""
-    b, _, h, w = d.shape
+def patches_3x3(d: torch.Tensor, centre: bool = True) -> torch.Tensor:
+    """(B, 1, H, W) -> (B, 9, H, W) (or 8 without the centre): the 3x3 neighbourhood in
+    row-major order (-1,-1), (-1,0), (-1,1), (0,-1), [(0,0)], (0,1), (1,-1), (1,0), (1,1);
+    borders replicate. Slices of the padded map, which export to ONNX as Slice ops (F.unfold
+    becomes a chain of Gathers several times slower in ONNX Runtime)."""
+    h, w = d.shape[-2:]
     padded = F.pad(d, (1, 1, 1, 1), mode="replicate")
-    patches = F.unfold(padded, 3).view(b, 9, h, w)
-    return torch.cat([patches[:, :4], patches[:, 5:]], 1)
+    shifts = [(dy, dx) for dy in range(3) for dx in range(3) if centre or (dy, dx) != (1, 1)]
+    return torch.cat([padded[:, :, dy:dy + h, dx:dx + w] for dy, dx in shifts], 1)
+
+
+def neighbours(d: torch.Tensor) -> torch.Tensor:
+    """(B, 1, H, W) -> (B, 8, H, W): the 3x3 neighbourhood without its centre."""
+    return patches_3x3(d, centre=False)
 
 
 def cspn(d: torch.Tensor, weights: torch.Tensor, centre: torch.Tensor, steps: int,

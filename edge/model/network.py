@@ -13,8 +13,13 @@ from torch import nn
 from torch.nn import functional as F
 
 from edge.model.config import ModelConfig
-from edge.model.corr import correlation_pyramid, correlation_volume, lookup
-from edge.model.cspn import cspn, normalise_affinity
+from edge.model.corr import (
+    correlation_pyramid,
+    correlation_volume,
+    flatten_pyramid,
+    lookup_flat,
+)
+from edge.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge.model.extractor import Encoders
 from edge.model.update import UpdateBlock
 
@@ -31,15 +36,16 @@ def downsample_sparse(sparse: torch.Tensor, valid: torch.Tensor, factor: int
 
 def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
     """(B, 1, h, w) low-res disparity and (B, 9 f², h, w) mask logits -> (B, 1, f h, f w) in
-    full-resolution pixels. Softmax as exp / sum over the 9 weights (at most 5-D), then
-    depth-to-space, which ONNX Runtime runs far faster than a 7-D softmax."""
+    full-resolution pixels: a softmax over the 9 neighbours' weights, then depth-to-space.
+
+    Written for ONNX Runtime, where a 7-D softmax is slow: at most 5-D; logits clipped to
+    ±30 instead of subtracting their maximum (the same softmax unless a logit leaves that
+    range, and exp(30) · 9 is far from overflow); normalised after the weighted sum, so the
+    division runs on f² channels rather than 9 f²."""
     b, _, h, w = disparity.shape
-    logits = mask.view(b, 9, factor * factor, h, w)
-    weights = torch.exp(logits - logits.amax(1, keepdim=True))
-    weights = weights / weights.sum(1, keepdim=True)
-    patches = F.unfold(F.pad(disparity * factor, (1, 1, 1, 1), mode="replicate"), 3)
-    patches = patches.view(b, 9, 1, h, w)
-    up = (weights * patches).sum(1)  # (B, f², h, w)
+    weights = torch.exp(mask.view(b, 9, factor * factor, h, w).clamp(-30.0, 30.0))
+    patches = patches_3x3(disparity * factor).view(b, 9, 1, h, w)
+    up = (weights * patches).sum(1) / weights.sum(1)  # (B, f², h, w)
     return F.pixel_shuffle(up, factor)
 
 
@@ -58,13 +64,14 @@ class SparseStereoNet(nn.Module):
         """Images (B, 1, H, W) grey 0-255; sparse (B, 1, H, W) px, valid (B, 1, H, W) 0/1."""
         cfg = self.config
         f_l, f_r, hidden, context, affinity = self.encoders(left, right)
-        pyramid = correlation_pyramid(correlation_volume(f_l, f_r), cfg.corr_levels)
+        corr = flatten_pyramid(correlation_pyramid(correlation_volume(f_l, f_r),
+                                                   cfg.corr_levels))
         weights, centre = normalise_affinity(affinity)
         sparse_low, valid_low = downsample_sparse(sparse, valid, cfg.downsample)
         disparity = torch.zeros_like(sparse_low)
         disparity = self._propagate(disparity, weights, centre, sparse_low, valid_low)
         hidden_low = F.avg_pool2d(hidden, 2) if cfg.gru_levels == 2 else hidden[:, :0]
-        return dict(pyramid=pyramid, hidden=hidden, hidden_low=hidden_low, context=context,
+        return dict(corr=corr, hidden=hidden, hidden_low=hidden_low, context=context,
                     weights=weights, centre=centre, sparse=sparse_low, valid=valid_low,
                     disparity=disparity)
 
@@ -81,7 +88,8 @@ class SparseStereoNet(nn.Module):
     def step(self, state: dict, disparity: torch.Tensor, hidden: torch.Tensor,
              hidden_low: torch.Tensor):
         """One GRU iteration; returns (disparity, hidden, hidden_low, upsampling mask)."""
-        corr = lookup(state["pyramid"], disparity, self.config.corr_radius)
+        cfg = self.config
+        corr = lookup_flat(state["corr"], disparity, cfg.corr_radius, cfg.corr_levels)
         hidden, hidden_low, delta, mask = self.update(hidden, hidden_low, state["context"],
                                                       corr, disparity)
         disparity = self._propagate(disparity + delta, state["weights"], state["centre"],

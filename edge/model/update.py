@@ -63,4 +63,7 @@ class UpdateBlock(nn.Module):
                                align_corners=False)
             x = torch.cat([x, up], 1)
         hidden = self.gru(hidden, x)
-        return hidden, hidden_low, self.delta(hidden), 0.25 * self.mask(hidden)
+        return hidden, hidden_low, self.delta(hidden), self.upsampling_mask(hidden)
+
+    def upsampling_mask(self, hidden: torch.Tensor) -> torch.Tensor:
+        return 0.25 * self.mask(hidden)

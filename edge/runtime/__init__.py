@@ -1,0 +1,1 @@
+"""Robot-side inference: ONNX Runtime only, never torch."""

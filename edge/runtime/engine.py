@@ -1,0 +1,145 @@
+"""The budgeted inference engine: an exported bundle run with ONNX Runtime, no torch.
+
+The encoder runs once per frame, the update step up to `iters` times, the convex upsampling
+once after the last step. With a deadline, the engine stops iterating when the next step,
+predicted from this frame's steps so far plus the upsampling time of earlier frames, would
+finish after it; it always runs at least one step.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from edge.errors import ConfigError, InvalidDataError
+from edge.types import DepthResult
+
+DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
+MIN_DISPARITY = 0.5  # px: below this the depth is reported invalid (beyond f·B/0.5)
+
+
+def load_bundle_meta(bundle: Path) -> dict:
+    path = Path(bundle) / "model.json"
+    if not path.is_file():
+        raise ConfigError("bundle", "a directory with model.json (tools/export.py)", str(bundle))
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ConfigError("bundle", f"valid JSON in {path}", str(exc)) from None
+
+
+class Engine:
+    """`Engine(bundle, precision='int8', threads=2)`; `infer(left, right, sparse)`."""
+
+    def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
+                 threads: int = 2, meta: dict | None = None) -> None:
+        import onnxruntime as ort
+
+        self.bundle = Path(bundle)
+        self.meta = meta or load_bundle_meta(self.bundle)
+        files = self.meta["precisions"].get(precision)
+        if files is None:
+            raise ConfigError("precision", f"one of {sorted(self.meta['precisions'])}",
+                              precision)
+        self.precision = precision
+        self.width, self.height = self.meta["size"]
+        self.downsample = int(self.meta["downsample"])
+        self.default_iters = int(self.meta.get("default_iters", 4))
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        # three sessions take turns: a pool spinning after its call would steal the cores
+        # from the next one (DESIGN.md)
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        providers = ["CPUExecutionProvider"]
+        self.sessions = {part: ort.InferenceSession(str(self.bundle / name), opts,
+                                                    providers=providers)
+                         for part, name in files.items()}
+        self._enc_outputs = [o.name for o in self.sessions["encoder"].get_outputs()]
+        shape = (1, 1, self.height, self.width)
+        self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
+                                                                 "valid")}
+        self._upsample_ms = 0.0  # running estimate for the deadline
+
+    @property
+    def size(self) -> tuple[int, int]:
+        return self.width, self.height
+
+    def infer(self, left: np.ndarray, right: np.ndarray, sparse: np.ndarray,
+              iters: int | None = None, deadline_ms: float | None = None,
+              focal_px: float | None = None, baseline_m: float | None = None,
+              stamp_ns: int = 0, started: float | None = None,
+              record: dict[str, list] | None = None) -> DepthResult:
+        """Rectified grey pair (H, W) and sparse disparity (H, W, px, 0 = none) -> DepthResult.
+
+        `started` (time.perf_counter()) is when the deadline's clock began; default now.
+        `record`, if given, collects each graph's input feeds (quantization calibration)."""
+        t0 = time.perf_counter() if started is None else started
+        iters = self.default_iters if iters is None else int(iters)
+        if iters < 1:
+            raise ConfigError("iters", ">= 1", iters)
+        for name, image in (("left", left), ("right", right), ("sparse", sparse)):
+            if image.shape != (self.height, self.width):
+                raise InvalidDataError(f"{name} image", f"{self.height}x{self.width} (H, W), "
+                                       "the bundle's input size", image.shape)
+        buf = self._inputs
+        np.copyto(buf["left"][0, 0], left, casting="unsafe")
+        np.copyto(buf["right"][0, 0], right, casting="unsafe")
+        finite = np.isfinite(sparse) & (sparse > 0)
+        np.copyto(buf["valid"][0, 0], finite, casting="unsafe")
+        np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
+
+        def feed(part: str, feeds: dict) -> dict:
+            if record is not None:
+                record.setdefault(part, []).append({k: v.copy() for k, v in feeds.items()})
+            return feeds
+
+        timings: dict[str, float] = {}
+        t = time.perf_counter()
+        outputs = self.sessions["encoder"].run(None, feed("encoder", buf))
+        enc = dict(zip(self._enc_outputs, outputs, strict=True))
+        timings["encoder"] = (time.perf_counter() - t) * 1000
+        state = {k: v for k, v in enc.items() if k not in ("disparity", "hidden")}
+        disparity, hidden = enc["disparity"], enc["hidden"]
+        step_ms: list[float] = []
+        step = self.sessions["step"]
+        for i in range(iters):
+            if deadline_ms is not None and i > 0:
+                elapsed = (time.perf_counter() - t0) * 1000
+                predicted = elapsed + max(step_ms) + self._upsample_ms
+                if predicted > deadline_ms:
+                    break
+            t = time.perf_counter()
+            feeds = dict(state, disparity=disparity, hidden=hidden)
+            disparity, hidden = step.run(None, feed("step", feeds))
+            step_ms.append((time.perf_counter() - t) * 1000)
+        timings["steps"] = float(sum(step_ms))
+        timings["step_mean"] = float(np.mean(step_ms))
+        t = time.perf_counter()
+        (full,) = self.sessions["upsample"].run(
+            None, feed("upsample", dict(disparity=disparity, hidden=hidden)))
+        up_ms = (time.perf_counter() - t) * 1000
+        timings["upsample"] = up_ms
+        self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
+            0.2 * up_ms
+        disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
+        depth, valid = disparity_to_depth(disp, focal_px, baseline_m)
+        timings["engine"] = (time.perf_counter() - t0) * 1000
+        return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
+                           iterations=len(step_ms), timings_ms=timings)
+
+
+def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
+                       baseline_m: float | None) -> tuple[np.ndarray, np.ndarray]:
+    """depth = f·B / d where d ≥ MIN_DISPARITY and finite; 0 and invalid elsewhere."""
+    valid = np.isfinite(disparity) & (disparity >= MIN_DISPARITY)
+    if focal_px is None or baseline_m is None:
+        return np.zeros_like(disparity, dtype=np.float32), valid
+    depth = np.zeros_like(disparity, dtype=np.float32)
+    np.divide(float(focal_px) * float(baseline_m), disparity, out=depth, where=valid)
+    return depth, valid

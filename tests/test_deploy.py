@@ -1,0 +1,175 @@
+"""Export, quantization and the engine: ONNX Runtime against PyTorch, the shipped bundle, the
+deadline logic."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from edge.baselines import make_sgbm, sgbm_disparity
+from edge.errors import InvalidDataError
+from edge.metrics import disparity_metrics
+from edge.runtime import engine as engine_module
+from edge.runtime.engine import DEFAULT_BUNDLE, Engine, disparity_to_depth
+from edge.sim import RigConfig, make_sample
+
+torch = pytest.importorskip("torch")
+
+CHECKPOINT = DEFAULT_BUNDLE.parent / "sparse_stereo_sup16.pt"
+SMALL = (160, 96)
+
+
+@pytest.fixture(scope="module")
+def small_bundle(tmp_path_factory):
+    from tools.export import export
+
+    out = tmp_path_factory.mktemp("bundle")
+    meta = export(CHECKPOINT, out, SMALL, default_iters=3)
+    return out, meta
+
+
+def scene_inputs(seed: int, size=SMALL, lidar="beams32"):
+    sample = make_sample(seed, RigConfig(width=size[0], height=size[1]), lidar)
+    sparse, valid = sample.sparse_disparity("left")
+    return sample, sample.left, sample.right, (sparse * valid).astype(np.float32)
+
+
+def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
+    from tools.export import load_checkpoint
+
+    bundle, meta = small_bundle
+    assert meta["export_check"]["max_abs_px"] < 0.01
+    assert meta["size"] == list(SMALL) and meta["default_iters"] == 3
+    assert meta["flops"]["iters_4"] == pytest.approx(
+        meta["flops"]["encoder"] + 4 * meta["flops"]["step"] + meta["flops"]["upsample"])
+    # an independent scene (training seed range), left images differ from the export check
+    _, left, right, sparse = scene_inputs(123)
+    net, _ = load_checkpoint(CHECKPOINT)
+    t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
+         (left, right, sparse, (sparse > 0).astype(np.float32))]
+    with torch.no_grad():
+        ref = net(*t, iters=4)[-1][0, 0].numpy()
+    got = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=4)
+    assert got.iterations == 4
+    assert float(np.abs(got.disparity - ref).max()) < 0.01
+    # the engine's iteration count is a runtime choice: 1 step differs from 4
+    one = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=1)
+    assert one.iterations == 1
+    assert float(np.abs(one.disparity - ref).mean()) > 0.01
+
+
+def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_path):
+    import shutil
+
+    from tools.quantize import quantize_bundle
+
+    bundle = tmp_path / "b"
+    shutil.copytree(small_bundle[0], bundle)
+    q = quantize_bundle(bundle, "synthetic:2", max_graph_px=10.0, iters=2, threads=1)
+    meta = json.loads((bundle / "model.json").read_text())
+    assert meta["quantization"] == q
+    assert set(q["graphs"]) == {"encoder", "step", "upsample"}
+    assert q["op_types"] == ["Conv"] and q["calibration_frames"] == 2
+    for part, g in q["graphs"].items():
+        name = meta["precisions"]["int8"][part]
+        assert name.endswith(".int8.onnx") == g["int8"]
+        assert (bundle / name).is_file()
+    _, left, right, sparse = scene_inputs(7)
+    fp32 = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=2).disparity
+    int8 = Engine(bundle, "int8", threads=1).infer(left, right, sparse, iters=2).disparity
+    assert float(np.abs(int8 - fp32).mean()) < 0.5
+
+
+def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, tmp_path):
+    import shutil
+
+    from tools.quantize import quantize_bundle
+
+    bundle = tmp_path / "b"
+    shutil.copytree(small_bundle[0], bundle)
+    q = quantize_bundle(bundle, "synthetic:1", max_graph_px=0.0, iters=1, threads=1)
+    meta = json.loads((bundle / "model.json").read_text())
+    assert not any(g["int8"] for g in q["graphs"].values())
+    assert meta["precisions"]["int8"] == meta["precisions"]["fp32"]
+    assert not list(bundle.glob("*.int8.onnx"))
+
+
+def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
+    meta = json.loads((DEFAULT_BUNDLE / "model.json").read_text())
+    assert meta["size"] == [640, 400]
+    assert meta["quantization"]["eval"]["epe_change_pct"] < 5.0
+    sample, left, right, sparse = scene_inputs(1_000_003, (640, 400), "beams16")
+    engine = Engine(precision="int8", threads=2)
+    result = engine.infer(left, right, sparse, focal_px=450.0, baseline_m=0.075)
+    assert result.iterations == meta["default_iters"] == 4
+    assert {"encoder", "steps", "upsample", "engine"} <= set(result.timings_ms)
+    net = disparity_metrics(result.disparity, sample.disp_left)
+    sgbm = disparity_metrics(sgbm_disparity(left, right, make_sgbm()), sample.disp_left)
+    assert net["epe"] < 0.6 * sgbm["epe"]
+    ok = result.valid
+    np.testing.assert_allclose(result.depth[ok] * result.disparity[ok], 450.0 * 0.075,
+                               rtol=1e-5)
+
+
+def test_engine_rejects_a_wrong_size_and_ignores_nan_lidar():
+    engine = Engine(precision="int8", threads=1)
+    small = np.zeros((200, 320), np.uint8)
+    with pytest.raises(InvalidDataError, match="bundle's input size"):
+        engine.infer(small, small, np.zeros((200, 320), np.float32))
+    _, left, right, sparse = scene_inputs(1_000_004, (640, 400), "beams16")
+    clean = engine.infer(left, right, sparse, iters=1).disparity
+    dirty = sparse.copy()
+    dirty[::7, ::5] = np.nan
+    dirty[1::7, ::5] = -np.inf
+    dirty[dirty == 0] = 0.0
+    got = engine.infer(left, right, dirty, iters=1).disparity
+    assert np.isfinite(got).all()
+    kept = sparse.copy()
+    kept[::7, ::5] = 0
+    kept[1::7, ::5] = 0
+    np.testing.assert_allclose(got, engine.infer(left, right, kept, iters=1).disparity)
+    assert float(np.abs(got - clean).mean()) < 0.5
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+class TimedSession:
+    """Wraps an ONNX Runtime session; each run advances the fake clock by `ms`."""
+
+    def __init__(self, session, clock: FakeClock, ms: float) -> None:
+        self.session, self.clock, self.ms = session, clock, ms
+
+    def run(self, outputs, feeds):
+        self.clock.now += self.ms / 1000
+        return self.session.run(outputs, feeds)
+
+
+@pytest.mark.parametrize("deadline, expected", [(None, 6), (1e6, 6), (0.0, 1), (37.0, 2),
+                                                (47.0, 3)])
+def test_deadline_stops_before_the_step_that_would_miss_it(monkeypatch, deadline, expected):
+    clock = FakeClock()
+    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
+    engine = Engine(precision="fp32", threads=1)
+    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
+        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
+    engine._upsample_ms = 5.0  # as learnt from earlier frames
+    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    result = engine.infer(left, right, sparse, iters=6, deadline_ms=deadline)
+    # encoder ends at 10 ms; after k steps 10 + 10 k; step k + 1 is run if
+    # 10 + 10 k + 10 + 5 <= deadline
+    assert result.iterations == expected
+
+
+def test_depth_is_zero_and_invalid_below_the_minimum_disparity():
+    d = np.array([[0.0, 0.2, 0.5, 10.0, np.nan]], np.float32)
+    depth, valid = disparity_to_depth(d, 400.0, 0.1)
+    assert valid.tolist() == [[False, False, True, True, False]]
+    np.testing.assert_allclose(depth, [[0, 0, 80.0, 4.0, 0]])
