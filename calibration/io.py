@@ -69,10 +69,20 @@ def load_calibration(path: str | Path) -> tuple[StereoCalibration, LidarExtrinsi
     the file, the key and what was expected."""
     path = str(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        with open(path, encoding="utf-8") as f:
+            text = f.read()
     except FileNotFoundError:
         raise CalibrationFileError("file not found", path) from None
+    except UnicodeDecodeError:
+        raise CalibrationFileError("not a text file", path) from None
+    return loads_calibration(text, path)
+
+
+def loads_calibration(text: str, path: str = "<string>"
+                      ) -> tuple[StereoCalibration, LidarExtrinsics | None]:
+    """`load_calibration` from TOML text; `path` names where it came from in errors."""
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise CalibrationFileError(f"not valid TOML ({exc})", path) from None
     _check_keys(path, data, "")

@@ -37,6 +37,20 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def load_topic_map(path: Path) -> dict:
+    import tomllib
+
+    from edge.errors import ConfigError
+
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ConfigError("topics", "a readable TOML file", str(exc), str(path)) from None
+    if not isinstance(data.get("topics"), dict):
+        raise ConfigError("topics", "a [topics] table", sorted(data), str(path))
+    return data["topics"]
+
+
 def build_parser() -> argparse.ArgumentParser:
     from edge.sim.lidar import PATTERNS
 
@@ -49,11 +63,33 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
     synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
     synth.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
+    synth.add_argument("--mcap", action="store_true",
+                       help="write one MCAP recording (--out FILE.mcap) instead of folders")
 
     demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
     demo.add_argument("--out", type=Path, default=Path("out"))
     demo.add_argument("--frames", type=_positive_int, default=3)
-    demo.add_argument("--seed", type=int, default=1000)
+    demo.add_argument("--seed", type=int, default=1_000_000,
+                      help="first scene (default: the test split's first)")
+    demo.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    demo.add_argument("--iters", type=_positive_int, default=None,
+                      help="GRU iterations (default: the bundle's)")
+    demo.add_argument("--deadline-ms", type=float, default=None)
+    replay = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
+    replay.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
+    replay.add_argument("--out", type=Path, required=True, help="output MCAP")
+    replay.add_argument("--iters", type=_positive_int, default=None)
+    replay.add_argument("--deadline-ms", type=float, default=None)
+    replay.add_argument("--calib", type=Path, default=None,
+                        help="calibration TOML (default: the one in the recording)")
+    replay.add_argument("--topics", type=Path, default=None,
+                        help="TOML with a [topics] table mapping roles (left, right, lidar, "
+                             "left_info, right_info, gt) to the recording's topics")
+    replay.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    replay.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
+    replay.add_argument("--threads", type=_positive_int, default=2)
+    replay.add_argument("--realtime", action="store_true",
+                        help="pace by the recording's clock (drops frames when behind)")
     from calibration.cli import add_parsers
 
     add_parsers(sub)
@@ -67,6 +103,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "synth":
             from edge.sim.export import synth_command
 
+            if args.mcap:
+                from edge.capture.sim import write_sim_recording
+                from edge.sim import RigConfig
+
+                w, h = args.size
+                n = write_sim_recording(args.out, args.count, args.seed,
+                                        RigConfig(width=w, height=h), args.lidar)
+                print(f"wrote {args.out} ({args.count} frames, {n} messages)")
+                return 0
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
             from calibration.cli import run
@@ -75,7 +120,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "demo":
             from edge.demo import demo_command
 
-            return demo_command(args.out, args.frames, args.seed)
+            return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
+                                args.deadline_ms)
+        if args.command == "replay":
+            from edge.daemon import replay_command
+
+            topics = load_topic_map(args.topics) if args.topics else None
+            return replay_command(args.input, args.out, args.iters, args.deadline_ms,
+                                  args.calib, topics, args.precision, args.realtime,
+                                  args.threads, args.bundle)
     except (EdgeError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
         return 1

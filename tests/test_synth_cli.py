@@ -110,13 +110,3 @@ def test_failure_midway_removes_the_scenes_already_written(tmp_path, monkeypatch
     out = tmp_path / "scenes"
     assert main(["synth", "--out", str(out), "--count", "4", "--size", "32x32"]) == 1
     assert list_scene_folders(out) == [] and list(out.iterdir()) == []
-
-
-def test_demo_runs_the_existing_pipeline_and_says_what_is_missing(tmp_path, capsys):
-    import cv2
-
-    assert main(["demo", "--out", str(tmp_path), "--frames", "1"]) == 0
-    out = capsys.readouterr().out
-    assert "not built yet" in out and "SGBM" in out
-    picture = cv2.imread(str(tmp_path / "demo.png"))
-    assert picture.shape == (800, 1920, 3)

@@ -1,0 +1,351 @@
+"""Replay an MCAP recording as a source: ours (Foxglove protobuf schemas) or a ROS 2 bag.
+
+Events, in file order: `StereoFrame` (left and right paired by stamp), `LidarScan`,
+`Calibration` (from our /edge/calibration topic, or built from a pair of CameraInfo /
+CameraCalibration messages of rectified cameras) and `GroundTruth` (/sim/gt_disparity).
+
+The file is read front to back without its summary, so a recording cut off by a crash
+replays up to its last complete chunk; a warning says how much was readable. Topics are
+mapped by role (`TopicMap`); a mapped topic the file lacks is an error listing the file's
+topics.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import threading
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from edge.errors import EdgeError
+from edge.mcap_log import TOPICS
+from edge.types import LidarScan, StereoFrame
+
+log = logging.getLogger(__name__)
+
+
+class ReplayError(EdgeError):
+    """The recording cannot be replayed (not MCAP, or a mapped topic is missing)."""
+
+
+@dataclass(frozen=True)
+class TopicMap:
+    """Which topic plays which role. Defaults: this project's own topics."""
+
+    left: str = TOPICS["left"]
+    right: str = TOPICS["right"]
+    lidar: str = TOPICS["lidar"]
+    left_info: str = TOPICS["left_calibration"]
+    right_info: str = TOPICS["right_calibration"]
+    calibration: str = TOPICS["calibration_file"]
+    gt: str = TOPICS["gt_disparity"]
+
+    @classmethod
+    def from_dict(cls, data: dict) -> TopicMap:
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ReplayError(f"topic map: unknown roles {sorted(unknown)}; "
+                              f"known: {sorted(cls.__dataclass_fields__)}")
+        return cls(**data)
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """Calibration found in the recording: the TOML text of ours, or (f, cx, cy, B, size)
+    from rectified CameraInfo / CameraCalibration pairs."""
+
+    stamp_ns: int
+    toml: str | None = None
+    focal_px: float | None = None
+    principal_point: tuple[float, float] | None = None
+    baseline_m: float | None = None
+    size: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    stamp_ns: int
+    disparity: np.ndarray
+
+
+@dataclass
+class ReplayStats:
+    messages: int = 0
+    frames: int = 0
+    scans: int = 0
+    bytes_read: int = 0
+    truncated: bool = False
+    errors: Counter = field(default_factory=Counter)
+
+
+# -- decoding ------------------------------------------------------------------------------
+def _header_stamp(msg, fallback: int) -> int:
+    header = getattr(msg, "header", None)
+    if header is not None:  # ROS 2
+        return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    return fallback
+
+
+def decode_image(msg) -> np.ndarray:
+    """RawImage / sensor_msgs Image (mono8, rgb8, bgr8, rgba8, bgra8, 32FC1) or a compressed
+    image -> uint8 grey (H, W), or float32 (H, W) for 32FC1."""
+    if hasattr(msg, "format"):  # CompressedImage, both schemas
+        image = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError("compressed image does not decode")
+        return image
+    h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), msg.encoding.lower()
+    data = np.frombuffer(bytes(msg.data), np.uint8)
+    channels = {"mono8": 1, "8uc1": 1, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4,
+                "32fc1": 4}.get(enc)
+    if channels is None:
+        raise ValueError(f"image encoding {msg.encoding!r} not supported")
+    if step < w * channels or data.size < step * h:
+        raise ValueError(f"image data {data.size} bytes is short for {w}x{h} {enc}")
+    rows = data[: step * h].reshape(h, step)[:, : w * channels]
+    if enc == "32fc1":
+        big = bool(getattr(msg, "is_bigendian", False))
+        return rows.copy().view(">f4" if big else "<f4").astype(np.float32).reshape(h, w)
+    if channels == 1:
+        return np.ascontiguousarray(rows)
+    pixels = rows.reshape(h, w, channels)[..., :3]
+    code = cv2.COLOR_RGB2GRAY if enc.startswith("rgb") else cv2.COLOR_BGR2GRAY
+    return cv2.cvtColor(np.ascontiguousarray(pixels), code)
+
+
+# datatype codes: sensor_msgs/PointField and foxglove NumericType agree on 7 = float32 and
+# 8 = float64 and disagree on the integer codes, which are not used for coordinates here
+_FLOAT_TYPES = {7: "f4", 8: "f8"}
+
+
+def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
+    """PointCloud / PointCloud2 / LaserScan -> (N, 3) float32 metres, (N,) intensity or None;
+    non-finite points dropped."""
+    if hasattr(msg, "ranges"):  # LaserScan
+        ranges = np.asarray(msg.ranges, np.float32)
+        angles = msg.angle_min + msg.angle_increment * np.arange(len(ranges), dtype=np.float32)
+        keep = np.isfinite(ranges) & (ranges >= msg.range_min) & (ranges <= msg.range_max)
+        pts = np.stack([ranges * np.cos(angles), ranges * np.sin(angles),
+                        np.zeros_like(ranges)], 1)[keep]
+        inten = np.asarray(msg.intensities, np.float32)
+        return pts.astype(np.float32), (inten[keep] if inten.size == ranges.size else None)
+    stride = int(getattr(msg, "point_stride", 0) or getattr(msg, "point_step", 0))
+    big = bool(getattr(msg, "is_bigendian", False))
+    data = bytes(msg.data)
+    if stride <= 0 or len(data) % stride:
+        raise ValueError(f"point data of {len(data)} bytes is not a multiple of {stride}")
+    n = len(data) // stride
+    raw = np.frombuffer(data, np.uint8).reshape(n, stride)
+    columns = {}
+    for f in msg.fields:
+        code = int(getattr(f, "datatype", None) or getattr(f, "type", 0))
+        if f.name in ("x", "y", "z", "intensity") and code in _FLOAT_TYPES:
+            t = np.dtype(_FLOAT_TYPES[code]).newbyteorder(">" if big else "<")
+            off = int(f.offset)
+            columns[f.name] = raw[:, off:off + t.itemsize].copy().view(t)[:, 0].astype(
+                np.float32)
+    if not {"x", "y", "z"} <= set(columns):
+        raise ValueError("point cloud lacks float x, y, z fields")
+    pts = np.stack([columns["x"], columns["y"], columns["z"]], 1)
+    keep = np.isfinite(pts).all(1)
+    inten = columns.get("intensity")
+    return pts[keep], (inten[keep] if inten is not None else None)
+
+
+def _camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
+    P = [float(v) for v in (getattr(msg, "p", None) or getattr(msg, "P", None))]
+    return P[0], P[2], P[6], P[3], (int(msg.width), int(msg.height))
+
+
+# -- the source ------------------------------------------------------------------------------
+class McapSource:
+    """Iterate events of a recording. `realtime=True` paces them by their log times."""
+
+    def __init__(self, path: str | Path, topics: TopicMap | None = None,
+                 realtime: bool = False, pair_window_ns: int = 5_000_000) -> None:
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise ReplayError(f"{self.path}: no such file")
+        self.topics = topics or TopicMap()
+        self.realtime = realtime
+        self.pair_window_ns = pair_window_ns
+        self.stats = ReplayStats()
+        self.seen_topics: set[str] = set()
+        self._stop = threading.Event()
+        self._info: dict[str, tuple] = {}
+
+    def close(self) -> None:
+        """Stop iterating (safe from another thread)."""
+        self._stop.set()
+
+    def __enter__(self) -> McapSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def file_topics(self) -> set[str] | None:
+        """Topics listed in the summary, or None for a file without one."""
+        from mcap.reader import make_reader
+
+        with open(self.path, "rb") as f:
+            try:
+                summary = make_reader(f).get_summary()
+            except Exception:  # noqa: BLE001 - no or broken summary: a cut-off file
+                return None
+        return None if summary is None else {c.topic for c in summary.channels.values()}
+
+    def find_calibration(self, max_messages: int = 1000) -> str | None:
+        """The TOML text of the first /edge/calibration message (logged first in our files),
+        or None if there is none among the first `max_messages`."""
+        from mcap.reader import NonSeekingReader
+
+        count = 0
+        with open(self.path, "rb") as f:
+            try:
+                for _, channel, message in NonSeekingReader(f).iter_messages(
+                        log_time_order=False):
+                    if channel.topic == self.topics.calibration:
+                        return str(json.loads(message.data)["toml"])
+                    count += 1
+                    if count >= max_messages:
+                        break
+            except Exception as exc:  # noqa: BLE001 - not MCAP at all, or cut off early
+                if count == 0:
+                    raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
+        return None
+
+    def check_topics(self, required: tuple[str, ...] = ("left", "right")) -> None:
+        topics = self.file_topics()
+        if topics is None:
+            return
+        missing = [getattr(self.topics, r) for r in required
+                   if getattr(self.topics, r) not in topics]
+        if missing:
+            raise ReplayError(f"{self.path}: no topic {', '.join(missing)} (mapped as "
+                              f"{', '.join(required)}); the file has: "
+                              f"{', '.join(sorted(topics)) or 'no topics'}")
+
+    def __iter__(self):
+        from mcap.exceptions import McapError
+        from mcap.reader import NonSeekingReader
+        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
+        from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
+
+        self.check_topics()
+        t = self.topics
+        wanted = {t.left, t.right, t.lidar, t.left_info, t.right_info, t.calibration, t.gt}
+        pending: dict[int, dict[str, np.ndarray]] = {}
+        first_log = wall0 = None
+        with open(self.path, "rb") as f:
+            factories = [ProtobufDecoder(), Ros2Decoder()]
+            decoders: dict[int, object] = {}
+            messages = NonSeekingReader(f, validate_crcs=True).iter_messages(
+                log_time_order=False)
+            while not self._stop.is_set():
+                try:
+                    schema, channel, message = next(messages)
+                except StopIteration:
+                    break
+                except (McapError, EOFError, ValueError, OSError) as exc:
+                    self.stats.truncated = True
+                    self.stats.bytes_read = f.tell()
+                    size = self.path.stat().st_size
+                    log.warning("%s: readable up to byte %d of %d (%.0f %%), %d messages "
+                                "(%s); the rest is lost", self.path, self.stats.bytes_read,
+                                size, 100 * self.stats.bytes_read / max(size, 1),
+                                self.stats.messages, type(exc).__name__)
+                    break
+                topic = channel.topic
+                self.seen_topics.add(topic)
+                self.stats.messages += 1
+                if topic not in wanted:
+                    continue
+                try:
+                    decoded = self._decode(schema, channel, message, factories, decoders)
+                except Exception as exc:  # noqa: BLE001 - a message that does not decode
+                    self.stats.errors[f"{topic}: decode {type(exc).__name__}"] += 1
+                    continue
+                if self.realtime:
+                    if first_log is None:
+                        first_log, wall0 = message.log_time, time.monotonic()
+                    lag = (message.log_time - first_log) / 1e9 - (time.monotonic() - wall0)
+                    if lag > 0:
+                        self._stop.wait(lag)
+                try:
+                    yield from self._handle(topic, message, decoded, pending)
+                except (ValueError, TypeError, AttributeError, IndexError) as exc:
+                    self.stats.errors[f"{topic}: {exc}"[:120]] += 1
+                    log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
+            else:
+                return
+        if not self.stats.truncated:
+            self.stats.bytes_read = self.path.stat().st_size
+        if self.stats.frames == 0 and t.left not in self.seen_topics:
+            raise ReplayError(f"{self.path}: no messages on {t.left} (left); the file has: "
+                              f"{', '.join(sorted(self.seen_topics)) or 'no messages'}")
+
+    @staticmethod
+    def _decode(schema, channel, message, factories, decoders):
+        if channel.message_encoding == "json":
+            return json.loads(message.data)
+        if channel.id not in decoders:
+            decoder = None
+            for factory in factories:
+                decoder = factory.decoder_for(channel.message_encoding, schema)
+                if decoder is not None:
+                    break
+            if decoder is None:
+                raise ValueError(f"no decoder for {channel.message_encoding} "
+                                 f"{schema.name if schema else ''}")
+            decoders[channel.id] = decoder
+        return decoders[channel.id](message.data)
+
+    def _handle(self, topic, message, decoded, pending):
+        t = self.topics
+        log_time = int(message.log_time)
+        if topic == t.calibration:
+            yield Calibration(log_time, toml=str(decoded["toml"]))
+        elif topic in (t.left_info, t.right_info):
+            self._info["left" if topic == t.left_info else "right"] = _camera_info(decoded)
+            if len(self._info) == 2:
+                f, cx, cy, _, size = self._info["left"]
+                tx = self._info["right"][3]
+                if f > 0 and tx < 0:
+                    yield Calibration(log_time, focal_px=f, principal_point=(cx, cy),
+                                      baseline_m=-tx / f, size=size)
+                self._info.clear()
+        elif topic == t.gt:
+            yield GroundTruth(_header_stamp(decoded, log_time), decode_image(decoded))
+        elif topic == t.lidar:
+            pts, inten = decode_points(decoded)
+            self.stats.scans += 1
+            yield LidarScan(_header_stamp(decoded, log_time), pts, inten)
+        else:  # left or right image
+            stamp = _header_stamp(decoded, log_time)
+            image = decode_image(decoded)
+            if image.dtype != np.uint8:
+                raise ValueError(f"{topic}: a camera image must be 8-bit, got {image.dtype}")
+            side = "left" if topic == t.left else "right"
+            match = next((s for s in pending
+                          if abs(s - stamp) <= self.pair_window_ns and side not in pending[s]),
+                         None)
+            if match is None:
+                pending[stamp] = {side: image}
+            else:
+                pair = pending.pop(match)
+                pair[side] = image
+                rectified = t.left == TOPICS["left"] or "rect" in t.left
+                self.stats.frames += 1
+                yield StereoFrame(min(match, stamp), self.stats.frames - 1, pair["left"],
+                                  pair["right"], rectified=rectified)
+            # a half pair older than a second will not be completed
+            for s in [s for s in pending if stamp - s > 1_000_000_000]:
+                del pending[s]
+                self.stats.errors["unpaired image"] += 1

@@ -1,0 +1,363 @@
+"""The depth pipeline and the loop that runs it over a source: the on-robot daemon, replay and
+the demo all use this.
+
+frame ──► rectify ──► project the synced LiDAR ──► engine ──► MCAP (and live view)
+
+Bad input is counted by kind and skipped, never raised out of the loop: a frame of the wrong
+size, a frame that fails to rectify, a scan with no finite points. A live source runs in its
+own thread into a bounded queue that drops the oldest frame when inference falls behind.
+SIGINT and SIGTERM stop the source, finish the frame in hand and close the MCAP file.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import os
+import signal
+import socket
+import threading
+import time
+from collections import Counter, deque
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from calibration.io import dumps_calibration
+from calibration.model import LidarExtrinsics, StereoCalibration
+from calibration.projection import project_to_disparity
+from edge.capture.replay import Calibration, GroundTruth
+from edge.capture.sync import LidarSync, SyncConfig
+from edge.errors import ConfigError, EdgeError
+from edge.mcap_log import McapLogger
+from edge.metrics import disparity_metrics
+from edge.runtime.engine import Engine
+from edge.types import DepthResult, LidarScan, StereoFrame
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class FrameOutput:
+    result: DepthResult
+    sparse: np.ndarray
+    left: np.ndarray
+    metrics: dict | None = None
+    gt: np.ndarray | None = None
+
+
+@dataclass
+class PipelineStats:
+    frames: int = 0
+    scans: int = 0
+    drops: int = 0
+    errors: Counter = field(default_factory=Counter)
+    timings: list[dict] = field(default_factory=list)
+    metrics: list[dict] = field(default_factory=list)
+
+    def count_error(self, kind: str, detail: object) -> None:
+        if self.errors[kind] == 0:
+            log.warning("%s: %s (counted, skipped; later ones are only counted)", kind, detail)
+        self.errors[kind] += 1
+
+
+class Pipeline:
+    """One frame at a time: `on_scan(scan)`, `on_frame(frame, gt=None) -> FrameOutput`."""
+
+    def __init__(self, engine: Engine, stereo: StereoCalibration,
+                 lidar: LidarExtrinsics | None, logger: McapLogger | None = None,
+                 iters: int | None = None, deadline_ms: float | None = None,
+                 sync: SyncConfig | None = None, log_raw: bool = True) -> None:
+        if tuple(stereo.image_size) != engine.size:
+            raise ConfigError("stereo.image_size", f"the model's input size {engine.size} "
+                              "(export a bundle at the camera's size)", stereo.image_size)
+        self.engine, self.logger = engine, logger
+        self.iters, self.deadline_ms, self.log_raw = iters, deadline_ms, log_raw
+        self.set_calibration(stereo, lidar)
+        sync = sync or SyncConfig()
+        if lidar is not None and sync.time_offset_ns == 0:
+            sync = SyncConfig(sync.mode, sync.window_ms, lidar.time_offset_ns, sync.keep_s)
+        self.sync = LidarSync(sync)
+        self.stats = PipelineStats()
+        self._lock = threading.Lock()
+
+    def set_calibration(self, stereo: StereoCalibration, lidar: LidarExtrinsics | None) -> None:
+        self.stereo, self.lidar = stereo, lidar
+        self.rectifier = stereo.rectifier()
+        self.focal_px, self.baseline_m = stereo.focal_px, stereo.baseline_m
+        self.principal_point = stereo.principal_point
+        self._calibration_logged = False
+        if self.logger is not None:
+            self.logger.calibration_toml = dumps_calibration(stereo, lidar)
+
+    def on_scan(self, scan: LidarScan) -> None:
+        with self._lock:
+            self.stats.scans += 1
+            finite = scan.finite()
+            if len(finite) == 0:
+                self.stats.count_error("lidar scan without finite points", scan.stamp_ns)
+            else:
+                self.sync.add(finite)
+        if self.logger is not None and self.log_raw:
+            self.logger.log_scan(scan)
+
+    def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None
+                 ) -> FrameOutput | None:
+        t0 = time.perf_counter()
+        if frame.size != self.engine.size:
+            self.stats.count_error("frame size", f"{frame.size}, expected {self.engine.size}")
+            return None
+        try:
+            left, right = ((frame.left, frame.right) if frame.rectified
+                           else self.rectifier.rectify(frame.left, frame.right))
+        except Exception as exc:  # noqa: BLE001 - OpenCV errors are not one type
+            self.stats.count_error("rectify", exc)
+            return None
+        t1 = time.perf_counter()
+        with self._lock:
+            points = self.sync.points_for(frame.stamp_ns)
+        if len(points) and self.lidar is not None:
+            sparse, _ = project_to_disparity(points, self.stereo, self.lidar.T_cam_lidar)
+        else:
+            sparse = np.zeros(left.shape, np.float32)
+        t2 = time.perf_counter()
+        result = self.engine.infer(left, right, sparse, iters=self.iters,
+                                   deadline_ms=self.deadline_ms, focal_px=self.focal_px,
+                                   baseline_m=self.baseline_m, stamp_ns=frame.stamp_ns,
+                                   started=t0)
+        t3 = time.perf_counter()
+        if self.logger is not None:
+            if self.log_raw:
+                if not self._calibration_logged:
+                    self.logger.log_calibration(frame.stamp_ns, self.engine.size,
+                                                self.focal_px, self.principal_point,
+                                                self.baseline_m)
+                    self._calibration_logged = True
+                self.logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, left, right,
+                                                  rectified=True))
+                if gt is not None:
+                    self.logger.log_gt(frame.stamp_ns, gt)
+            self.logger.log_result(result, sparse, self.focal_px, self.principal_point)
+        t4 = time.perf_counter()
+        timings = dict(result.timings_ms, rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000,
+                       log=(t4 - t3) * 1000, frame=(t4 - t0) * 1000,
+                       iterations=result.iterations)
+        self.stats.frames += 1
+        self.stats.timings.append(timings)
+        metrics = None
+        if gt is not None and gt.shape == result.disparity.shape:
+            metrics = disparity_metrics(result.disparity, gt)
+            self.stats.metrics.append(metrics)
+        return FrameOutput(result, sparse, left, metrics, gt)
+
+
+def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
+    keys = [k for k in timings[0] if k != "iterations"] if timings else []
+    return {k: dict(median=float(np.median([t[k] for t in timings])),
+                    p95=float(np.percentile([t[k] for t in timings], 95))) for k in keys}
+
+
+class SystemdNotifier:
+    """sd_notify without libsystemd: datagrams to $NOTIFY_SOCKET when it is set."""
+
+    def __init__(self) -> None:
+        address = os.environ.get("NOTIFY_SOCKET")
+        self.address = None
+        if address:
+            self.address = "\0" + address[1:] if address.startswith("@") else address
+
+    def notify(self, state: str) -> None:
+        if self.address is None:
+            return
+        try:
+            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
+                s.sendto(state.encode(), self.address)
+        except OSError as exc:
+            log.warning("systemd notify failed: %s", exc)
+
+
+class StopFlag:
+    """Set by SIGINT / SIGTERM (installed with `install`), or by hand."""
+
+    def __init__(self) -> None:
+        self.event = threading.Event()
+        self.on_stop: list = []
+
+    def set(self, *_args) -> None:
+        self.event.set()
+        for callback in self.on_stop:
+            callback()
+
+    def is_set(self) -> bool:
+        return self.event.is_set()
+
+    def install(self) -> None:
+        self._previous = {sig: signal.signal(sig, self.set)
+                          for sig in (signal.SIGINT, signal.SIGTERM)}
+
+    def restore(self) -> None:
+        for sig, handler in getattr(self, "_previous", {}).items():
+            signal.signal(sig, handler)
+
+
+def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool = False,
+        queue_size: int = 2, on_output=None, diagnostics_period_s: float = 1.0) -> PipelineStats:
+    """Feed a source's events through the pipeline until it ends or `stop` is set.
+
+    threaded=True (live sources): the source runs in its own thread into a queue of
+    `queue_size` frames that drops the oldest when full. on_output(frame, FrameOutput) is
+    called for every processed frame."""
+    stop = stop or StopFlag()
+    stop.on_stop.append(source.close)
+    notifier = SystemdNotifier()
+    stats = pipeline.stats
+    frames: deque = deque()
+    cond = threading.Condition()
+    finished = threading.Event()
+    gts: dict[int, np.ndarray] = {}
+    last_diag = [time.monotonic(), 0]
+
+    def handle_event(event) -> None:
+        if isinstance(event, LidarScan):
+            pipeline.on_scan(event)
+        elif isinstance(event, StereoFrame):
+            if threaded:
+                with cond:
+                    if len(frames) >= queue_size:
+                        frames.popleft()
+                        stats.drops += 1
+                    frames.append(event)
+                    cond.notify()
+            else:
+                process(event)
+        elif isinstance(event, GroundTruth):
+            gts[event.stamp_ns] = event.disparity
+        elif isinstance(event, Calibration) and event.toml is not None:
+            from calibration.io import loads_calibration
+
+            stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
+            pipeline.set_calibration(stereo, lidar or pipeline.lidar)
+
+    def process(frame: StereoFrame) -> None:
+        # ground truth follows its frame in our recordings: look for it once the frame is in
+        out = pipeline.on_frame(frame, gts.pop(frame.stamp_ns, None))
+        if out is not None and on_output is not None:
+            on_output(frame, out)
+        now = time.monotonic()
+        if now - last_diag[0] >= diagnostics_period_s:
+            window = stats.timings[last_diag[1]:]
+            last_diag[:] = [now, len(stats.timings)]
+            if pipeline.logger is not None:
+                pipeline.logger.log_diagnostics(frame.stamp_ns, dict(
+                    frames=stats.frames, scans=stats.scans, drops=stats.drops,
+                    errors=dict(stats.errors), latency_ms=summarise(window) if window else {},
+                    iterations=[t["iterations"] for t in window]))
+            notifier.notify("WATCHDOG=1")
+
+    def capture() -> None:
+        try:
+            for event in source:
+                if stop.is_set():
+                    break
+                try:
+                    handle_event(event)
+                except EdgeError as exc:
+                    stats.count_error(type(exc).__name__, exc)
+        except EdgeError as exc:
+            stats.count_error("source", exc)
+        finally:
+            finished.set()
+            with cond:
+                cond.notify()
+
+    notifier.notify("READY=1")
+    if threaded:
+        thread = threading.Thread(target=capture, name="capture", daemon=True)
+        thread.start()
+        while not stop.is_set():
+            with cond:
+                while not frames and not finished.is_set() and not stop.is_set():
+                    cond.wait(0.1)
+                frame = frames.popleft() if frames else None
+            if frame is None:
+                if finished.is_set():
+                    break
+                continue
+            process(frame)
+        thread.join(timeout=5)
+    else:
+        pending: StereoFrame | None = None
+        for event in source:
+            # a frame is processed when the next event arrives, so its ground truth is in
+            if pending is not None and not isinstance(event, GroundTruth):
+                process(pending)
+                pending = None
+                if stop.is_set():
+                    break
+            if isinstance(event, StereoFrame):
+                pending = event
+            else:
+                try:
+                    handle_event(event)
+                except EdgeError as exc:
+                    stats.count_error(type(exc).__name__, exc)
+        if pending is not None:
+            process(pending)
+    notifier.notify("STOPPING=1")
+    return stats
+
+
+def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
+                   calib=None, topics=None, precision: str = "int8", realtime: bool = False,
+                   threads: int = 2, bundle=None) -> int:
+    """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
+    EPE / bad-3 per frame and overall where the recording carries ground truth."""
+    from calibration.io import load_calibration, loads_calibration
+    from edge.capture.replay import McapSource, TopicMap
+    from edge.runtime.engine import DEFAULT_BUNDLE
+
+    source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
+    source.check_topics()
+    if calib is not None:
+        stereo, lidar = load_calibration(calib)
+    else:
+        text = source.find_calibration()
+        if text is None:
+            raise ConfigError("--calib", "a calibration file: the recording has none on "
+                              f"{source.topics.calibration}", None, str(path))
+        stereo, lidar = loads_calibration(text, f"{path} {source.topics.calibration}")
+    engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads)
+    stop = StopFlag()
+    stop.install()
+
+    def on_output(frame, output) -> None:
+        m = output.metrics
+        line = (f"frame {frame.seq}: {output.result.iterations} it, "
+                f"{output.result.timings_ms['engine']:.0f} ms")
+        if m is not None:
+            line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
+        print(line, flush=True)
+
+    try:
+        with McapLogger(out) as logger:
+            pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
+            # with --calib given, the recording's own calibration is ignored
+            if calib is not None:
+                source.topics = dataclasses.replace(source.topics, calibration="")
+            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output)
+    finally:
+        stop.restore()
+    lat = summarise(stats.timings)
+    print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
+          f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
+    if source.stats.truncated:
+        print(f"input was cut off: replayed up to byte {source.stats.bytes_read}")
+    if lat:
+        print("latency median / p95 ms: " + ", ".join(
+            f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
+    if stats.metrics:
+        print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
+              f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
+              "frames with ground truth")
+    print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    return 0

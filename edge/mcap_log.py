@@ -1,0 +1,250 @@
+"""Writing sensor data and results to MCAP (foxglove-sdk, protobuf Foxglove schemas).
+
+Topics (DESIGN.md): /stereo/{left,right}/image_rect (mono8; /stereo/{left,right}/image when
+the pair is not rectified), /stereo/{left,right}/calibration (rectified intrinsics; the right
+one's P carries -f·B, as in ROS), /lidar/points (LiDAR frame, x y z intensity float32),
+/depth/sparse_disparity, /depth/disparity, /depth/image (32FC1), /depth/points, /diagnostics
+(JSON). Two more of ours: /edge/calibration (JSON, the calibration file's TOML text, logged at
+the start of every file so a recording replays without side files) and /sim/gt_disparity
+(32FC1, ground truth where a simulator made the data).
+
+Log time is the sensor stamp (nanoseconds), so a replay reproduces the recording's timing.
+Files rotate by size or duration into NAME_0001.mcap, NAME_0002.mcap, ...; `close()` writes
+the summary (the caller makes sure it runs, on signals too: see edge.daemon).
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from edge.types import DepthResult, LidarScan, StereoFrame
+
+TOPICS = dict(
+    left="/stereo/left/image_rect", right="/stereo/right/image_rect",
+    left_raw="/stereo/left/image", right_raw="/stereo/right/image",
+    left_calibration="/stereo/left/calibration", right_calibration="/stereo/right/calibration",
+    lidar="/lidar/points", sparse="/depth/sparse_disparity", disparity="/depth/disparity",
+    depth="/depth/image", points="/depth/points", diagnostics="/diagnostics",
+    calibration_file="/edge/calibration", gt_disparity="/sim/gt_disparity",
+)
+RAW_TOPICS = ("left", "right", "left_raw", "right_raw", "left_calibration",
+              "right_calibration", "lidar", "calibration_file", "gt_disparity")
+RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "diagnostics")
+CAMERA_FRAME = "camera_left"
+LIDAR_FRAME = "lidar"
+
+
+def _stamp(ns: int):
+    from foxglove.messages import Timestamp
+
+    return Timestamp(int(ns) // 1_000_000_000, int(ns) % 1_000_000_000)
+
+
+def image_message(image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME):
+    """uint8 (H, W) -> RawImage mono8; float32 (H, W) -> RawImage 32FC1 (little endian)."""
+    from foxglove.messages import RawImage
+
+    h, w = image.shape
+    if image.dtype == np.uint8:
+        encoding, step = "mono8", w
+    elif image.dtype == np.float32:
+        encoding, step = "32FC1", 4 * w
+        image = image.astype("<f4", copy=False)
+    else:
+        raise TypeError(f"image dtype {image.dtype}: expected uint8 or float32")
+    return RawImage(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w, height=h,
+                    encoding=encoding, step=step, data=np.ascontiguousarray(image).tobytes())
+
+
+def point_cloud_message(points: np.ndarray, stamp_ns: int, frame_id: str,
+                        intensity: np.ndarray | None = None):
+    """(N, 3) float32 metres (+ optional (N,) intensity) -> PointCloud, 16 bytes per point."""
+    from foxglove.messages import (
+        PackedElementField,
+        PackedElementFieldNumericType,
+        PointCloud,
+        Pose,
+        Quaternion,
+        Vector3,
+    )
+
+    n = len(points)
+    packed = np.zeros((n, 4), "<f4")
+    packed[:, :3] = points
+    if intensity is not None:
+        packed[:, 3] = intensity
+    f32 = PackedElementFieldNumericType.Float32
+    fields = [PackedElementField(name=name, offset=4 * i, type=f32)
+              for i, name in enumerate(("x", "y", "z", "intensity"))]
+    pose = Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1))
+    return PointCloud(timestamp=_stamp(stamp_ns), frame_id=frame_id, pose=pose,
+                      point_stride=16, fields=fields, data=packed.tobytes())
+
+
+def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
+                    principal_point: tuple[float, float], stride: int = 4) -> np.ndarray:
+    """Back-project every `stride`-th valid depth pixel to (N, 3) float32 camera points."""
+    cx, cy = principal_point
+    ys, xs = np.nonzero(valid[::stride, ::stride])
+    ys, xs = ys * stride, xs * stride
+    z = depth[ys, xs]
+    return np.stack([(xs - cx) * z / focal_px, (ys - cy) * z / focal_px, z], 1).astype(
+        np.float32)
+
+
+class McapLogger:
+    """Log frames, scans and results to rotating MCAP files (a context manager).
+
+    `topics`: which keys of TOPICS to write (default all); `rotate_bytes` / `rotate_s`: start
+    a new file after this many bytes (as counted on disk) or seconds of log time."""
+
+    def __init__(self, path: str | Path, topics: tuple[str, ...] | None = None,
+                 rotate_bytes: int | None = None, rotate_s: float | None = None,
+                 calibration_toml: str | None = None, chunk_size: int = 1 << 20,
+                 live: bool = False) -> None:
+        import foxglove
+
+        self.path = Path(path)
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        self.enabled = set(TOPICS) if topics is None else set(topics)
+        unknown = self.enabled - set(TOPICS)
+        if unknown:
+            raise ValueError(f"unknown topics {sorted(unknown)}; choose from {sorted(TOPICS)}")
+        self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
+        self.calibration_toml = calibration_toml
+        self.chunk_size = chunk_size
+        self.context = foxglove.Context()
+        self._channels: dict[str, object] = {}
+        self.files: list[Path] = []
+        self.messages = 0
+        self._writer = None
+        self._file_start_ns: int | None = None
+        self.server = None
+        if live:
+            self.server = foxglove.start_server(context=self.context, host="127.0.0.1")
+        self._open(None)
+
+    # -- files -------------------------------------------------------------------------------
+    def _file_path(self, index: int) -> Path:
+        if self.rotate_bytes is None and self.rotate_s is None:
+            return self.path
+        return self.path.with_name(f"{self.path.stem}_{index + 1:04d}{self.path.suffix}")
+
+    def _open(self, stamp_ns: int | None) -> None:
+        import foxglove
+        from foxglove.mcap import MCAPWriteOptions
+
+        path = self._file_path(len(self.files))
+        options = MCAPWriteOptions(chunk_size=self.chunk_size, compression_threads=0)
+        self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self.context,
+                                          writer_options=options)
+        self.files.append(path)
+        self._file_start_ns = stamp_ns
+        self._calibration_logged = False
+
+    def _maybe_rotate(self, stamp_ns: int) -> None:
+        if self._file_start_ns is None:
+            self._file_start_ns = stamp_ns
+        too_big = (self.rotate_bytes is not None and self.files[-1].exists()
+                   and self.files[-1].stat().st_size >= self.rotate_bytes)
+        too_long = (self.rotate_s is not None
+                    and stamp_ns - self._file_start_ns >= self.rotate_s * 1e9)
+        if too_big or too_long:
+            self._writer.close()
+            self._open(stamp_ns)
+
+    def _channel(self, key: str):
+        if key not in self._channels:
+            from foxglove import Channel
+            from foxglove.channels import (
+                CameraCalibrationChannel,
+                PointCloudChannel,
+                RawImageChannel,
+            )
+
+            topic = TOPICS[key]
+            if key in ("diagnostics", "calibration_file"):
+                channel = Channel(topic, message_encoding="json", context=self.context)
+            elif key in ("lidar", "points"):
+                channel = PointCloudChannel(topic, context=self.context)
+            elif key.endswith("calibration"):
+                channel = CameraCalibrationChannel(topic, context=self.context)
+            else:
+                channel = RawImageChannel(topic, context=self.context)
+            self._channels[key] = channel
+        return self._channels[key]
+
+    def _log(self, key: str, message, stamp_ns: int) -> None:
+        if key not in self.enabled:
+            return
+        if not self._calibration_logged and self.calibration_toml is not None:
+            self._calibration_logged = True
+            self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
+        self._channel(key).log(message, log_time=int(stamp_ns))
+        self.messages += 1
+
+    # -- what gets logged --------------------------------------------------------------------
+    def log_frame(self, frame: StereoFrame) -> None:
+        self._maybe_rotate(frame.stamp_ns)
+        left, right = ("left", "right") if frame.rectified else ("left_raw", "right_raw")
+        self._log(left, image_message(frame.left, frame.stamp_ns), frame.stamp_ns)
+        self._log(right, image_message(frame.right, frame.stamp_ns, "camera_right"),
+                  frame.stamp_ns)
+
+    def log_calibration(self, stamp_ns: int, size: tuple[int, int], focal_px: float,
+                        principal_point: tuple[float, float], baseline_m: float) -> None:
+        """Rectified intrinsics of both views (ROS convention: right P[3] = -f·B)."""
+        from foxglove.messages import CameraCalibration
+
+        w, h = size
+        cx, cy = principal_point
+        K = [focal_px, 0, cx, 0, focal_px, cy, 0, 0, 1]
+        R = [1.0, 0, 0, 0, 1, 0, 0, 0, 1]
+        for key, tx, frame_id in (("left_calibration", 0.0, CAMERA_FRAME),
+                                  ("right_calibration", -focal_px * baseline_m, "camera_right")):
+            P = [focal_px, 0, cx, tx, 0, focal_px, cy, 0, 0, 0, 1, 0]
+            msg = CameraCalibration(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w,
+                                    height=h, distortion_model="", D=[], K=K, R=R, P=P)
+            self._log(key, msg, stamp_ns)
+
+    def log_scan(self, scan: LidarScan) -> None:
+        self._maybe_rotate(scan.stamp_ns)
+        self._log("lidar", point_cloud_message(scan.points, scan.stamp_ns, LIDAR_FRAME,
+                                               scan.intensity), scan.stamp_ns)
+
+    def log_gt(self, stamp_ns: int, disparity: np.ndarray) -> None:
+        self._log("gt_disparity", image_message(disparity.astype(np.float32), stamp_ns),
+                  stamp_ns)
+
+    def log_result(self, result: DepthResult, sparse: np.ndarray | None = None,
+                   focal_px: float | None = None,
+                   principal_point: tuple[float, float] | None = None) -> None:
+        t = result.stamp_ns
+        self._maybe_rotate(t)
+        if sparse is not None:
+            self._log("sparse", image_message(sparse.astype(np.float32), t), t)
+        self._log("disparity", image_message(result.disparity, t), t)
+        self._log("depth", image_message(result.depth, t), t)
+        if "points" in self.enabled and focal_px is not None and principal_point is not None:
+            pts = depth_to_points(result.depth, result.valid, focal_px, principal_point)
+            self._log("points", point_cloud_message(pts, t, CAMERA_FRAME), t)
+
+    def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
+        self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            self._writer = None
+        if self.server is not None:
+            self.server.stop()
+            self.server = None
+
+    def __enter__(self) -> McapLogger:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,250 @@
+"""The MCAP layer, replay, the pipeline and the commands built on them, on real files."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from calibration.io import dumps_calibration
+from edge.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
+from edge.capture.sim import SimSource, write_sim_recording
+from edge.cli import main
+from edge.daemon import Pipeline, StopFlag, run
+from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
+from edge.runtime.engine import Engine
+from edge.sim import RigConfig, make_sample
+from edge.types import LidarScan, StereoFrame
+
+ROOT = Path(__file__).resolve().parents[1]
+SEED = 1_000_000
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory) -> Path:
+    path = tmp_path_factory.mktemp("rec") / "rec.mcap"
+    write_sim_recording(path, 3, SEED)
+    return path
+
+
+@pytest.fixture(scope="module")
+def engine() -> Engine:
+    return Engine(precision="int8", threads=2)
+
+
+def topic_counts(path: Path) -> dict[str, int]:
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+    assert summary is not None, f"{path} has no summary"
+    channels = summary.channels
+    return {channels[cid].topic: n for cid, n in summary.statistics.channel_message_counts.items()}
+
+
+def test_recording_round_trips_frames_scans_gt_and_calibration(recording):
+    events = list(McapSource(recording))
+    frames = [e for e in events if isinstance(e, StereoFrame)]
+    scans = [e for e in events if isinstance(e, LidarScan)]
+    gts = [e for e in events if isinstance(e, GroundTruth)]
+    calibs = [e for e in events if isinstance(e, Calibration)]
+    assert (len(frames), len(scans), len(gts)) == (3, 3, 3)
+    for i, frame in enumerate(frames):
+        sample = make_sample(SEED + i, stamp_ns=frame.stamp_ns - 5_000_000)
+        np.testing.assert_array_equal(frame.left, sample.left)
+        np.testing.assert_array_equal(frame.right, sample.right)
+        assert frame.rectified and frame.stamp_ns == 1_000_000_000 + i * 100_000_000
+        np.testing.assert_array_equal(scans[i].points, sample.scan.points)
+        np.testing.assert_array_equal(gts[i].disparity, sample.disp_left)
+    toml_calib = [c for c in calibs if c.toml]
+    info_calib = [c for c in calibs if c.focal_px]
+    assert len(toml_calib) == 1 and "T_cam_lidar" in toml_calib[0].toml
+    assert info_calib[0].focal_px == pytest.approx(450.0)
+    assert info_calib[0].baseline_m == pytest.approx(0.075)
+    assert topic_counts(recording)[TOPICS["left"]] == 3
+
+
+def test_a_cut_off_recording_replays_up_to_its_last_complete_chunk(recording, tmp_path,
+                                                                  caplog):
+    data = recording.read_bytes()
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[: int(len(data) * 0.7)])
+    source = McapSource(cut)
+    frames = [e for e in source if isinstance(e, StereoFrame)]
+    assert 1 <= len(frames) < 3
+    assert source.stats.truncated and "readable up to byte" in caplog.text
+    garbage = tmp_path / "garbage.mcap"
+    garbage.write_bytes(b"not an mcap file at all" * 10)
+    with pytest.raises(ReplayError, match="not a readable MCAP"):
+        McapSource(garbage).find_calibration()
+
+
+def test_a_mapped_topic_the_file_lacks_is_an_error_listing_its_topics(recording):
+    source = McapSource(recording, TopicMap(left="/camera/left/image_raw"))
+    with pytest.raises(ReplayError, match=r"/camera/left/image_raw.*/stereo/right/image_rect"):
+        list(source)
+    with pytest.raises(ReplayError, match="unknown roles"):
+        TopicMap.from_dict({"depth": "/x"})
+
+
+def test_replay_command_writes_results_and_scores_against_gt(recording, tmp_path, capsys):
+    out = tmp_path / "out.mcap"
+    assert main(["replay", str(recording), "--out", str(out), "--iters", "2"]) == 0
+    text = capsys.readouterr().out
+    assert text.count("EPE") == 4 and "overall EPE" in text and "2 it" in text
+    overall = float(text.split("overall EPE ")[1].split()[0])
+    assert 0 < overall < 3.0  # SGBM is ~4 px on these scenes (README)
+    counts = topic_counts(out)
+    for key in ("left", "right", "lidar", "sparse", "disparity", "depth", "points"):
+        assert counts[TOPICS[key]] == 3, key
+    # the output replays again (its results are ignored, its inputs are used)
+    events = list(McapSource(out))
+    assert sum(isinstance(e, StereoFrame) for e in events) == 3
+
+
+def test_faults_in_a_recording_are_counted_and_skipped(tmp_path, engine):
+    sample = make_sample(SEED)
+    stereo, lidar = SimSource(1).calibration
+    path = tmp_path / "faulty.mcap"
+    t = 1_000_000_000
+    with McapLogger(path, topics=RAW_TOPICS,
+                    calibration_toml=dumps_calibration(stereo, lidar)) as logger:
+        small = np.zeros((200, 320), np.uint8)
+        logger.log_frame(StereoFrame(t, 0, small, small, rectified=True))   # wrong size
+        nan_points = sample.scan.points.copy()
+        nan_points[:] = np.nan
+        logger.log_scan(LidarScan(t + 50_000_000, nan_points))           # all NaN
+        logger.log_frame(sample.frame(t + 100_000_000, 1))                  # no usable LiDAR
+        logger.log_scan(LidarScan(t + 150_000_000, np.zeros((0, 3), np.float32)))  # empty
+        logger.log_scan(LidarScan(t + 195_000_000, sample.scan.points))
+        logger.log_frame(sample.frame(t + 200_000_000, 2))                  # fine
+    out = tmp_path / "out.mcap"
+    with McapLogger(out) as logger:
+        pipeline = Pipeline(engine, stereo, lidar, logger)
+        stats = run(McapSource(path), pipeline)
+    assert stats.frames == 2 and stats.errors["frame size"] == 1
+    assert stats.errors["lidar scan without finite points"] == 2
+    assert topic_counts(out)[TOPICS["disparity"]] == 2
+
+
+def test_pipeline_logs_diagnostics_and_notifies_systemd(tmp_path, engine, monkeypatch):
+    sock_path = str(tmp_path / "notify.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(sock_path)
+    server.settimeout(2)
+    monkeypatch.setenv("NOTIFY_SOCKET", sock_path)
+    source = SimSource(2, SEED)
+    out = tmp_path / "d.mcap"
+    with McapLogger(out) as logger:
+        pipeline = Pipeline(engine, *source.calibration, logger)
+        run(source, pipeline, diagnostics_period_s=0.0)
+    messages = [server.recv(100).decode() for _ in range(4)]
+    server.close()
+    assert messages == ["READY=1", "WATCHDOG=1", "WATCHDOG=1", "STOPPING=1"]
+    with open(out, "rb") as f:
+        diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(
+            topics=[TOPICS["diagnostics"]])]
+    assert [d["frames"] for d in diags] == [1, 2]
+    assert diags[-1]["drops"] == 0 and diags[-1]["iterations"] == [4]
+    assert diags[-1]["latency_ms"]["engine"]["median"] > 0
+
+
+def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine):
+    class Burst:
+        """Frames arrive all at once: the queue of 2 must drop."""
+
+        def __init__(self) -> None:
+            self.sample = make_sample(SEED)
+
+        def close(self) -> None:
+            pass
+
+        def __iter__(self):
+            for i in range(8):
+                yield self.sample.frame(1_000_000_000 + i * 1_000_000, i)
+
+    source = Burst()
+    stereo, lidar = SimSource(1).calibration
+    pipeline = Pipeline(engine, stereo, lidar)
+    seen = []
+    stats = run(source, pipeline, threaded=True, queue_size=2,
+                on_output=lambda frame, out: seen.append(frame.seq))
+    assert stats.drops > 0 and stats.frames + stats.drops == 8
+    assert seen == sorted(seen) and seen[-1] == 7  # the newest frame is never dropped
+
+
+def test_logger_rotates_by_duration_and_every_file_is_complete(tmp_path):
+    sample = make_sample(SEED, RigConfig(width=160, height=96))
+    with McapLogger(tmp_path / "rot.mcap", rotate_s=0.25) as logger:
+        for i in range(6):
+            logger.log_frame(sample.frame(1_000_000_000 + i * 100_000_000, i))
+    assert [p.name for p in logger.files] == ["rot_0001.mcap", "rot_0002.mcap"]
+    counts = [topic_counts(p)[TOPICS["left"]] for p in logger.files]
+    assert counts == [3, 3]
+
+
+def test_sigterm_finishes_the_frame_and_closes_the_output(recording, tmp_path):
+    long_rec = tmp_path / "long.mcap"
+    write_sim_recording(long_rec, 12, SEED, period_ms=300.0)
+    out = tmp_path / "out.mcap"
+    code = ("import sys; from edge.cli import main; rc = main(sys.argv[1:]); "
+            "assert 'torch' not in sys.modules, 'torch imported'; sys.exit(rc)")
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code, "replay", str(long_rec), "--out", str(out), "--realtime"],
+        cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        env=dict(os.environ, PYTHONPATH=str(ROOT)))
+    lines = []
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline:
+        line = proc.stdout.readline()
+        lines.append(line)
+        if line.startswith("frame 1:"):
+            break
+    proc.send_signal(signal.SIGTERM)
+    rest, err = proc.communicate(timeout=60)
+    assert proc.returncode == 0, err
+    processed = [ln for ln in lines + rest.splitlines() if ln.startswith("frame ")]
+    assert 2 <= len(processed) < 12
+    assert topic_counts(out)[TOPICS["disparity"]] == len(processed)
+
+
+def test_topic_map_file_errors_are_one_line(tmp_path, recording, capsys):
+    bad = tmp_path / "topics.toml"
+    bad.write_text("[nottopics]\nleft = '/x'\n")
+    assert main(["replay", str(recording), "--out", str(tmp_path / "o.mcap"),
+                 "--topics", str(bad)]) == 1
+    assert "[topics] table" in capsys.readouterr().err
+
+
+def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
+    import cv2
+
+    assert main(["demo", "--out", str(tmp_path), "--frames", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "network (int8) EPE" in out and "OpenCV SGBM" in out
+    net = float(out.split("network (int8) EPE ")[1].split()[0])
+    sgbm = float(out.split("OpenCV SGBM     EPE ")[1].split()[0])
+    assert net < sgbm
+    assert cv2.imread(str(tmp_path / "demo.png")).shape == (800, 2560, 3)
+    assert topic_counts(tmp_path / "demo.mcap")[TOPICS["depth"]] == 2
+
+
+def test_stop_flag_stops_a_sequential_replay(recording, engine):
+    stop = StopFlag()
+    stereo, lidar = SimSource(1).calibration
+    pipeline = Pipeline(engine, stereo, lidar)
+    outputs = []
+
+    def on_output(frame, out):
+        outputs.append(frame.seq)
+        stop.set()
+
+    run(McapSource(recording), pipeline, stop, on_output=on_output)
+    assert outputs == [0]
