@@ -119,16 +119,28 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
                 else (1, cfg.search_width_px)
             wide = cv2.dilate(sparse, cv2.getStructuringElement(cv2.MORPH_RECT, across))
         signs = (1.0, -1.0) if cfg.both_directions else (1.0,)
+        # zero-pad by the search length so every probe is in bounds (zero never occludes)
+        pad = cfg.max_search_px + 1
+        padded = np.pad(wide, pad)
+        pw = w + 2 * pad
+        flat = (ys + pad) * pw + (xs + pad)
+        reach = gain * (float(wide.max()) - d) + cfg.slack_px  # no k beyond this can hit
         for sign in signs:
+            idx = np.nonzero(~occluded & (reach >= cfg.step_px))[0]
+            p_flat, p_d, p_thr, p_reach = flat[idx], d[idx], threshold[idx], reach[idx]
             for k in range(cfg.step_px, cfg.max_search_px + 1, cfg.step_px):
-                qx = np.rint(xs + sign * k * direction[0]).astype(np.int64)
-                qy = np.rint(ys + sign * k * direction[1]).astype(np.int64)
-                inside = (qx >= 0) & (qx < w) & (qy >= 0) & (qy < h)
-                if not inside.any():
-                    break
-                near = np.zeros_like(d)
-                near[inside] = wide[qy[inside], qx[inside]]
-                occluded |= (near > threshold) & (k <= gain * (near - d) + cfg.slack_px)
+                offset = int(np.rint(sign * k * direction[1])) * pw + \
+                    int(np.rint(sign * k * direction[0]))
+                near = padded.ravel()[p_flat + offset]
+                hit = (near > p_thr) & (gain * (near - p_d) + cfg.slack_px >= k)
+                occluded[idx[hit]] = True
+                # drop the points just removed and those no nearer point can reach any more
+                stay = ~hit & (p_reach >= k + cfg.step_px)
+                if not stay.all():
+                    idx, p_flat, p_d, p_thr, p_reach = (a[stay] for a in
+                                                        (idx, p_flat, p_d, p_thr, p_reach))
+                    if idx.size == 0:
+                        break
     keep[ys[occluded], xs[occluded]] = False
     return keep
 

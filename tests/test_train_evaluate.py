@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 
+import pytest
 import torch
 
 from edge.cli import main as cli
@@ -57,13 +58,23 @@ def test_evaluate_reports_every_method_and_writes_json(tmp_path, capsys):
     assert (tmp_path / "curve.png").stat().st_size > 0
 
 
-def test_bench_reports_medians_for_each_stage(tmp_path):
+def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
     from tools import bench
 
-    out = tmp_path / "bench.json"
-    assert bench.main(["--size", "160x100", "--repeat", "3", "--json", str(out)]) == 0
+    out, md = tmp_path / "bench.json", tmp_path / "bench.md"
+    assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1,4", "--rss-frames", "1",
+                       "--json", str(out), "--markdown", str(md)]) == 0
     result = json.loads(out.read_text())
-    for stage in ("rectify", "project_filter", "sgbm"):
-        assert result[stage]["runs"] == 3
-        assert 0 < result[stage]["median_ms"] <= result[stage]["p95_ms"]
-    assert result["sgbm_ms"] == result["sgbm"]["median_ms"] and result["points"] > 0
+    stages = result["stages"]
+    for stage in ("rectify", "project_filter", "sgbm", "log", "frame", "encoder", "step",
+                  "upsample", "engine_int8_4"):
+        assert 0 < stages[stage]["median_ms"] <= stages[stage]["p95_ms"], stage
+    assert stages["sgbm"]["runs"] == 2
+    assert result["sgbm_ms"] == stages["sgbm"]["median_ms"]
+    assert set(result["engine_ms"]) == {"fp32", "int8"}
+    assert set(result["engine_ms"]["int8"]) == {"1", "4"}
+    assert result["engine_ms"]["int8"]["1"] < result["engine_ms"]["int8"]["4"]
+    assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
+        result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
+    assert 50 < result["replay_peak_rss_mb"] < 4000
+    assert "int8 engine / SGBM" in md.read_text()
