@@ -46,7 +46,9 @@ def parse_args(argv):
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--patterns", default="beams16")
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--workers", type=int, default=1,
+                   help="data-generation processes (0: in the training process)")
+    p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--ckpt-every", type=int, default=250)
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
@@ -118,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     # denormal floats (early training, tiny activations) make CPU convolutions crawl
     torch.set_flush_denormal(True)
+    if args.threads:
+        torch.set_num_threads(args.threads)
     cw, ch = (int(v) for v in args.crop.split("x"))
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse)

@@ -1,0 +1,173 @@
+"""Serial LiDAR sources: port handling around the pure decoders (ld06.py, rplidar.py).
+
+Opened with `serial.serial_for_url`, so `/dev/ttyUSB0`, a pseudo-terminal and `loop://` all
+work. A read timeout is not an error; a `SerialException` or `OSError` (unplugged cable)
+closes the port, waits with exponential back-off and reopens, counting the reconnect.
+`close()` from another thread stops the iteration promptly (`cancel_read`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter
+
+import numpy as np
+
+from edge.capture import ld06, rplidar
+from edge.errors import ConfigError, EdgeError
+from edge.types import LidarScan
+
+log = logging.getLogger(__name__)
+
+MODELS = {"ld06": 230400, "ld19": 230400, "rplidar-a1": 115200, "rplidar-a2": 115200}
+
+
+class LidarDeviceError(EdgeError):
+    """The device answered, but not as a working LiDAR (e.g. health status 'error')."""
+
+
+class SerialLidarSource:
+    def __init__(self, url: str, model: str = "ld06", baudrate: int | None = None,
+                 read_size: int = 1024, timeout_s: float = 0.1,
+                 backoff_s: tuple[float, float] = (0.2, 5.0), clock=time.monotonic_ns) -> None:
+        if model not in MODELS:
+            raise ConfigError("lidar.model", f"one of {sorted(MODELS)}", model)
+        self.url, self.model = url, model
+        self.baudrate = baudrate or MODELS[model]
+        self.read_size, self.timeout_s = read_size, timeout_s
+        self.backoff_s = backoff_s
+        self.clock = clock
+        self._stop = threading.Event()
+        self._port = None
+        self.scans = 0
+        self.reconnects = 0
+        self.connects = 0
+        self.errors: Counter = Counter()
+        self.decoder = None
+
+    # -- lifecycle ---------------------------------------------------------------------------
+    def close(self) -> None:
+        self._stop.set()
+        port = self._port
+        if port is not None:
+            try:
+                port.cancel_read()
+            except Exception:  # noqa: BLE001 - not every port type can cancel
+                pass
+
+    def __enter__(self) -> SerialLidarSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _open(self):
+        import serial
+
+        port = serial.serial_for_url(self.url, baudrate=self.baudrate, timeout=self.timeout_s)
+        if self.model.startswith("rplidar"):
+            self._start_rplidar(port)
+            self.decoder = rplidar.RPLidarDecoder()
+        else:
+            self.decoder = ld06.LD06Decoder()
+        self.connects += 1
+        return port
+
+    def _start_rplidar(self, port) -> None:
+        port.write(rplidar.request(rplidar.CMD_STOP))
+        time.sleep(0.01)
+        port.reset_input_buffer()
+        port.write(rplidar.request(rplidar.CMD_GET_HEALTH))
+        reply = port.read(10)
+        if len(reply) == 10:
+            status, code = rplidar.parse_health(reply[7:])
+            if status == "error":
+                raise LidarDeviceError(f"{self.url}: RPLIDAR health 'error' (code {code}); "
+                                       "power-cycle or send a reset")
+        else:
+            self.errors["no health reply"] += 1
+        if self.model == "rplidar-a1":
+            try:
+                port.dtr = False  # the A1's USB adapter runs the motor while DTR is low
+            except OSError:
+                self.errors["dtr"] += 1
+        else:
+            port.write(rplidar.set_pwm_request())
+        port.write(rplidar.request(rplidar.CMD_SCAN))
+
+    def _close_port(self) -> None:
+        port, self._port = self._port, None
+        if port is not None:
+            try:
+                if self.model.startswith("rplidar"):
+                    port.write(rplidar.request(rplidar.CMD_STOP))
+                port.close()
+            except Exception:  # noqa: BLE001 - the device may already be gone
+                pass
+
+    # -- iteration -----------------------------------------------------------------------------
+    def __iter__(self):
+        import serial
+
+        delay = self.backoff_s[0]
+        assembler = ld06.RevolutionAssembler()
+        revolution: list[rplidar.ScanNode] = []
+        rev_stamp = 0
+        try:
+            while not self._stop.is_set():
+                if self._port is None:
+                    try:
+                        self._port = self._open()
+                        if self.connects > 1:
+                            self.reconnects += 1
+                            log.warning("%s: reconnected", self.url)
+                        delay = self.backoff_s[0]
+                    except (serial.SerialException, OSError, LidarDeviceError) as exc:
+                        self.errors[f"open: {type(exc).__name__}"] += 1
+                        self._stop.wait(delay)
+                        delay = min(delay * 2, self.backoff_s[1])
+                        continue
+                try:
+                    data = self._port.read(self.read_size)
+                except (serial.SerialException, OSError) as exc:
+                    if self._stop.is_set():
+                        break
+                    self.errors[f"read: {type(exc).__name__}"] += 1
+                    log.warning("%s: %s; reconnecting", self.url, exc)
+                    self._close_port()
+                    assembler = ld06.RevolutionAssembler()
+                    revolution = []
+                    continue
+                if not data:
+                    continue
+                now = int(self.clock())
+                if isinstance(self.decoder, ld06.LD06Decoder):
+                    for packet in self.decoder.feed(data):
+                        scan = assembler.add(packet, now)
+                        if scan is not None:
+                            self.scans += 1
+                            yield scan
+                else:
+                    for node in self.decoder.feed(data):
+                        if node.start and revolution:
+                            self.scans += 1
+                            yield nodes_to_scan(revolution, rev_stamp)
+                            revolution = []
+                        if not revolution:
+                            rev_stamp = now
+                        revolution.append(node)
+        finally:
+            self._close_port()
+
+
+def nodes_to_scan(nodes: list[rplidar.ScanNode], stamp_ns: int) -> LidarScan:
+    """One revolution of RPLIDAR nodes -> LidarScan in the LiDAR frame (clockwise angles)."""
+    a = np.deg2rad(np.array([n.angle_deg for n in nodes], np.float32))
+    r = np.array([n.distance_mm for n in nodes], np.float32) / 1000.0
+    q = np.array([n.quality for n in nodes], np.float32)
+    keep = r > 0
+    a, r, q = a[keep], r[keep], q[keep]
+    pts = np.stack([r * np.cos(a), -r * np.sin(a), np.zeros_like(r)], 1).astype(np.float32)
+    return LidarScan(int(stamp_ns), pts, q, np.full(len(r), int(stamp_ns), np.int64))
