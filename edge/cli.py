@@ -6,6 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from calibration.errors import CalibrationError
 from edge.errors import EdgeError
 
 
@@ -58,13 +59,15 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     synth = sub.add_parser("synth", help="write synthetic scene folders with exact ground truth")
-    synth.add_argument("--out", required=True, type=Path, help="output directory")
-    synth.add_argument("--count", type=_positive_int, default=1, help="number of scenes")
+    synth.add_argument("--out", type=Path, help="output directory of scene folders")
+    synth.add_argument("--mcap", type=Path, default=None,
+                       help="write one MCAP recording here instead (robot topics, the "
+                            "calibration, GT disparity on /sim/gt_disparity)")
+    synth.add_argument("--count", "--frames", type=_positive_int, default=1,
+                       help="number of scenes (frames)")
     synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
     synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
     synth.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
-    synth.add_argument("--mcap", action="store_true",
-                       help="write one MCAP recording (--out FILE.mcap) instead of folders")
 
     demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
     demo.add_argument("--out", type=Path, default=Path("out"))
@@ -90,6 +93,17 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--threads", type=_positive_int, default=2)
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
+    run = sub.add_parser("run", help="the on-robot depth daemon")
+    run.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
+    run.add_argument("--out", type=Path, default=None, help="override log.out")
+    run.add_argument("--live", action="store_true",
+                     help="also serve a Foxglove WebSocket on 127.0.0.1:8765")
+    run.add_argument("--max-frames", type=_positive_int, default=None,
+                     help="stop after this many frames (dry runs)")
+    record = sub.add_parser("record", help="record the live sensors to MCAP")
+    record.add_argument("--config", type=Path, required=True)
+    record.add_argument("--out", type=Path, required=True)
+    record.add_argument("--max-frames", type=_positive_int, default=None)
     from calibration.cli import add_parsers
 
     add_parsers(sub)
@@ -99,6 +113,8 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    if args.command == "synth" and (args.out is None) == (args.mcap is None):
+        parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
     try:
         if args.command == "synth":
             from edge.sim.export import synth_command
@@ -108,9 +124,9 @@ def main(argv: list[str] | None = None) -> int:
                 from edge.sim import RigConfig
 
                 w, h = args.size
-                n = write_sim_recording(args.out, args.count, args.seed,
+                n = write_sim_recording(args.mcap, args.count, args.seed,
                                         RigConfig(width=w, height=h), args.lidar)
-                print(f"wrote {args.out} ({args.count} frames, {n} messages)")
+                print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
                 return 0
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
@@ -129,7 +145,15 @@ def main(argv: list[str] | None = None) -> int:
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
                                   args.calib, topics, args.precision, args.realtime,
                                   args.threads, args.bundle)
-    except (EdgeError, OSError) as exc:
+        if args.command == "run":
+            from edge.daemon import run_command
+
+            return run_command(args.config, args.out, args.live, args.max_frames)
+        if args.command == "record":
+            from edge.daemon import record_command
+
+            return record_command(args.config, args.out, args.max_frames)
+    except (EdgeError, CalibrationError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
         return 1
     parser.error(f"unknown command {args.command}")

@@ -109,7 +109,7 @@ class McapLogger:
     def __init__(self, path: str | Path, topics: tuple[str, ...] | None = None,
                  rotate_bytes: int | None = None, rotate_s: float | None = None,
                  calibration_toml: str | None = None, chunk_size: int = 1 << 20,
-                 compression: str = "lz4", live: bool = False) -> None:
+                 compression: str = "lz4", live: bool = False, live_port: int = 8765) -> None:
         import foxglove
 
         self.path = Path(path)
@@ -132,7 +132,8 @@ class McapLogger:
         self._file_start_ns: int | None = None
         self.server = None
         if live:
-            self.server = foxglove.start_server(context=self.context, host="127.0.0.1")
+            self.server = foxglove.start_server(context=self.context, host="127.0.0.1",
+                                                port=live_port, name="edge-depth")
         self._open(None)
 
     # -- files -------------------------------------------------------------------------------

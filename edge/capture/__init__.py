@@ -2,3 +2,61 @@
 
 A source is an iterable of events (`StereoFrame`, `LidarScan`, and for replay and the rig
 `Calibration` / `GroundTruth`), a context manager, and stops on `close()` from any thread."""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+
+class MergedSource:
+    """Several sources (a camera and a LiDAR) as one event stream: each runs in its own
+    thread; events come out in arrival order. Ends when every source has ended."""
+
+    def __init__(self, sources: list) -> None:
+        self.sources = sources
+        self._queue: queue.Queue = queue.Queue(maxsize=256)
+        self._stop = threading.Event()
+        self.errors: list[BaseException] = []
+
+    def close(self) -> None:
+        self._stop.set()
+        for source in self.sources:
+            source.close()
+
+    def __enter__(self) -> MergedSource:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def _pump(self, source) -> None:
+        try:
+            for event in source:
+                while not self._stop.is_set():
+                    try:
+                        self._queue.put(event, timeout=0.1)
+                        break
+                    except queue.Full:
+                        continue
+                if self._stop.is_set():
+                    break
+        except Exception as exc:  # noqa: BLE001 - reported by the consumer's thread
+            self.errors.append(exc)
+        finally:
+            self._queue.put(None)
+
+    def __iter__(self):
+        threads = [threading.Thread(target=self._pump, args=(s,), daemon=True)
+                   for s in self.sources]
+        for t in threads:
+            t.start()
+        running = len(threads)
+        while running:
+            event = self._queue.get()
+            if event is None:
+                running -= 1
+                continue
+            yield event
+        if self.errors:
+            raise self.errors[0]

@@ -36,7 +36,9 @@ class ReplayError(EdgeError):
 
 @dataclass(frozen=True)
 class TopicMap:
-    """Which topic plays which role. Defaults: this project's own topics."""
+    """Which topic plays which role. Defaults: this project's own topics. `rectified`: the
+    mapped images are already rectified (ours are); false for raw camera images, which the
+    pipeline then rectifies with the calibration."""
 
     left: str = TOPICS["left"]
     right: str = TOPICS["right"]
@@ -45,6 +47,7 @@ class TopicMap:
     right_info: str = TOPICS["right_calibration"]
     calibration: str = TOPICS["calibration_file"]
     gt: str = TOPICS["gt_disparity"]
+    rectified: bool = True
 
     @classmethod
     def from_dict(cls, data: dict) -> TopicMap:
@@ -241,6 +244,7 @@ class McapSource:
         self.check_topics()
         t = self.topics
         wanted = {t.left, t.right, t.lidar, t.left_info, t.right_info, t.calibration, t.gt}
+        wanted.discard("")
         pending: dict[int, dict[str, np.ndarray]] = {}
         first_log = wall0 = None
         with open(self.path, "rb") as f:
@@ -341,10 +345,9 @@ class McapSource:
             else:
                 pair = pending.pop(match)
                 pair[side] = image
-                rectified = t.left == TOPICS["left"] or "rect" in t.left
                 self.stats.frames += 1
                 yield StereoFrame(min(match, stamp), self.stats.frames - 1, pair["left"],
-                                  pair["right"], rectified=rectified)
+                                  pair["right"], rectified=t.rectified)
             # a half pair older than a second will not be completed
             for s in [s for s in pending if stamp - s > 1_000_000_000]:
                 del pending[s]

@@ -17,10 +17,11 @@ from edge.sim.lidar import default_T_cam_lidar
 class SimSource:
     def __init__(self, count: int, seed: int = 0, rig: RigConfig | None = None,
                  lidar: str = "beams16", period_ms: float = 100.0, lidar_lag_ms: float = 5.0,
-                 start_ns: int = 1_000_000_000) -> None:
+                 start_ns: int = 1_000_000_000, realtime: bool = False) -> None:
         self.count, self.seed, self.rig, self.lidar = count, seed, rig or RigConfig(), lidar
         self.period_ns, self.lag_ns = int(period_ms * 1e6), int(lidar_lag_ms * 1e6)
         self.start_ns = start_ns
+        self.realtime = realtime
         self._stop = threading.Event()
         self.frames = self.scans = 0
 
@@ -41,7 +42,12 @@ class SimSource:
         self.close()
 
     def __iter__(self):
+        import time
+
+        t0 = time.monotonic()
         for i in range(self.count):
+            if self.realtime:  # a frame every period_ms, like a camera
+                self._stop.wait(max(0.0, t0 + i * self.period_ns / 1e9 - time.monotonic()))
             if self._stop.is_set():
                 return
             stamp = self.start_ns + i * self.period_ns

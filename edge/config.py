@@ -1,0 +1,177 @@
+"""The robot's configuration file (TOML) for `edge-depth run` and `edge-depth record`.
+
+    [camera]                    # source: "oak" | "sim" (the synthetic rig, for dry runs)
+    source = "oak"
+    size = [640, 400]
+    fps = 30.0
+    device_id = ""              # "" = the first OAK found
+
+    [lidar]                     # model: "ld06" | "ld19" | "rplidar-a1" | "rplidar-a2" |
+    model = "ld06"              #        "sim" (with camera.source = "sim") | "none"
+    port = "/dev/ttyUSB0"       # anything serial_for_url opens
+    baudrate = 0                # 0 = the model's default
+
+    [calibration]
+    file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
+                                # calibration and no LiDAR extrinsics (LiDAR unused)
+
+    [sync]
+    mode = "accumulate"         # "nearest" (spinning 3-D) | "accumulate" (2-D scanner)
+    window_ms = 100.0
+
+    [engine]
+    bundle = ""                 # "" = the shipped bundle
+    precision = "int8"
+    threads = 2
+    iters = 4
+    deadline_ms = 0.0           # 0 = no deadline
+
+    [log]
+    out = "logs/depth.mcap"
+    raw = true                  # also log the rectified images and the raw points
+    rotate_mb = 1024.0          # 0 = never
+    rotate_s = 0.0              # 0 = never
+    compression = "lz4"         # "lz4" | "zstd" | "none"
+    queue = 2                   # frames waiting for inference before the oldest is dropped
+
+Every section and key is optional except where the source needs it; unknown keys and wrong
+types are errors that name the file and the key.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+
+import tomllib
+
+from edge.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class CameraConfig:
+    source: str = "oak"
+    size: tuple[int, int] = (640, 400)
+    fps: float = 30.0
+    device_id: str = ""
+
+
+@dataclass(frozen=True)
+class LidarConfig:
+    model: str = "ld06"
+    port: str = "/dev/ttyUSB0"
+    baudrate: int = 0
+
+
+@dataclass(frozen=True)
+class CalibrationConfig:
+    file: str = ""
+
+
+@dataclass(frozen=True)
+class SyncSection:
+    mode: str = "accumulate"
+    window_ms: float = 100.0
+
+
+@dataclass(frozen=True)
+class EngineConfig:
+    bundle: str = ""
+    precision: str = "int8"
+    threads: int = 2
+    iters: int = 4
+    deadline_ms: float = 0.0
+
+
+@dataclass(frozen=True)
+class LogConfig:
+    out: str = "logs/depth.mcap"
+    raw: bool = True
+    rotate_mb: float = 1024.0
+    rotate_s: float = 0.0
+    compression: str = "lz4"
+    queue: int = 2
+
+
+@dataclass(frozen=True)
+class RobotConfig:
+    camera: CameraConfig = field(default_factory=CameraConfig)
+    lidar: LidarConfig = field(default_factory=LidarConfig)
+    calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
+    sync: SyncSection = field(default_factory=SyncSection)
+    engine: EngineConfig = field(default_factory=EngineConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    path: str = "<defaults>"
+
+
+CHOICES = {
+    ("camera", "source"): ("oak", "sim"),
+    ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
+    ("sync", "mode"): ("nearest", "accumulate"),
+    ("engine", "precision"): ("int8", "fp32"),
+    ("log", "compression"): ("lz4", "zstd", "none"),
+}
+POSITIVE = {("camera", "fps"), ("engine", "threads"), ("engine", "iters"), ("log", "queue"),
+            ("sync", "window_ms")}
+
+
+def _convert(path: str, key: str, value, default):
+    if isinstance(default, bool):
+        ok = isinstance(value, bool)
+    elif isinstance(default, int):
+        ok = isinstance(value, int) and not isinstance(value, bool)
+    elif isinstance(default, float):
+        ok = isinstance(value, (int, float)) and not isinstance(value, bool)
+        value = float(value) if ok else value
+    elif isinstance(default, tuple):
+        ok = (isinstance(value, list) and len(value) == len(default)
+              and all(isinstance(v, int) and v > 0 for v in value))
+        value = tuple(value) if ok else value
+    else:
+        ok = isinstance(value, str)
+    if not ok:
+        raise ConfigError(key, f"{type(default).__name__} like {default!r}", value, path)
+    return value
+
+
+def load_robot_config(path: str | Path) -> RobotConfig:
+    path = str(path)
+    try:
+        with open(path, "rb") as f:
+            data = tomllib.load(f)
+    except FileNotFoundError:
+        raise ConfigError("file", "an existing TOML file", path) from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError("file", f"valid TOML ({exc})", path) from None
+    sections = {f.name: f for f in fields(RobotConfig) if f.name != "path"}
+    unknown = set(data) - set(sections)
+    if unknown:
+        raise ConfigError(sorted(unknown)[0], f"one of the sections {sorted(sections)}",
+                          "unknown section", path)
+    built = {}
+    for name, section_field in sections.items():
+        cls = section_field.default_factory
+        table = data.get(name, {})
+        if not isinstance(table, dict):
+            raise ConfigError(name, "a table", table, path)
+        defaults = cls()
+        values = {}
+        for key, value in table.items():
+            if key not in {f.name for f in fields(cls)}:
+                raise ConfigError(f"{name}.{key}", f"one of {[f.name for f in fields(cls)]}",
+                                  "unknown key", path)
+            value = _convert(path, f"{name}.{key}", value, getattr(defaults, key))
+            if (name, key) in CHOICES and value not in CHOICES[(name, key)]:
+                raise ConfigError(f"{name}.{key}", f"one of {CHOICES[(name, key)]}", value,
+                                  path)
+            if (name, key) in POSITIVE and not value > 0:
+                raise ConfigError(f"{name}.{key}", "> 0", value, path)
+            values[key] = value
+        built[name] = cls(**values)
+    config = RobotConfig(**built, path=path)
+    if config.lidar.model == "sim" and config.camera.source != "sim":
+        raise ConfigError("lidar.model", "'sim' only with camera.source = 'sim'", "sim", path)
+    if config.camera.source == "sim" and config.lidar.model not in ("sim", "none"):
+        raise ConfigError("lidar.model", "'sim' or 'none' with camera.source = 'sim'",
+                          config.lidar.model, path)
+    return config

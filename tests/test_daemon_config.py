@@ -1,0 +1,113 @@
+"""`edge-depth run` / `record` and the robot configuration file."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from edge.capture.replay import McapSource
+from edge.cli import main
+from edge.config import load_robot_config
+from edge.errors import ConfigError
+from edge.mcap_log import TOPICS, McapLogger
+from edge.types import StereoFrame
+from tests.test_pipeline_mcap import topic_counts
+
+SIM = """
+[camera]
+source = "sim"
+fps = 20.0
+[lidar]
+model = "sim"
+[sync]
+mode = "nearest"
+[log]
+out = "{out}"
+rotate_mb = 0.0
+"""
+
+
+def write(tmp_path, text, name="robot.toml"):
+    path = tmp_path / name
+    path.write_text(text)
+    return path
+
+
+@pytest.mark.parametrize("text, key", [
+    ("[camera]\nsource = 'usb'\n", "camera.source"),
+    ("[camera]\nfps = 'fast'\n", "camera.fps"),
+    ("[camera]\nsize = [640]\n", "camera.size"),
+    ("[engine]\nthreads = 0\n", "engine.threads"),
+    ("[engine]\nbatch = 4\n", "engine.batch"),
+    ("[motors]\n", "motors"),
+    ("[camera]\nsource = 'oak'\n[lidar]\nmodel = 'sim'\n", "lidar.model"),
+])
+def test_config_errors_name_the_file_and_the_key(tmp_path, text, key):
+    path = write(tmp_path, text)
+    with pytest.raises(ConfigError) as info:
+        load_robot_config(path)
+    assert info.value.key == key and str(path) in str(info.value)
+
+
+def test_defaults_and_values_load():
+    import tomllib
+
+    cfg = load_robot_config.__globals__["RobotConfig"]()
+    assert cfg.camera.size == (640, 400) and cfg.engine.precision == "int8"
+    text = "[camera]\nsize = [320, 200]\n[log]\nraw = false\n"
+    assert tomllib.loads(text)  # valid TOML
+
+
+def test_a_missing_calibration_key_stops_before_any_device_opens(tmp_path, monkeypatch,
+                                                                capsys):
+    import edge.capture.oak as oak
+    import edge.capture.serial_lidar as serial_lidar
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a device was opened")
+
+    monkeypatch.setattr(oak.OakSource, "__init__", refuse)
+    monkeypatch.setattr(serial_lidar.SerialLidarSource, "__init__", refuse)
+    calib = write(tmp_path, "[stereo]\nimage_size = [640, 400]\n", "calib.toml")
+    cfg = write(tmp_path, f"[camera]\nsource = 'oak'\n[calibration]\nfile = '{calib}'\n")
+    assert main(["run", "--config", str(cfg)]) == 1
+    err = capsys.readouterr().err
+    assert str(calib) in err and "stereo" in err
+
+
+def test_run_on_the_virtual_robot_logs_results_and_diagnostics(tmp_path, capsys):
+    out = tmp_path / "depth.mcap"
+    cfg = write(tmp_path, SIM.format(out=out))
+    assert main(["run", "--config", str(cfg), "--max-frames", "3"]) == 0
+    text = capsys.readouterr().out
+    assert "3 frames" in text and "errors none" in text
+    counts = topic_counts(out)
+    assert counts[TOPICS["disparity"]] == 3 and counts[TOPICS["depth"]] == 3
+    assert counts[TOPICS["left"]] == 3 and counts[TOPICS["lidar"]] >= 3
+    assert counts[TOPICS["diagnostics"]] >= 1
+
+
+def test_record_then_replay(tmp_path, capsys):
+    rec = tmp_path / "rec.mcap"
+    cfg = write(tmp_path, SIM.format(out=tmp_path / "unused.mcap"))
+    assert main(["record", "--config", str(cfg), "--out", str(rec), "--max-frames", "2"]) == 0
+    assert "recorded 2 frames" in capsys.readouterr().out
+    frames = [e for e in McapSource(rec) if isinstance(e, StereoFrame)]
+    assert len(frames) == 2 and frames[0].left.shape == (400, 640)
+    assert main(["replay", str(rec), "--out", str(tmp_path / "out.mcap")]) == 0
+    assert "2 frames" in capsys.readouterr().out
+
+
+def test_live_view_serves_a_foxglove_websocket(tmp_path):
+    request = ("GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\n"
+               "Connection: Upgrade\r\nSec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\n"
+               "Sec-WebSocket-Version: 13\r\nSec-WebSocket-Protocol: foxglove.sdk.v1, "
+               "foxglove.websocket.v1\r\n\r\n")
+    with McapLogger(tmp_path / "live.mcap", live=True, live_port=0) as logger:
+        port = logger.server.port
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as conn:
+            conn.sendall(request.encode())
+            reply = conn.recv(4096).decode(errors="replace")
+    assert reply.startswith("HTTP/1.1 101") and "foxglove" in reply
+    assert logger.server is None
