@@ -173,3 +173,19 @@ def test_depth_is_zero_and_invalid_below_the_minimum_disparity():
     depth, valid = disparity_to_depth(d, 400.0, 0.1)
     assert valid.tolist() == [[False, False, True, True, False]]
     np.testing.assert_allclose(depth, [[0, 0, 80.0, 4.0, 0]])
+
+
+def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
+    from edge.cli import main as cli
+    from tools import evaluate
+
+    data = tmp_path / "scenes"
+    assert cli(["synth", "--out", str(data), "--count", "1", "--seed", "1000002"]) == 0
+    out = tmp_path / "eval.json"
+    assert evaluate.main([str(data), "--methods", "net,sgbm", "--json", str(out)]) == 0
+    summary = json.loads(out.read_text())
+    assert summary["net"]["epe"] < summary["sgbm"]["epe"]
+    small = tmp_path / "small"
+    assert cli(["synth", "--out", str(small), "--count", "1", "--size", "320x200"]) == 0
+    with pytest.raises(SystemExit, match="export a bundle at this size"):
+        evaluate.main([str(small), "--methods", "net"])

@@ -1,7 +1,12 @@
 """Evaluate disparity methods on scene folders against their ground truth, in one run.
 
-    python tools/evaluate.py DATA_DIR [--model CHECKPOINT] [--methods net,sgbm,lidar-nearest,
-        lidar-linear] [--iters 4] [--json OUT] [--plot OUT.png]
+    python tools/evaluate.py DATA_DIR [--model CHECKPOINT_OR_BUNDLE] [--precision int8]
+        [--methods net,sgbm,lidar-nearest,lidar-linear] [--iters 4] [--json OUT]
+        [--plot OUT.png]
+
+The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
+downsample factor) or an exported bundle directory (run with the ONNX Runtime engine at the
+bundle's input size); the default is the shipped bundle, int8.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
@@ -23,6 +28,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.baselines import lidar_linear, lidar_nearest, make_sgbm, sgbm_disparity  # noqa: E402
 from edge.metrics import depth_metrics, disparity_metrics  # noqa: E402
+from edge.runtime.engine import DEFAULT_BUNDLE  # noqa: E402
 from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
@@ -57,9 +63,29 @@ class TorchNet:
         return out[0, 0, :h, :w].numpy()
 
 
+class BundleNet:
+    """An exported bundle run by the robot-side engine (ONNX Runtime)."""
+
+    def __init__(self, path: Path, precision: str = "int8") -> None:
+        from edge.runtime.engine import Engine
+
+        self.engine = Engine(path, precision=precision, threads=2)
+
+    def __call__(self, left, right, sparse, iters: int) -> np.ndarray:
+        if left.shape != (self.engine.height, self.engine.width):
+            raise SystemExit(f"scene is {left.shape[1]}x{left.shape[0]}, the bundle takes "
+                             f"{self.engine.width}x{self.engine.height}: evaluate a checkpoint "
+                             "or export a bundle at this size (tools/export.py --size)")
+        return self.engine.infer(left, right, sparse, iters=iters).disparity
+
+
+def load_net(model: Path, precision: str = "int8"):
+    return BundleNet(model, precision) if model.is_dir() else TorchNet(model)
+
+
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
-             model: Path | None) -> dict[str, dict[str, float]]:
-    net = TorchNet(model) if "net" in methods else None
+             model: Path | None, precision: str = "int8") -> dict[str, dict[str, float]]:
+    net = load_net(model, precision) if "net" in methods else None
     sgbm = make_sgbm()
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
@@ -114,7 +140,11 @@ def markdown_table(summary: dict[str, dict[str, float]]) -> str:
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("data", type=Path, help="a scene folder or a folder of them")
-    p.add_argument("--model", type=Path, default=None, help="training checkpoint (.pt)")
+    p.add_argument("--model", type=Path, default=DEFAULT_BUNDLE,
+                   help="training checkpoint (.pt) or bundle directory (default: the shipped "
+                        "bundle)")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8",
+                   help="for a bundle")
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--json", type=Path, default=None)
@@ -128,12 +158,12 @@ def main(argv: list[str] | None = None) -> int:
         iters_list = [int(v) for v in args.iters.split(",")]
     except ValueError:
         p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
-    if "net" in methods and args.model is None:
-        p.error("--model is needed for the net method (no shipped model yet)")
+    if "net" in methods and not args.model.exists():
+        p.error(f"--model {args.model}: no such checkpoint or bundle")
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    summary = evaluate(folders, methods, iters_list, args.model)
+    summary = evaluate(folders, methods, iters_list, args.model, args.precision)
     print(markdown_table(summary))
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
