@@ -1,7 +1,13 @@
 """Train the sparse-LiDAR stereo network on the synthetic rig (supervised or self-supervised).
 
     python tools/train.py --out runs/sup --steps 6000 [--mode supervised|self]
-        [--split half2] [--resume] [--init CHECKPOINT]
+        [--split half2] [--resume] [--init CHECKPOINT] [--data SPEC]
+    torchrun --nproc_per_node=N tools/train.py ...      # DistributedDataParallel
+
+--data: scene folders, a .mcap recording (self-supervised fine-tuning on the robot's own
+data), kitti:DIR or sceneflow:DIR (edge/model/datasets.py); default: the synthetic rig.
+Under torchrun every rank trains on its own shard of the data (gloo on CPU, nccl on GPU);
+rank 0 logs and checkpoints, and at the end all ranks compare a checksum of their weights.
 
 Checkpoints (`last.pt`, every --ckpt-every steps) make long runs resumable; metrics go to
 `metrics.csv` and `loss.png` in the output folder.
@@ -11,7 +17,9 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
+import os
 import sys
 import time
 from pathlib import Path
@@ -22,7 +30,12 @@ from torch.utils.data import DataLoader
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from edge.model.config import ModelConfig  # noqa: E402
-from edge.model.data import VAL_SEED0, FixedSplit, SyntheticTrainSet  # noqa: E402
+from edge.model.data import (  # noqa: E402
+    VAL_SEED0,
+    FixedSplit,
+    RecordedTrainSet,
+    SyntheticTrainSet,
+)
 from edge.model.losses import (  # noqa: E402
     self_supervised_loss,
     sequence_loss,
@@ -53,27 +66,51 @@ def parse_args(argv):
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
+    p.add_argument("--data", default=None,
+                   help="scene folders, REC.mcap, kitti:DIR or sceneflow:DIR (default: the rig)")
     return p.parse_args(argv)
 
 
 def self_supervised_step(net, batch, split: str, iters: int):
-    """The paper's loss on the left view and on the flipped, swapped pair for the right."""
+    """The paper's loss on the left view and on the flipped, swapped pair for the right. Both
+    go through the network as one stacked batch: one forward per step, as DDP expects."""
     inp_l, sup_l = split_sparse(batch["valid"], split)
     inp_r, sup_r = split_sparse(batch["valid_right"], split)
-    preds_l = net(batch["left"], batch["right"], batch["sparse"] * inp_l, inp_l, iters)
     flip = lambda t: torch.flip(t, [-1])  # noqa: E731
-    preds_r = net(flip(batch["right"]), flip(batch["left"]), flip(batch["sparse_right"] * inp_r),
-                  flip(inp_r), iters)
+    b = batch["left"].shape[0]
+    preds = net(torch.cat([batch["left"], flip(batch["right"])]),
+                torch.cat([batch["right"], flip(batch["left"])]),
+                torch.cat([batch["sparse"] * inp_l, flip(batch["sparse_right"] * inp_r)]),
+                torch.cat([inp_l, flip(inp_r)]), iters)
     total, terms = 0.0, {}
-    n = len(preds_l)
-    for i, (d_l, d_r_flipped) in enumerate(zip(preds_l, preds_r, strict=True)):
-        d_r = flip(d_r_flipped)
+    n = len(preds)
+    for i, pred in enumerate(preds):
+        d_l, d_r = pred[:b], flip(pred[b:])
         t_l = view_loss(batch["left"], batch["right"], d_l, d_r, batch["sparse"], sup_l, -1.0)
         t_r = view_loss(batch["right"], batch["left"], d_r, d_l, batch["sparse_right"], sup_r,
                         1.0)
         loss, terms = self_supervised_loss(t_l, t_r)
         total = total + 0.9 ** (n - 1 - i) * loss
-    return total, {k: float(v) for k, v in terms.items()}, preds_l[-1]
+    return total, {k: float(v.detach()) for k, v in terms.items()}, preds[-1][:b]
+
+
+def setup_distributed() -> tuple[int, int]:
+    """(rank, world size); under torchrun, joins the process group (gloo on CPU)."""
+    import os
+
+    world = int(os.environ.get("WORLD_SIZE", "1"))
+    if world == 1:
+        return 0, 1
+    import torch.distributed as dist
+
+    backend = "nccl" if torch.cuda.is_available() else "gloo"
+    dist.init_process_group(backend)
+    return dist.get_rank(), world
+
+
+def weights_checksum(model) -> float:
+    return float(sum(p.detach().double().sum() * (i + 1)
+                     for i, p in enumerate(model.parameters())))
 
 
 def validate(net, iters: int, count: int = 8) -> dict[str, float]:
@@ -117,6 +154,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     from tqdm import tqdm
 
+    rank, world = setup_distributed()
+    main_rank = rank == 0
     args.out.mkdir(parents=True, exist_ok=True)
     # denormal floats (early training, tiny activations) make CPU convolutions crawl
     torch.set_flush_denormal(True)
@@ -125,6 +164,10 @@ def main(argv: list[str] | None = None) -> int:
     cw, ch = (int(v) for v in args.crop.split("x"))
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse)
+    init = None
+    if args.init is not None and not (args.resume and (args.out / "last.pt").exists()):
+        init = torch.load(args.init, weights_only=False)
+        config = ModelConfig.from_dict({**init["config"], "gru_iters": args.iters})
     net = SparseStereoNet(config)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-5)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, args.lr, total_steps=args.steps + 100,
@@ -138,42 +181,54 @@ def main(argv: list[str] | None = None) -> int:
         sched.load_state_dict(ckpt["scheduler"])
         step = ckpt["step"]
         print(f"resumed from {last} at step {step}")
-    elif args.init is not None:
-        ckpt = torch.load(args.init, weights_only=False)
-        net.load_state_dict(ckpt["model"])
+    elif init is not None:
+        net.load_state_dict(init["model"])
         print(f"initialised from {args.init}")
-    data = SyntheticTrainSet(seed=args.seed * 1000 + step, crop=(cw, ch),
-                             patterns=tuple(args.patterns.split(",")))
+    if world > 1:
+        net = torch.nn.parallel.DistributedDataParallel(net)
+    model = net.module if world > 1 else net
+    if args.data is None:
+        data = SyntheticTrainSet(seed=(args.seed * 1000 + step) * world + rank, crop=(cw, ch),
+                                 patterns=tuple(args.patterns.split(",")))
+    else:
+        data = RecordedTrainSet(args.data, (cw, ch), seed=args.seed * 1000 + step,
+                                shard=rank, shards=world)
     loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
     log_path = args.out / "metrics.csv"
     fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "epe", "val_epe",
               "val_bad3", "lr_now", "seconds"]
     new_log = not log_path.exists() or step == 0
-    log = open(log_path, "w" if new_log else "a", newline="")
+    log = open(log_path if main_rank else os.devnull, "w" if new_log else "a", newline="")
     writer = csv.DictWriter(log, fieldnames=fields)
     if new_log:
         writer.writeheader()
 
     def save(path: Path) -> None:
+        if not main_rank:
+            return
         tmp = path.with_suffix(".tmp")
-        torch.save(dict(model=net.state_dict(), optimizer=opt.state_dict(),
+        torch.save(dict(model=model.state_dict(), optimizer=opt.state_dict(),
                         scheduler=sched.state_dict(), step=step, config=config.to_dict(),
                         args=vars(args) | {"out": str(args.out), "init": str(args.init)}), tmp)
         tmp.replace(path)
 
     net.train()
-    bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True)
+    bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True,
+               disable=not main_rank)
     start = time.time()
     while step < args.steps:
         batch = next(loader)
         if args.mode == "supervised":
             preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
                         args.iters)
-            loss = sequence_loss(preds, batch["gt"], torch.ones_like(batch["gt"]))
+            loss = sequence_loss(preds, batch["gt"], (batch["gt"] > 0).float())
             terms, final = {}, preds[-1]
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
-        if not math.isfinite(float(loss.detach())):
+        bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0)
+        if world > 1:  # every rank skips, or none: a lone skip would hang the all-reduce
+            torch.distributed.all_reduce(bad)
+        if float(bad) > 0:
             print(f"step {step}: non-finite loss, batch skipped", file=sys.stderr)
             continue
         opt.zero_grad()
@@ -182,11 +237,13 @@ def main(argv: list[str] | None = None) -> int:
         opt.step()
         sched.step()
         step += 1
-        epe = float((final.detach() - batch["gt"]).abs().mean())
+        has_gt = batch["gt"] > 0
+        epe = float((final.detach() - batch["gt"]).abs()[has_gt].mean()) if has_gt.any() \
+            else float("nan")
         row = dict(step=step, loss=float(loss.detach()), epe=epe, lr_now=sched.get_last_lr()[0],
                    seconds=round(time.time() - start, 1), **terms)
         if args.val_every and (step % args.val_every == 0 or step == args.steps):
-            row.update(validate(net, 4))
+            row.update(validate(model, 4))
         writer.writerow(row)
         log.flush()
         bar.update(1)
@@ -197,8 +254,17 @@ def main(argv: list[str] | None = None) -> int:
     bar.close()
     log.close()
     save(args.out / "final.pt")
-    plot_metrics(log_path, args.out / "loss.png")
-    print(f"done: {step} steps, checkpoint {args.out / 'final.pt'}")
+    if world > 1:
+        sums = [None] * world
+        torch.distributed.all_gather_object(sums, weights_checksum(model))
+        if main_rank:
+            (args.out / "replicas.json").write_text(json.dumps(sums))
+            print(f"replica weight checksums: {sums} "
+                  f"({'identical' if len(set(sums)) == 1 else 'DIFFERENT'})")
+        torch.distributed.destroy_process_group()
+    if main_rank:
+        plot_metrics(log_path, args.out / "loss.png")
+        print(f"done: {step} steps, checkpoint {args.out / 'final.pt'}")
     return 0
 
 

@@ -86,3 +86,44 @@ class FixedSplit(Dataset):
     def __getitem__(self, i: int) -> dict[str, torch.Tensor]:
         sample = make_sample(self.first_seed + i, self.rig, self.pattern)
         return to_tensors(sample_to_arrays(sample), None, np.random.default_rng(0), False)
+
+
+class RecordedTrainSet(IterableDataset):
+    """Endless stream from recorded data (`edge.model.datasets.open_training_data` spec):
+    passes over the data again and again, shuffled through a buffer, cropped and augmented
+    like the rig. `shard` / `shards` split it between workers and DDP ranks."""
+
+    def __init__(self, spec: str, crop: tuple[int, int] | None = (320, 192), seed: int = 0,
+                 augment: bool = True, buffer: int = 16, shard: int = 0, shards: int = 1
+                 ) -> None:
+        from edge.model.datasets import open_training_data
+
+        self.spec, self.crop, self.seed, self.augment = spec, crop, seed, augment
+        self.buffer, self.shard, self.shards = buffer, shard, shards
+        self.passes = open_training_data(spec)
+
+    def __iter__(self):
+        info = get_worker_info()
+        workers, worker = (info.num_workers, info.id) if info else (1, 0)
+        parts, part = self.shards * workers, self.shard * workers + worker
+        rng = np.random.default_rng([self.seed, part])
+        pool: list[dict] = []
+        while True:
+            seen = 0
+            for i, arrays in enumerate(self.passes()):
+                if i % parts != part:
+                    continue
+                seen += 1
+                h, w = arrays["left"].shape
+                if self.crop is not None and (w < self.crop[0] or h < self.crop[1]):
+                    raise ValueError(f"{self.spec}: a {w}x{h} frame is smaller than the crop "
+                                     f"{self.crop[0]}x{self.crop[1]}")
+                pool.append(arrays)
+                if len(pool) >= self.buffer:
+                    yield to_tensors(pool.pop(int(rng.integers(len(pool)))), self.crop, rng,
+                                     self.augment)
+            if seen == 0:
+                raise ValueError(f"{self.spec}: no frames for shard {part} of {parts}")
+            while pool:
+                yield to_tensors(pool.pop(int(rng.integers(len(pool)))), self.crop, rng,
+                                 self.augment)
