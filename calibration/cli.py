@@ -39,7 +39,8 @@ def add_parsers(sub) -> None:
 
     lid = csub.add_parser("lidar", help="check T_cam_lidar against stereo (SGBM)")
     lid.add_argument("--recording", required=True, type=Path,
-                     help="scene folders (a folder of them) with lidar.npy")
+                     help="a .mcap recording, or scene folders (a folder of them) with "
+                          "lidar.npy")
     lid.add_argument("--calib", required=True, type=Path)
     lid.add_argument("--out", type=Path, default=None,
                      help="also write the calibration (unchanged until refinement lands)")

@@ -80,6 +80,37 @@ def pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return float(angle), float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
 
 
+def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
+                max_frames: int = 20) -> list[ExtrinsicsFrame]:
+    """Up to `max_frames` frames of a recording, each with the LiDAR revolution nearest in
+    time (images rectified with `stereo` unless the recording's already are)."""
+    from edge.capture.replay import McapSource
+    from edge.capture.sync import LidarSync, SyncConfig
+    from edge.types import LidarScan, StereoFrame
+
+    sync = LidarSync(SyncConfig("nearest", 100.0, time_offset_ns))
+    rectifier = stereo.rectifier()
+    frames = []
+    for event in McapSource(path):
+        if isinstance(event, LidarScan):
+            sync.add(event)
+        elif isinstance(event, StereoFrame):
+            if event.size != tuple(stereo.image_size):
+                raise CalibrationError(f"image size {event.size} differs from the "
+                                       f"calibration's {stereo.image_size}", path=str(path))
+            points = sync.points_for(event.stamp_ns)
+            if len(points) == 0:
+                continue
+            left, right = ((event.left, event.right) if event.rectified
+                           else rectifier.rectify(event.left, event.right))
+            frames.append(make_frame(left, right, points))
+            if len(frames) >= max_frames:
+                break
+    if not frames:
+        raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
+    return frames
+
+
 def lidar_command(recording: Path, calib_path: Path, out: Path | None) -> int:
     """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities."""
     from calibration.io import load_calibration, save_calibration
@@ -90,11 +121,15 @@ def lidar_command(recording: Path, calib_path: Path, out: Path | None) -> int:
     if lidar is None:
         raise CalibrationError("no [lidar] section: give an initial T_cam_lidar to refine",
                                path=str(calib_path), key="lidar")
-    folders = list_scene_folders(recording)
-    if not folders:
-        raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) found",
-                               path=str(recording))
     frames = []
+    if Path(recording).suffix == ".mcap":
+        frames = mcap_frames(Path(recording), stereo, lidar.time_offset_ns)
+        folders = []
+    else:
+        folders = list_scene_folders(recording)
+        if not folders:
+            raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) and not "
+                                   "a .mcap recording", path=str(recording))
     for folder in folders:
         scene = read_scene_folder(folder)
         if scene.lidar is None:

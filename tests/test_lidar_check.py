@@ -54,3 +54,19 @@ def test_calibrate_lidar_command_reports_the_check(tmp_path, capsys):
     assert main(["calibrate", "lidar", "--recording", str(tmp_path / "rec"), "--calib",
                  str(tmp_path / "nolidar.toml")]) == 1
     assert "[lidar]" in capsys.readouterr().err
+
+
+def test_calibrate_lidar_reads_an_mcap_recording(tmp_path, capsys):
+    rec = tmp_path / "rec.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "2", "--size", "320x200",
+                 "--lidar", "beams64"]) == 0
+    sample = make_sample(0, RigConfig(width=320, height=200))
+    save_calibration(tmp_path / "c.toml", sample.calibration(),
+                     LidarExtrinsics(sample.T_cam_lidar))
+    capsys.readouterr()
+    assert main(["calibrate", "lidar", "--recording", str(rec), "--calib",
+                 str(tmp_path / "c.toml")]) == 0
+    out = capsys.readouterr().out
+    assert "2 frames" in out
+    median = float(out.split("median ")[1].split()[0])
+    assert median < 0.5  # the recording's true extrinsics: LiDAR and SGBM agree

@@ -57,6 +57,8 @@ def parse_args(argv):
     p.add_argument("--split", choices=["all", "half1", "half2"], default="half2")
     p.add_argument("--no-cspn", action="store_true")
     p.add_argument("--no-sparse", action="store_true")
+    p.add_argument("--no-half-res-block", action="store_true",
+                   help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--patterns", default="beams16")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1,
@@ -163,11 +165,16 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_num_threads(args.threads)
     cw, ch = (int(v) for v in args.crop.split("x"))
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
-                         use_sparse=not args.no_sparse)
+                         use_sparse=not args.no_sparse,
+                         half_res_block=not args.no_half_res_block)
     init = None
-    if args.init is not None and not (args.resume and (args.out / "last.pt").exists()):
+    if args.init is not None:
+        # the architecture is the checkpoint's, except what the flags change
         init = torch.load(args.init, weights_only=False)
-        config = ModelConfig.from_dict({**init["config"], "gru_iters": args.iters})
+        changes = {"gru_iters": args.iters}
+        if args.no_half_res_block:
+            changes["half_res_block"] = False
+        config = ModelConfig.from_dict({**init["config"], **changes})
     net = SparseStereoNet(config)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-5)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, args.lr, total_steps=args.steps + 100,
@@ -182,8 +189,13 @@ def main(argv: list[str] | None = None) -> int:
         step = ckpt["step"]
         print(f"resumed from {last} at step {step}")
     elif init is not None:
-        net.load_state_dict(init["model"])
-        print(f"initialised from {args.init}")
+        result = net.load_state_dict(init["model"], strict=False)
+        if result.missing_keys:
+            raise SystemExit(f"--init {args.init}: the model needs weights the checkpoint "
+                             f"lacks: {result.missing_keys[:5]}")
+        print(f"initialised from {args.init}"
+              + (f" (dropped {len(result.unexpected_keys)} tensors the model no longer has)"
+                 if result.unexpected_keys else ""))
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(net)
     model = net.module if world > 1 else net

@@ -12,7 +12,9 @@ class ModelConfig:
     """widths: channels of the shared backbone at strides 2, 4, 8 (and 16 if downsample 8 uses
     it); feature_dim: correlation features; hidden_dim: ConvGRU state; downsample: 4 or 8;
     gru_levels: 1 or 2 (the second runs at half the GRU resolution); corr_levels and
-    corr_radius: pyramid depth and lookup radius (pixels of each level)."""
+    corr_radius: pyramid depth and lookup radius (pixels of each level); half_res_block: the
+    backbone's residual block at 1/2 resolution (the encoder's most expensive layer; False
+    goes from the stem straight to 1/4)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -26,6 +28,7 @@ class ModelConfig:
     cspn_steps: int = 4
     use_cspn: bool = True
     use_sparse: bool = True
+    half_res_block: bool = True
 
     def __post_init__(self) -> None:
         if self.downsample not in (4, 8):

@@ -34,11 +34,12 @@ class ResidualBlock(nn.Module):
 class Backbone(nn.Module):
     """Grey image (B, 1, H, W) in [0, 255] -> features at 1/downsample, (B, widths[-1], h, w)."""
 
-    def __init__(self, widths: tuple[int, int, int], downsample: int) -> None:
+    def __init__(self, widths: tuple[int, int, int], downsample: int,
+                 half_res_block: bool = True) -> None:
         super().__init__()
         w1, w2, w3 = widths
         self.stem = nn.Sequential(nn.Conv2d(1, w1, 5, 2, 2), nn.BatchNorm2d(w1), nn.ReLU())
-        self.layer1 = ResidualBlock(w1, w1)
+        self.layer1 = ResidualBlock(w1, w1) if half_res_block else nn.Identity()
         self.layer2 = ResidualBlock(w1, w2, stride=2)
         self.layer3 = ResidualBlock(w2, w3, stride=2 if downsample == 8 else 1)
 
@@ -51,10 +52,10 @@ class Encoders(nn.Module):
     """Shared backbone + feature, context and affinity heads."""
 
     def __init__(self, widths, downsample: int, feature_dim: int, hidden_dim: int,
-                 context_dim: int) -> None:
+                 context_dim: int, half_res_block: bool = True) -> None:
         super().__init__()
         c = widths[-1]
-        self.backbone = Backbone(widths, downsample)
+        self.backbone = Backbone(widths, downsample, half_res_block)
         self.feature_head = nn.Conv2d(c, feature_dim, 1)
         self.context_head = nn.Conv2d(c, hidden_dim + context_dim, 3, 1, 1)
         self.affinity_block = ResidualBlock(c, c)

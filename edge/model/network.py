@@ -54,7 +54,7 @@ class SparseStereoNet(nn.Module):
         super().__init__()
         self.config = cfg = config or ModelConfig()
         self.encoders = Encoders(cfg.widths, cfg.downsample, cfg.feature_dim, cfg.hidden_dim,
-                                 cfg.context_dim)
+                                 cfg.context_dim, cfg.half_res_block)
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels)
