@@ -361,7 +361,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
     if source.stats.truncated:
-        print(f"input was cut off: replayed up to byte {source.stats.bytes_read}")
+        print(f"the input was cut off: replayed its first {source.stats.messages} messages")
     if lat:
         print("latency median / p95 ms: " + ", ".join(
             f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))

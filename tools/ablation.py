@@ -3,7 +3,8 @@
     python tools/ablation.py --out runs/ablation --data data/test16 [--steps 500]
         [--scenes 10] [--threads 1]
 
-Runs (each `tools/train.py` with the same steps, batch, crop, seed and LiDAR pattern):
+Runs (each `tools/train.py` with the same batch, crop, seed and LiDAR pattern; the supervised
+runs share --steps, the self-supervised ones --self-steps):
 baseline (no CSPN, no sparse input) and +CSPN+sparse, supervised; self-supervised with the
 all / half1 / half2 splits of the LiDAR points. Each run resumes from its last checkpoint and
 is skipped once finished, so the whole thing can be restarted. Then every model is evaluated
@@ -40,6 +41,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--out", type=Path, required=True)
     p.add_argument("--data", type=Path, required=True, help="test scene folders (with GT)")
     p.add_argument("--steps", type=int, default=500)
+    p.add_argument("--self-steps", type=int, default=None,
+                   help="steps of the self-supervised runs (default: --steps); each of those "
+                        "costs about twice a supervised step")
     p.add_argument("--batch", type=int, default=2)
     p.add_argument("--crop", default="256x160")
     p.add_argument("--scenes", type=int, default=10)
@@ -52,7 +56,7 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)[: args.scenes]
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    common = ["--steps", str(args.steps), "--batch", str(args.batch), "--crop", args.crop,
+    common = ["--batch", str(args.batch), "--crop", args.crop,
               "--iters", "6", "--workers", "0", "--threads", str(args.threads),
               "--ckpt-every", "50", "--patterns", "beams16", "--seed", "7"]
     only = set(args.only.split(",")) if args.only else None
@@ -63,8 +67,9 @@ def main(argv: list[str] | None = None) -> int:
             continue
         if not (out / "final.pt").exists():
             print(f"== training {name} -> {out}", flush=True)
+            steps = args.self_steps if "self" in extra and args.self_steps else args.steps
             subprocess.run([sys.executable, str(ROOT / "tools" / "train.py"), "--out", str(out),
-                            "--resume", *common, *extra], check=True)
+                            "--resume", "--steps", str(steps), *common, *extra], check=True)
         result = evaluate(folders, ["net"], [4, 16], out / "final.pt")
         summary[f"{name} @4"] = result["net@4"]
         summary[f"{name} @16"] = result["net@16"]

@@ -5,7 +5,8 @@ Events, in file order: `StereoFrame` (left and right paired by stamp), `LidarSca
 CameraCalibration messages of rectified cameras) and `GroundTruth` (/sim/gt_disparity).
 
 The file is read front to back without its summary, so a recording cut off by a crash
-replays up to its last complete chunk; a warning says how much was readable. Topics are
+replays up to its last complete chunk; a warning says how many messages and seconds of
+recording that was. Topics are
 mapped by role (`TopicMap`); a mapped topic the file lacks is an error listing the file's
 topics.
 """
@@ -252,6 +253,7 @@ class McapSource:
             decoders: dict[int, object] = {}
             messages = NonSeekingReader(f, validate_crcs=True).iter_messages(
                 log_time_order=False)
+            first_time = last_time = None
             while not self._stop.is_set():
                 try:
                     schema, channel, message = next(messages)
@@ -260,12 +262,14 @@ class McapSource:
                 except (McapError, EOFError, ValueError, OSError) as exc:
                     self.stats.truncated = True
                     self.stats.bytes_read = f.tell()
-                    size = self.path.stat().st_size
-                    log.warning("%s: readable up to byte %d of %d (%.0f %%), %d messages "
-                                "(%s); the rest is lost", self.path, self.stats.bytes_read,
-                                size, 100 * self.stats.bytes_read / max(size, 1),
-                                self.stats.messages, type(exc).__name__)
+                    span = 0.0 if first_time is None else (last_time - first_time) / 1e9
+                    log.warning("%s is cut off (%s): replayed the %d messages of its complete "
+                                "chunks, %.2f s of recording; the rest of its %.1f MB is "
+                                "unreadable", self.path, type(exc).__name__,
+                                self.stats.messages, span, self.path.stat().st_size / 1e6)
                     break
+                first_time = message.log_time if first_time is None else first_time
+                last_time = message.log_time
                 topic = channel.topic
                 self.seen_topics.add(topic)
                 self.stats.messages += 1
@@ -287,8 +291,8 @@ class McapSource:
                 except (ValueError, TypeError, AttributeError, IndexError) as exc:
                     self.stats.errors[f"{topic}: {exc}"[:120]] += 1
                     log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
-            else:
-                return
+            if self._stop.is_set():
+                return  # closed by the caller: no end-of-file checks
         if not self.stats.truncated:
             self.stats.bytes_read = self.path.stat().st_size
         if self.stats.frames == 0 and t.left not in self.seen_topics:
