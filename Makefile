@@ -6,7 +6,7 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test lint bench clean
+.PHONY: demo test lint bench bundle clean
 
 $(STAMP): pyproject.toml Makefile
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -23,7 +23,17 @@ test: $(STAMP)
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)
-	$(BIN)/python tools/bench.py
+	mkdir -p out
+	$(BIN)/python tools/bench.py --json out/bench.json --markdown out/bench.md
+
+# rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
+# evaluated on the test split)
+CHECKPOINT ?= edge/models/sparse_stereo_sup16.pt
+bundle: $(STAMP)
+	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
+	rm -rf edge/models/default
+	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
+	$(BIN)/python tools/quantize.py edge/models/default --calib synthetic:16 --eval data/test16
 
 clean:
 	rm -rf $(VENV) out
