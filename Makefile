@@ -28,7 +28,7 @@ bench: $(STAMP)
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
 # evaluated on the test split)
-CHECKPOINT ?= edge/models/sparse_stereo_sup16.pt
+CHECKPOINT ?= edge/models/sparse_stereo.pt
 bundle: $(STAMP)
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 	rm -rf edge/models/default

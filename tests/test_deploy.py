@@ -17,7 +17,7 @@ from edge.sim import RigConfig, make_sample
 
 torch = pytest.importorskip("torch")
 
-CHECKPOINT = DEFAULT_BUNDLE.parent / "sparse_stereo_sup16.pt"
+CHECKPOINT = DEFAULT_BUNDLE.parent / "sparse_stereo.pt"
 SMALL = (160, 96)
 
 

@@ -27,7 +27,7 @@ from edge.sim.folder import write_pfm  # noqa: E402
 from tools import train  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-CHECKPOINT = ROOT / "edge" / "models" / "sparse_stereo_sup16.pt"
+CHECKPOINT = ROOT / "edge" / "models" / "sparse_stereo.pt"
 
 
 def make_kitti(root: Path, f=721.5377, b=0.5327) -> dict:

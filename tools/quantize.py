@@ -9,9 +9,11 @@ lookup, CSPN and the upsampling costs agreement and gains no speed (DESIGN.md). 
 feeds come from the fp32 engine run over the calibration frames (every step's inputs, so the
 step graph sees the disparities of all iterations). Each graph is then tried alone in int8 and
 kept in float if it alone moves the disparity by more than --max-graph-px on average or
-does not make the engine at least 10 % faster (median, alternating runs); the choice and the
-numbers are written to model.json under "quantization". --eval reports EPE and
-speed of fp32 vs int8 on scene folders with ground truth.
+does not make the engine at least 10 % faster (median, alternating runs). In a graph that goes
+int8, each convolution is then tried in float alone; those whose float version removes a
+quarter or more of the graph's disparity shift stay float. The choices and the numbers are
+written to model.json under "quantization". --eval reports EPE and speed of fp32 vs int8 on
+scene folders with ground truth.
 """
 
 from __future__ import annotations
@@ -66,7 +68,8 @@ class FeedReader:
         return next(self._iter, None)
 
 
-def quantize_graph(src: Path, dst: Path, feeds: list[dict]) -> None:
+def quantize_graph(src: Path, dst: Path, feeds: list[dict],
+                   exclude: list[str] | None = None) -> None:
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
@@ -76,7 +79,13 @@ def quantize_graph(src: Path, dst: Path, feeds: list[dict]) -> None:
         quantize_static(str(prepared), str(dst), FeedReader(feeds),
                         quant_format=QuantFormat.QDQ, op_types_to_quantize=["Conv"],
                         per_channel=True, activation_type=QuantType.QUInt8,
-                        weight_type=QuantType.QInt8)
+                        weight_type=QuantType.QInt8, nodes_to_exclude=exclude or [])
+
+
+def conv_nodes(path: Path) -> list[str]:
+    import onnx
+
+    return [n.name for n in onnx.load(str(path)).graph.node if n.op_type == "Conv"]
 
 
 def mean_abs_difference(engine_a: Engine, engine_b: Engine, frames, iters: int) -> float:
@@ -113,7 +122,8 @@ def evaluate(engine: Engine, folders: list[Path], iters: int) -> dict[str, float
 
 
 def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: int = 4,
-                    eval_dir: Path | None = None, threads: int = 2) -> dict:
+                    eval_dir: Path | None = None, threads: int = 2,
+                    node_search: bool = True) -> dict:
     meta = load_bundle_meta(bundle)
     fp32 = Engine(bundle, "fp32", threads, meta)
     frames = list(calibration_frames(calib, fp32.size))
@@ -133,7 +143,27 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
         ms_fp32, ms_trial = median_ms([fp32, trial_engine], frames[:4], iters)
         graphs[part] = dict(int8=alone <= max_graph_px and ms_trial < 0.9 * ms_fp32,
                             mean_abs_px_alone=alone, engine_ms_fp32=ms_fp32,
-                            engine_ms_with_this_int8=ms_trial)
+                            engine_ms_with_this_int8=ms_trial, float_nodes=[])
+        if graphs[part]["int8"] and node_search:
+            # convolutions that cost most of the graph's agreement stay float
+            src = bundle / files[part]
+            shifts = {}
+            for node in conv_nodes(src):
+                quantize_graph(src, dst, record[part], [node])
+                shifts[node] = mean_abs_difference(Engine(bundle, "trial", threads, trial),
+                                                   fp32, frames, iters)
+            keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
+            graphs[part]["shift_with_node_float"] = shifts
+            if keep_float:
+                quantize_graph(src, dst, record[part], keep_float)
+                trial_engine = Engine(bundle, "trial", threads, trial)
+                graphs[part]["float_nodes"] = keep_float
+                graphs[part]["mean_abs_px_alone"] = mean_abs_difference(trial_engine, fp32,
+                                                                        frames, iters)
+                graphs[part]["engine_ms_with_this_int8"] = median_ms(
+                    [fp32, trial_engine], frames[:4], iters)[1]
+            else:
+                quantize_graph(src, dst, record[part])
         if not graphs[part]["int8"]:
             dst.unlink()
     meta["precisions"]["int8"] = {
@@ -174,15 +204,18 @@ def main(argv: list[str] | None = None) -> int:
                    help="keep a graph in float if quantizing it alone moves the disparity "
                         "by more than this (mean px)")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--no-node-search", action="store_true",
+                   help="skip the per-convolution sensitivity pass")
     args = p.parse_args(argv)
     if not (args.bundle / "model.json").is_file():
         p.error(f"{args.bundle}: not a bundle (no model.json; run tools/export.py)")
     q = quantize_bundle(args.bundle, args.calib, args.max_graph_px, args.iters, args.eval,
-                        args.threads)
+                        args.threads, not args.no_node_search)
     for part, g in q["graphs"].items():
         print(f"{part}: {'int8' if g['int8'] else 'float'} (alone: moves disparity "
               f"{g['mean_abs_px_alone']:.4f} px, engine {g['engine_ms_fp32']:.1f} -> "
-              f"{g['engine_ms_with_this_int8']:.1f} ms)")
+              f"{g['engine_ms_with_this_int8']:.1f} ms)"
+              + (f"; kept float: {', '.join(g['float_nodes'])}" if g["float_nodes"] else ""))
     print(f"int8 vs fp32 on the calibration frames: {q['mean_abs_px_vs_fp32']:.4f} px mean")
     if "eval" in q:
         e = q["eval"]
