@@ -37,13 +37,15 @@ def add_parsers(sub) -> None:
     exp.add_argument("--calib", required=True, type=Path)
     exp.add_argument("--out-dir", required=True, type=Path)
 
-    lid = csub.add_parser("lidar", help="check T_cam_lidar against stereo (SGBM)")
+    lid = csub.add_parser("lidar", help="check (and --refine) T_cam_lidar against stereo")
     lid.add_argument("--recording", required=True, type=Path,
                      help="a .mcap recording, or scene folders (a folder of them) with "
                           "lidar.npy")
     lid.add_argument("--calib", required=True, type=Path)
     lid.add_argument("--out", type=Path, default=None,
-                     help="also write the calibration (unchanged until refinement lands)")
+                     help="write the calibration (with the refined T_cam_lidar if --refine)")
+    lid.add_argument("--refine", action="store_true",
+                     help="refine T_cam_lidar by maximising LiDAR/SGBM agreement")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -72,7 +74,7 @@ def run(args: argparse.Namespace) -> int:
         if args.calib_command == "lidar":
             from calibration.extrinsics import lidar_command
 
-            return lidar_command(args.recording, args.calib, args.out)
+            return lidar_command(args.recording, args.calib, args.out, args.refine)
     except (CalibrationError, ValueError) as exc:
         print(f"edge-depth calibrate {args.calib_command}: error: {exc}", file=sys.stderr)
         return 1

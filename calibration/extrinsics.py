@@ -4,10 +4,16 @@ The projected LiDAR disparity should agree with OpenCV SGBM on the same rectifie
 disagreement at each LiDAR point (SGBM sampled bilinearly where the point lands) is reported as
 median and 90th percentile.
 
-Refinement of T_cam_lidar by minimising this disagreement is not here yet: on the synthetic
-rig's piecewise-planar scenes the objective is nearly flat away from depth edges, and SGBM is
-least reliable exactly at those edges, so least-squares (soft-L1, Cauchy, trimmed) and Powell
-on a truncated L1 did not recover a 1 degree / 2 cm perturbation (see the README).
+`refine_extrinsics` maximises the fraction of LiDAR points (projected with the occlusion
+filter) whose disparity agrees with a left-right-checked SGBM within 0.5 px, by coordinate
+search over the 6 pose parameters, coarse to fine. On the rig (640x400, 64 beams, three
+1 degree / 2 cm perturbations) it ends at 0.17-0.42 degrees / 3.5-10 mm with 12 frames and
+0.24-0.78 degrees / 6-7.5 mm with 6: better than the start, short of 0.2 degrees / 5 mm. The
+objective's maximum sits slightly off the true pose (agreement at the refined pose exceeds the
+true pose's), so more search would not fix it: SGBM's own errors bias it. What failed before
+it: least squares on |LiDAR - SGBM| (soft-L1, Cauchy, trimmed), Powell on a truncated L1, and
+patch ZNCC between the left and right projections of each point: on piecewise-planar scenes
+those are nearly flat away from depth edges, and SGBM is least reliable at them.
 """
 
 from __future__ import annotations
@@ -31,11 +37,16 @@ class ExtrinsicsFrame:
     points: np.ndarray
 
 
-def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> ExtrinsicsFrame:
+def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray,
+               lr_check: bool = False) -> ExtrinsicsFrame:
+    """SGBM on the rectified pair (left-right checked for refinement) plus the points."""
     from edge.baselines import sgbm_disparity
 
-    disparity = sgbm_disparity(left, right)
-    disparity[disparity <= 0] = np.nan
+    if lr_check:
+        disparity = lr_checked_sgbm(left, right)
+    else:
+        disparity = sgbm_disparity(left, right)
+        disparity[disparity <= 0] = np.nan
     return ExtrinsicsFrame(disparity, np.asarray(points, np.float64))
 
 
@@ -73,6 +84,73 @@ def disagreement(frames: list[ExtrinsicsFrame], calib: StereoCalibration, T: np.
                 points=int(res.size))
 
 
+def lr_checked_sgbm(left: np.ndarray, right: np.ndarray, max_diff_px: float = 1.0
+                    ) -> np.ndarray:
+    """SGBM disparity with NaN where the right-to-left match disagrees by more than
+    `max_diff_px` (occlusions, mismatches)."""
+    import cv2
+
+    from edge.baselines import sgbm_disparity
+
+    d = sgbm_disparity(left, right)
+    d_r = cv2.flip(sgbm_disparity(cv2.flip(right, 1), cv2.flip(left, 1)), 1)
+    h, w = d.shape
+    ok = np.isfinite(d) & (d > 0)
+    x_r = np.clip(np.rint(np.arange(w)[None, :] - np.where(ok, d, 0)), 0, w - 1).astype(int)
+    back = d_r[np.arange(h)[:, None], x_r]
+    ok &= np.abs(np.where(np.isfinite(back), back, -1e3) - d) < max_diff_px
+    return np.where(ok, d, np.nan).astype(np.float32)
+
+
+def agreement(frames: list[ExtrinsicsFrame], calib: StereoCalibration, T: np.ndarray,
+              tol_px: float = 0.5) -> float:
+    """Fraction of visible LiDAR points (occlusion-filtered projection) whose disparity is
+    within tol_px of the stereo disparity at their pixel."""
+    from calibration.projection import project_to_disparity
+
+    inliers = total = 0
+    for frame in frames:
+        sparse, valid = project_to_disparity(frame.points, calib, T)
+        both = valid & np.isfinite(frame.stereo_disparity)
+        inliers += int((np.abs(sparse[both] - frame.stereo_disparity[both]) < tol_px).sum())
+        total += int(both.sum())
+    return inliers / max(total, 1)
+
+
+def _perturb(T: np.ndarray, axis: int, amount: float) -> np.ndarray:
+    """Left-multiply by a small rotation (axis 0-2, degrees) or translation (3-5, metres)."""
+    import cv2
+
+    D = np.eye(4)
+    if axis < 3:
+        rvec = np.zeros(3)
+        rvec[axis] = np.radians(amount)
+        D[:3, :3] = cv2.Rodrigues(rvec)[0]
+    else:
+        D[axis - 3, 3] = amount
+    return D @ T
+
+
+def refine_extrinsics(frames: list[ExtrinsicsFrame], calib: StereoCalibration,
+                      T_init: np.ndarray, tol_px: float = 0.5,
+                      schedule=((0.5, 0.01), (0.25, 0.005), (0.1, 0.002), (0.05, 0.001))
+                      ) -> tuple[np.ndarray, float]:
+    """Coordinate search on `agreement`: for each (degrees, metres) step size, twice over the
+    six parameters, try ±1 and ±2 steps and keep the best. Returns (T, its agreement)."""
+    T = np.asarray(T_init, np.float64).copy()
+    best = agreement(frames, calib, T, tol_px)
+    for deg, metres in schedule:
+        for _ in range(2):
+            for axis in range(6):
+                step = deg if axis < 3 else metres
+                candidates = [(agreement(frames, calib, _perturb(T, axis, k * step), tol_px), k)
+                              for k in (-2, -1, 1, 2)]
+                score, k = max(candidates)
+                if score > best:
+                    best, T = score, _perturb(T, axis, k * step)
+    return T, best
+
+
 def pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     """(rotation angle in degrees, translation distance in metres) between two transforms."""
     dR = T_a[:3, :3] @ T_b[:3, :3].T
@@ -81,9 +159,9 @@ def pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
 
 
 def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
-                max_frames: int = 20) -> list[ExtrinsicsFrame]:
-    """Up to `max_frames` frames of a recording, each with the LiDAR revolution nearest in
-    time (images rectified with `stereo` unless the recording's already are)."""
+                max_frames: int = 20) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
+    nearest in time (images rectified with `stereo` unless the recording's already are)."""
     from edge.capture.replay import McapSource
     from edge.capture.sync import LidarSync, SyncConfig
     from edge.types import LidarScan, StereoFrame
@@ -103,7 +181,7 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
                 continue
             left, right = ((event.left, event.right) if event.rectified
                            else rectifier.rectify(event.left, event.right))
-            frames.append(make_frame(left, right, points))
+            frames.append((left, right, points))
             if len(frames) >= max_frames:
                 break
     if not frames:
@@ -111,7 +189,8 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
     return frames
 
 
-def lidar_command(recording: Path, calib_path: Path, out: Path | None) -> int:
+def lidar_command(recording: Path, calib_path: Path, out: Path | None,
+                  refine: bool = False) -> int:
     """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities."""
     from calibration.io import load_calibration, save_calibration
     from calibration.model import LidarExtrinsics
@@ -121,9 +200,9 @@ def lidar_command(recording: Path, calib_path: Path, out: Path | None) -> int:
     if lidar is None:
         raise CalibrationError("no [lidar] section: give an initial T_cam_lidar to refine",
                                path=str(calib_path), key="lidar")
-    frames = []
+    data = []  # (left, right, points)
     if Path(recording).suffix == ".mcap":
-        frames = mcap_frames(Path(recording), stereo, lidar.time_offset_ns)
+        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns)
         folders = []
     else:
         folders = list_scene_folders(recording)
@@ -138,13 +217,26 @@ def lidar_command(recording: Path, calib_path: Path, out: Path | None) -> int:
         if scene.left.shape[::-1] != stereo.image_size:
             raise CalibrationError(f"image size {scene.left.shape[::-1]} differs from the "
                                    f"calibration's {stereo.image_size}", path=str(folder))
-        frames.append(make_frame(scene.left, scene.right, scene.lidar))
+        data.append((scene.left, scene.right, scene.lidar))
+    frames = [make_frame(*d) for d in data]
     before = disagreement(frames, stereo, lidar.T_cam_lidar)
     print(f"{len(frames)} frames, {before['points']} LiDAR points on SGBM pixels")
     print(f"before: |LiDAR - SGBM| disparity median {before['median_px']:.3f} px, "
           f"p90 {before['p90_px']:.3f} px")
-    print("refinement of T_cam_lidar is not implemented yet; the check above is the result")
+    T = lidar.T_cam_lidar
+    if refine:
+        checked = [make_frame(*d, lr_check=True) for d in data]
+        start = agreement(checked, stereo, T)
+        T, end = refine_extrinsics(checked, stereo, T)
+        angle, shift = pose_difference(T, lidar.T_cam_lidar)
+        after = disagreement(frames, stereo, T)
+        print(f"refined: points agreeing within 0.5 px {100 * start:.1f} % -> {100 * end:.1f} %;"
+              f" moved {angle:.3f} deg, {shift * 1000:.1f} mm")
+        print(f"after: |LiDAR - SGBM| disparity median {after['median_px']:.3f} px, "
+              f"p90 {after['p90_px']:.3f} px")
+        print("(on the synthetic rig a 1 deg / 2 cm error ends at 0.17-0.42 deg / 3.5-10 mm "
+              "with 12 frames: compare the numbers above before trusting it)")
     if out is not None:
-        save_calibration(out, stereo, LidarExtrinsics(lidar.T_cam_lidar, lidar.time_offset_ns))
-        print(f"wrote {out} (extrinsics unchanged)")
+        save_calibration(out, stereo, LidarExtrinsics(T, lidar.time_offset_ns))
+        print(f"wrote {out}" + ("" if refine else " (extrinsics unchanged)"))
     return 0
