@@ -108,9 +108,12 @@ def test_sparse_downsampling_averages_valid_points_in_low_res_pixels():
     torch.testing.assert_close(low_valid, torch.tensor([[[[1.0, 0.0]]]]))
 
 
-@pytest.mark.parametrize("downsample", [4, 8])
-def test_shapes_at_both_downsample_factors(downsample):
-    net = SparseStereoNet(ModelConfig(downsample=downsample, gru_levels=2)).eval()
+@pytest.mark.parametrize("downsample, half_res_block", [(4, True), (8, True), (8, False)])
+def test_shapes_at_both_downsample_factors(downsample, half_res_block):
+    config = ModelConfig(downsample=downsample, gru_levels=2, half_res_block=half_res_block)
+    net = SparseStereoNet(config).eval()
+    blocks = [m for m in net.encoders.backbone.modules() if type(m).__name__ == "ResidualBlock"]
+    assert len(blocks) == (3 if half_res_block else 2)
     img = torch.rand(2, 1, 64, 96) * 255
     valid = (torch.rand(2, 1, 64, 96) < 0.05).float()
     outs = net(img, img, valid * 10, valid, iters=3)
