@@ -80,6 +80,7 @@ class Pipeline:
         self.sync = LidarSync(sync)
         self.stats = PipelineStats()
         self._lock = threading.Lock()
+        engine.warm_up()
 
     def set_calibration(self, stereo: StereoCalibration, lidar: LidarExtrinsics | None) -> None:
         self.stereo, self.lidar = stereo, lidar

@@ -66,6 +66,12 @@ class Engine:
                                                                  "valid")}
         self._upsample_ms = 0.0  # running estimate for the deadline
 
+    def warm_up(self, iters: int = 1) -> None:
+        """One untimed inference on a blank frame: the first run of each session allocates
+        and plans, and would otherwise land on the first real frame's latency."""
+        blank = np.zeros((self.height, self.width), np.uint8)
+        self.infer(blank, blank, np.zeros((self.height, self.width), np.float32), iters=iters)
+
     @property
     def size(self) -> tuple[int, int]:
         return self.width, self.height
