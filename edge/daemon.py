@@ -16,6 +16,7 @@ import logging
 import os
 import signal
 import socket
+import sys
 import threading
 import time
 from collections import Counter, deque
@@ -23,6 +24,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from calibration.errors import CalibrationError
 from calibration.io import dumps_calibration
 from calibration.model import LidarExtrinsics, StereoCalibration
 from calibration.projection import project_to_disparity
@@ -46,14 +48,22 @@ class FrameOutput:
     gt: np.ndarray | None = None
 
 
+HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
+
+
 @dataclass
 class PipelineStats:
+    """Counters since start; `timings` holds the last HISTORY frames, `window` the frames
+    since the last /diagnostics report."""
+
     frames: int = 0
     scans: int = 0
     drops: int = 0
     errors: Counter = field(default_factory=Counter)
-    timings: list[dict] = field(default_factory=list)
+    timings: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
+    window: list[dict] = field(default_factory=list)
     metrics: list[dict] = field(default_factory=list)
+    source_failed: bool = False
 
     def count_error(self, kind: str, detail: object) -> None:
         if self.errors[kind] == 0:
@@ -145,6 +155,7 @@ class Pipeline:
                        iterations=result.iterations)
         self.stats.frames += 1
         self.stats.timings.append(timings)
+        self.stats.window.append(timings)
         metrics = None
         if gt is not None and gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, gt)
@@ -217,7 +228,7 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
     cond = threading.Condition()
     finished = threading.Event()
     gts: dict[int, np.ndarray] = {}
-    last_diag = [time.monotonic(), 0]
+    last_diag = [time.monotonic()]
     last_stamp: list[int | None] = [None]
 
     def handle_event(event) -> None:
@@ -241,22 +252,38 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
             pipeline.set_calibration(stereo, lidar or pipeline.lidar)
 
+    def safe_handle(event) -> None:
+        try:
+            handle_event(event)
+        except (EdgeError, CalibrationError, ValueError) as exc:
+            stats.count_error(type(exc).__name__, exc)
+
     def process(frame: StereoFrame) -> None:
         # ground truth follows its frame in our recordings: look for it once the frame is in
-        out = pipeline.on_frame(frame, gts.pop(frame.stamp_ns, None))
+        gt = gts.pop(frame.stamp_ns, None)
+        try:
+            out = pipeline.on_frame(frame, gt)
+        except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
+            stats.count_error(f"frame: {type(exc).__name__}", exc)
+            out = None
         if out is not None and on_output is not None:
             on_output(frame, out)
         if max_frames is not None and stats.frames >= max_frames:
             stop.set()
         last_stamp[0] = frame.stamp_ns
+        tick()
+
+    def tick() -> None:
+        """Once a period: /diagnostics and the systemd watchdog (also while no frame comes:
+        a camera that is reconnecting must not get the daemon killed)."""
         if time.monotonic() - last_diag[0] >= diagnostics_period_s:
             diagnostics()
             notifier.notify("WATCHDOG=1")
 
     def diagnostics() -> None:
         """Counters and the latency of the frames since the last report, on /diagnostics."""
-        window = stats.timings[last_diag[1]:]
-        last_diag[:] = [time.monotonic(), len(stats.timings)]
+        window, stats.window = stats.window, []
+        last_diag[0] = time.monotonic()
         if pipeline.logger is not None and last_stamp[0] is not None:
             pipeline.logger.log_diagnostics(last_stamp[0], dict(
                 frames=stats.frames, scans=stats.scans, drops=stats.drops,
@@ -268,12 +295,10 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             for event in source:
                 if stop.is_set():
                     break
-                try:
-                    handle_event(event)
-                except EdgeError as exc:
-                    stats.count_error(type(exc).__name__, exc)
-        except EdgeError as exc:
-            stats.count_error("source", exc)
+                safe_handle(event)
+        except Exception as exc:  # noqa: BLE001 - reported, and the daemon exits non-zero
+            stats.count_error("source", f"{type(exc).__name__}: {exc}")
+            stats.source_failed = True
         finally:
             finished.set()
             with cond:
@@ -287,6 +312,7 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             with cond:
                 while not frames and not finished.is_set() and not stop.is_set():
                     cond.wait(0.1)
+                    tick()
                 frame = frames.popleft() if frames else None
             if frame is None:
                 if finished.is_set():
@@ -306,13 +332,10 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             if isinstance(event, StereoFrame):
                 pending = event
             else:
-                try:
-                    handle_event(event)
-                except EdgeError as exc:
-                    stats.count_error(type(exc).__name__, exc)
+                safe_handle(event)
         if pending is not None:
             process(pending)
-    if len(stats.timings) > last_diag[1]:
+    if stats.window:
         diagnostics()  # the frames since the last report
     notifier.notify("STOPPING=1")
     return stats
@@ -466,6 +489,10 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
         print("latency median / p95 ms: " + ", ".join(
             f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    if stats.source_failed and not stop.is_set():
+        print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
+              file=sys.stderr)
+        return 1
     return 0
 
 

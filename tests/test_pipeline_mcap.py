@@ -347,3 +347,64 @@ def test_truncation_at_random_offsets_never_raises_past_the_warning(recording, t
             assert "no messages on /stereo/left/image_rect" in str(exc)
             continue
         assert len(frames) <= 3 and source.stats.truncated
+
+
+def test_an_engine_failure_costs_one_frame_and_a_dying_source_is_reported(engine,
+                                                                         monkeypatch):
+    source = SimSource(3, SEED)
+    pipeline = Pipeline(engine, *source.calibration)
+    real = engine.infer
+    calls = []
+
+    def flaky(*args, **kwargs):
+        calls.append(1)
+        if len(calls) == 2:
+            raise RuntimeError("onnxruntime: simulated failure")
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(engine, "infer", flaky)
+    stats = run(source, pipeline)
+    assert stats.frames == 2 and stats.errors["frame: RuntimeError"] == 1
+
+    class Dying:
+        def close(self) -> None:
+            pass
+
+        def __iter__(self):
+            yield make_sample(SEED).frame(1_000_000_000, 0)
+            raise OSError("USB gone")
+
+    monkeypatch.setattr(engine, "infer", real)
+    stats = run(Dying(), Pipeline(engine, *source.calibration), threaded=True)
+    assert stats.source_failed and stats.errors["source"] == 1 and stats.frames == 1
+
+
+def test_the_watchdog_is_fed_while_no_frame_arrives(tmp_path, engine, monkeypatch):
+    sock_path = str(tmp_path / "notify.sock")
+    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+    server.bind(sock_path)
+    server.settimeout(2)
+    monkeypatch.setenv("NOTIFY_SOCKET", sock_path)
+
+    class Silent:
+        """A camera that is reconnecting: nothing for 0.6 s."""
+
+        def close(self) -> None:
+            pass
+
+        def __iter__(self):
+            time.sleep(0.6)
+            return iter(())
+
+    run(Silent(), Pipeline(engine, *SimSource(1).calibration), threaded=True,
+        diagnostics_period_s=0.1)
+    messages = []
+    server.settimeout(0.2)
+    try:
+        while True:
+            messages.append(server.recv(100).decode())
+    except TimeoutError:
+        pass
+    server.close()
+    assert messages[0] == "READY=1" and messages[-1] == "STOPPING=1"
+    assert messages.count("WATCHDOG=1") >= 3
