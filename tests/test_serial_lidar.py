@@ -257,11 +257,14 @@ def test_rplidar_over_a_pty_answers_health_and_streams_nodes():
         scans.append(scan)
         if len(scans) == 2:
             source.close()
+    time.sleep(0.1)  # let the device thread read the stop requests
     stop.set()
     thread.join()
     os.close(master)
     os.close(slave)
     assert b"\xa5\x52" in requests and rplidar.set_pwm_request() in requests
+    assert requests.rfind(rplidar.request(rplidar.CMD_STOP)) > requests.find(b"\xa5\x20")
+    assert requests.endswith(rplidar.set_pwm_request(0))
     assert len(scans[1]) >= 300
     r = np.hypot(scans[1].points[:, 0], scans[1].points[:, 1])
     assert r.min() >= 0.5 and r.max() <= 0.86

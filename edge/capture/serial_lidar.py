@@ -103,6 +103,10 @@ class SerialLidarSource:
             try:
                 if self.model.startswith("rplidar"):
                     port.write(rplidar.request(rplidar.CMD_STOP))
+                    if self.model == "rplidar-a2":
+                        port.write(rplidar.set_pwm_request(0))  # motor off
+                    else:
+                        port.dtr = True  # A1: motor off while DTR is high
                 port.close()
             except Exception:  # noqa: BLE001 - the device may already be gone
                 pass
