@@ -158,10 +158,8 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
                 quantize_graph(src, dst, record[part], keep_float)
                 trial_engine = Engine(bundle, "trial", threads, trial)
                 graphs[part]["float_nodes"] = keep_float
-                graphs[part]["mean_abs_px_alone"] = mean_abs_difference(trial_engine, fp32,
-                                                                        frames, iters)
-                graphs[part]["engine_ms_with_this_int8"] = median_ms(
-                    [fp32, trial_engine], frames[:4], iters)[1]
+                graphs[part]["mean_abs_px_with_float_nodes"] = mean_abs_difference(
+                    trial_engine, fp32, frames, iters)
             else:
                 quantize_graph(src, dst, record[part])
         if not graphs[part]["int8"]:
@@ -215,7 +213,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{part}: {'int8' if g['int8'] else 'float'} (alone: moves disparity "
               f"{g['mean_abs_px_alone']:.4f} px, engine {g['engine_ms_fp32']:.1f} -> "
               f"{g['engine_ms_with_this_int8']:.1f} ms)"
-              + (f"; kept float: {', '.join(g['float_nodes'])}" if g["float_nodes"] else ""))
+              + (f"; kept float: {', '.join(g['float_nodes'])} -> moves "
+                 f"{g['mean_abs_px_with_float_nodes']:.4f} px" if g["float_nodes"] else ""))
     print(f"int8 vs fp32 on the calibration frames: {q['mean_abs_px_vs_fp32']:.4f} px mean")
     if "eval" in q:
         e = q["eval"]
