@@ -139,18 +139,18 @@ def main(argv: list[str] | None = None) -> int:
             return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
                                 args.deadline_ms)
         if args.command == "replay":
-            from edge.daemon import replay_command
+            from edge.commands import replay_command
 
             topics = load_topic_map(args.topics) if args.topics else None
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
                                   args.calib, topics, args.precision, args.realtime,
                                   args.threads, args.bundle)
         if args.command == "run":
-            from edge.daemon import run_command
+            from edge.commands import run_command
 
             return run_command(args.config, args.out, args.live, args.max_frames)
         if args.command == "record":
-            from edge.daemon import record_command
+            from edge.commands import record_command
 
             return record_command(args.config, args.out, args.max_frames)
     except (EdgeError, CalibrationError, OSError) as exc:

@@ -10,7 +10,7 @@ the start of every file so a recording replays without side files) and /sim/gt_d
 
 Log time is the sensor stamp (nanoseconds), so a replay reproduces the recording's timing.
 Files rotate by size or duration into NAME_0001.mcap, NAME_0002.mcap, ...; `close()` writes
-the summary (the caller makes sure it runs, on signals too: see edge.daemon).
+the summary (the caller makes sure it runs, on signals too: see edge.daemon and edge.commands).
 """
 
 from __future__ import annotations

@@ -1,0 +1,225 @@
+"""The daemon's commands: `edge-depth run`, `record` and `replay` (edge.daemon does the work).
+
+Each loads its configuration and calibration first — a bad file exits 1 naming the file and
+the key before any device is opened — then wires sources, the pipeline and the MCAP logger.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import sys
+import time
+from collections import Counter
+
+import numpy as np
+
+from edge.capture.sync import SyncConfig
+from edge.daemon import Pipeline, StopFlag, run, summarise
+from edge.errors import ConfigError
+from edge.mcap_log import McapLogger
+from edge.runtime.engine import Engine
+from edge.types import LidarScan, StereoFrame
+
+
+def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
+                   calib=None, topics=None, precision: str = "int8", realtime: bool = False,
+                   threads: int = 2, bundle=None) -> int:
+    """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
+    EPE / bad-3 per frame and overall where the recording carries ground truth."""
+    from calibration.io import load_calibration, loads_calibration
+    from edge.capture.replay import McapSource, TopicMap
+    from edge.runtime.engine import DEFAULT_BUNDLE
+
+    source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
+    source.check_topics()
+    if calib is not None:
+        stereo, lidar = load_calibration(calib)
+    else:
+        text = source.find_calibration()
+        if text is None:
+            raise ConfigError("--calib", "a calibration file: the recording has none on "
+                              f"{source.topics.calibration}", None, str(path))
+        stereo, lidar = loads_calibration(text, f"{path} {source.topics.calibration}")
+    engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads)
+    stop = StopFlag()
+    stop.install()
+
+    def on_output(frame, output) -> None:
+        m = output.metrics
+        line = (f"frame {frame.seq}: {output.result.iterations} it, "
+                f"{output.result.timings_ms['engine']:.0f} ms")
+        if m is not None:
+            line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
+        print(line, flush=True)
+
+    try:
+        with McapLogger(out) as logger:
+            pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
+            # with --calib given, the recording's own calibration is ignored
+            if calib is not None:
+                source.topics = dataclasses.replace(source.topics, calibration="")
+            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output)
+    finally:
+        stop.restore()
+    lat = summarise(stats.timings)
+    print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
+          f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
+    if source.stats.truncated:
+        print(f"the input was cut off: replayed its first {source.stats.messages} messages")
+    if lat:
+        print("latency median / p95 ms: " + ", ".join(
+            f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
+    if stats.metrics:
+        print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
+              f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
+              "frames with ground truth")
+    print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    return 0
+
+
+def open_sources(config, max_frames: int | None = None):
+    """The configured camera and LiDAR as one source, plus the calibration (loaded first, so
+    a bad calibration file stops the daemon before any device is opened)."""
+    from calibration.io import load_calibration
+    from edge.capture import MergedSource
+    from edge.capture.sim import SimSource
+    from edge.sim import RigConfig
+
+    cam, lid = config.camera, config.lidar
+    if config.calibration.file:
+        stereo, lidar = load_calibration(config.calibration.file)
+    elif cam.source == "sim":
+        stereo = lidar = None
+    else:
+        raise ConfigError("calibration.file", "a calibration TOML (for an OAK's factory "
+                          "calibration: edge-depth calibrate import-oak)", "", config.path)
+    sources = []
+    if cam.source == "sim":
+        w, h = cam.size
+        sim = SimSource(max_frames or 10**9, 1_000_000, RigConfig(width=w, height=h),
+                        period_ms=1000.0 / cam.fps, realtime=True)
+        if stereo is None:
+            stereo, lidar = sim.calibration
+        if lid.model == "none":
+            sim = _FramesOnly(sim)
+        sources.append(sim)
+    else:
+        from edge.capture.oak import OakSource
+
+        sources.append(OakSource(cam.size, cam.fps, cam.device_id or None))
+    if lid.model not in ("sim", "none"):
+        from edge.capture.serial_lidar import SerialLidarSource
+
+        sources.append(SerialLidarSource(lid.port, lid.model, lid.baudrate or None))
+    if lid.model == "none":
+        lidar = None
+    return MergedSource(sources), stereo, lidar
+
+
+class _FramesOnly:
+    """A source with its LiDAR scans removed."""
+
+    def __init__(self, source) -> None:
+        self.source = source
+
+    def close(self) -> None:
+        self.source.close()
+
+    def __iter__(self):
+        return (e for e in self.source if not isinstance(e, LidarScan))
+
+
+def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None
+                ) -> int:
+    """`edge-depth run --config robot.toml`: the on-robot daemon."""
+    from calibration.io import dumps_calibration
+    from edge.config import load_robot_config
+    from edge.mcap_log import RESULT_TOPICS, TOPICS
+    from edge.runtime.engine import DEFAULT_BUNDLE
+
+    config = load_robot_config(config_path)
+    source, stereo, lidar = open_sources(config, max_frames)
+    e = config.engine
+    engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads)
+    lg = config.log
+    topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
+    stop = StopFlag()
+    stop.install()
+    started = time.monotonic()
+    try:
+        with McapLogger(out or lg.out, topics=topics,
+                        rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
+                        rotate_s=lg.rotate_s or None, compression=lg.compression,
+                        calibration_toml=dumps_calibration(stereo, lidar), live=live) as logger:
+            pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
+                                SyncConfig(config.sync.mode, config.sync.window_ms),
+                                log_raw=lg.raw)
+            print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model},"
+                  f" {e.precision} engine, logging to {logger.files[0]}"
+                  + (" (live on ws://127.0.0.1:8765)" if live else ""), flush=True)
+            stats = run(source, pipeline, stop, threaded=True, queue_size=lg.queue,
+                        max_frames=max_frames)
+    finally:
+        stop.restore()
+    elapsed = time.monotonic() - started
+    lat = summarise(stats.timings)
+    print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
+          f"dropped, errors {dict(stats.errors) or 'none'}")
+    if lat:
+        print("latency median / p95 ms: " + ", ".join(
+            f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
+    print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    if stats.source_failed and not stop.is_set():
+        print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def record_command(config_path, out, max_frames: int | None = None) -> int:
+    """`edge-depth record --config robot.toml --out rec.mcap`: the live sensors, rectified
+    images and raw points, with the calibration, for replay and training later."""
+    from calibration.io import dumps_calibration
+    from edge.config import load_robot_config
+    from edge.mcap_log import RAW_TOPICS
+
+    config = load_robot_config(config_path)
+    source, stereo, lidar = open_sources(config, max_frames)
+    rectifier = stereo.rectifier()
+    stop = StopFlag()
+    stop.install()
+    stop.on_stop.append(source.close)
+    frames = scans = 0
+    errors: Counter = Counter()
+    lg = config.log
+    try:
+        with McapLogger(out, topics=RAW_TOPICS, compression=lg.compression,
+                        rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
+                        rotate_s=lg.rotate_s or None,
+                        calibration_toml=dumps_calibration(stereo, lidar)) as logger:
+            for event in source:
+                if isinstance(event, LidarScan):
+                    logger.log_scan(event)
+                    scans += 1
+                elif isinstance(event, StereoFrame):
+                    if event.size != tuple(stereo.image_size):
+                        errors["frame size"] += 1
+                        continue
+                    left, right = (event.left, event.right) if event.rectified else \
+                        rectifier.rectify(event.left, event.right)
+                    if frames == 0:
+                        logger.log_calibration(event.stamp_ns, stereo.image_size,
+                                               stereo.focal_px, stereo.principal_point,
+                                               stereo.baseline_m)
+                    logger.log_frame(StereoFrame(event.stamp_ns, event.seq, left, right,
+                                                 rectified=True))
+                    frames += 1
+                    if max_frames is not None and frames >= max_frames:
+                        stop.set()
+                if stop.is_set():
+                    break
+    finally:
+        stop.restore()
+    print(f"recorded {frames} frames and {scans} scans to "
+          f"{', '.join(str(p) for p in logger.files)}; errors {dict(errors) or 'none'}")
+    return 0
