@@ -14,7 +14,8 @@ from collections import Counter
 import numpy as np
 
 from edge.capture.sync import SyncConfig
-from edge.daemon import Pipeline, StopFlag, run, summarise
+from edge.config import LogConfig
+from edge.daemon import Pipeline, StopFlag, format_latency, run, summarise
 from edge.errors import ConfigError
 from edge.mcap_log import McapLogger
 from edge.runtime.engine import Engine
@@ -67,8 +68,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     if source.stats.truncated:
         print(f"the input was cut off: replayed its first {source.stats.messages} messages")
     if lat:
-        print("latency median / p95 ms: " + ", ".join(
-            f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
+        print("latency median / p95 ms: " + format_latency(lat))
     if stats.metrics:
         print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
@@ -129,6 +129,12 @@ class _FramesOnly:
         return (e for e in self.source if not isinstance(e, LidarScan))
 
 
+def logger_options(lg: LogConfig) -> dict:
+    """McapLogger's rotation and compression from the config's [log] (0 = never rotate)."""
+    return dict(rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
+                rotate_s=lg.rotate_s or None, compression=lg.compression)
+
+
 def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None
                 ) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
@@ -147,9 +153,7 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     stop.install()
     started = time.monotonic()
     try:
-        with McapLogger(out or lg.out, topics=topics,
-                        rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
-                        rotate_s=lg.rotate_s or None, compression=lg.compression,
+        with McapLogger(out or lg.out, topics=topics, **logger_options(lg),
                         calibration_toml=dumps_calibration(stereo, lidar), live=live) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
                                 SyncConfig(config.sync.mode, config.sync.window_ms),
@@ -166,8 +170,7 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
           f"dropped, errors {dict(stats.errors) or 'none'}")
     if lat:
-        print("latency median / p95 ms: " + ", ".join(
-            f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items() if k != "step_mean"))
+        print("latency median / p95 ms: " + format_latency(lat))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
     if stats.source_failed and not stop.is_set():
         print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
@@ -193,9 +196,7 @@ def record_command(config_path, out, max_frames: int | None = None) -> int:
     errors: Counter = Counter()
     lg = config.log
     try:
-        with McapLogger(out, topics=RAW_TOPICS, compression=lg.compression,
-                        rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
-                        rotate_s=lg.rotate_s or None,
+        with McapLogger(out, topics=RAW_TOPICS, **logger_options(lg),
                         calibration_toml=dumps_calibration(stereo, lidar)) as logger:
             for event in source:
                 if isinstance(event, LidarScan):

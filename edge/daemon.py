@@ -168,6 +168,12 @@ def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
                     p95=float(np.percentile([t[k] for t in timings], 95))) for k in keys}
 
 
+def format_latency(summary: dict[str, dict[str, float]]) -> str:
+    """'encoder 9.1/10.2, steps ...': median / p95 ms of each stage of a `summarise`."""
+    return ", ".join(f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in summary.items()
+                     if k != "step_mean")
+
+
 class SystemdNotifier:
     """sd_notify without libsystemd: datagrams to $NOTIFY_SOCKET when it is set."""
 

@@ -77,7 +77,7 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth) -> np.ndarray:
 def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "int8",
                  iters: int | None = None, deadline_ms: float | None = None) -> int:
     from edge.capture.sim import SimSource
-    from edge.daemon import Pipeline, run, summarise
+    from edge.daemon import Pipeline, format_latency, run, summarise
     from edge.mcap_log import McapLogger
     from edge.runtime.engine import Engine
 
@@ -114,8 +114,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
     cv2.imwrite(str(out / "demo.png"), picture[0])
     lat = summarise(stats.timings)
     print(f"summary over {stats.frames} frames, latency median / p95 ms:")
-    print("  " + ", ".join(f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in lat.items()
-                           if k != "step_mean"))
+    print("  " + format_latency(lat))
     net_epe = np.mean([m["epe"] for m in stats.metrics])
     net_bad3 = np.mean([m["bad3"] for m in stats.metrics])
     sgbm_epe = np.mean([r["epe"] for r in sgbm_rows])
