@@ -134,19 +134,25 @@ def test_faults_in_a_recording_are_counted_and_skipped(tmp_path, engine):
     assert topic_counts(out)[TOPICS["disparity"]] == 2
 
 
-def test_pipeline_logs_diagnostics_and_notifies_systemd(tmp_path, engine, monkeypatch):
+@pytest.fixture
+def notify_server(tmp_path, monkeypatch):
+    """A datagram socket standing in for systemd's $NOTIFY_SOCKET."""
     sock_path = str(tmp_path / "notify.sock")
     server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
     server.bind(sock_path)
     server.settimeout(2)
     monkeypatch.setenv("NOTIFY_SOCKET", sock_path)
+    yield server
+    server.close()
+
+
+def test_pipeline_logs_diagnostics_and_notifies_systemd(tmp_path, engine, notify_server):
     source = SimSource(2, SEED)
     out = tmp_path / "d.mcap"
     with McapLogger(out) as logger:
         pipeline = Pipeline(engine, *source.calibration, logger)
         run(source, pipeline, diagnostics_period_s=0.0)
-    messages = [server.recv(100).decode() for _ in range(4)]
-    server.close()
+    messages = [notify_server.recv(100).decode() for _ in range(4)]
     assert messages == ["READY=1", "WATCHDOG=1", "WATCHDOG=1", "STOPPING=1"]
     with open(out, "rb") as f:
         diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(
@@ -379,12 +385,7 @@ def test_an_engine_failure_costs_one_frame_and_a_dying_source_is_reported(engine
     assert stats.source_failed and stats.errors["source"] == 1 and stats.frames == 1
 
 
-def test_the_watchdog_is_fed_while_no_frame_arrives(tmp_path, engine, monkeypatch):
-    sock_path = str(tmp_path / "notify.sock")
-    server = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
-    server.bind(sock_path)
-    server.settimeout(2)
-    monkeypatch.setenv("NOTIFY_SOCKET", sock_path)
+def test_the_watchdog_is_fed_while_no_frame_arrives(engine, notify_server):
 
     class Silent:
         """A camera that is reconnecting: nothing for 0.6 s."""
@@ -399,12 +400,11 @@ def test_the_watchdog_is_fed_while_no_frame_arrives(tmp_path, engine, monkeypatc
     run(Silent(), Pipeline(engine, *SimSource(1).calibration), threaded=True,
         diagnostics_period_s=0.1)
     messages = []
-    server.settimeout(0.2)
+    notify_server.settimeout(0.2)
     try:
         while True:
-            messages.append(server.recv(100).decode())
+            messages.append(notify_server.recv(100).decode())
     except TimeoutError:
         pass
-    server.close()
     assert messages[0] == "READY=1" and messages[-1] == "STOPPING=1"
     assert messages.count("WATCHDOG=1") >= 3
