@@ -9,26 +9,37 @@ import queue
 import threading
 
 
-class MergedSource:
-    """Several sources (a camera and a LiDAR) as one event stream: each runs in its own
-    thread; events come out in arrival order. Ends when every source has ended."""
+class Source:
+    """What every source shares: `close()` (from any thread) sets `_stop`, which the source's
+    iteration checks; as a context manager it closes itself on exit."""
 
-    def __init__(self, sources: list) -> None:
-        self.sources = sources
-        self._queue: queue.Queue = queue.Queue(maxsize=256)
+    def __init__(self) -> None:
         self._stop = threading.Event()
-        self.errors: list[BaseException] = []
 
     def close(self) -> None:
         self._stop.set()
-        for source in self.sources:
-            source.close()
 
-    def __enter__(self) -> MergedSource:
+    def __enter__(self):
         return self
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+class MergedSource(Source):
+    """Several sources (a camera and a LiDAR) as one event stream: each runs in its own
+    thread; events come out in arrival order. Ends when every source has ended."""
+
+    def __init__(self, sources: list) -> None:
+        super().__init__()
+        self.sources = sources
+        self._queue: queue.Queue = queue.Queue(maxsize=256)
+        self.errors: list[BaseException] = []
+
+    def close(self) -> None:
+        super().close()
+        for source in self.sources:
+            source.close()
 
     def _pump(self, source) -> None:
         try:

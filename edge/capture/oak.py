@@ -11,12 +11,12 @@ with the calibration.
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections import Counter
 
 import numpy as np
 
+from edge.capture import Source
 from edge.errors import InvalidDataError
 from edge.types import StereoFrame
 
@@ -70,7 +70,7 @@ class StereoPairer:
         return StereoFrame(min(stamp, match[0]), seq, images["left"], images["right"])
 
 
-class OakSource:
+class OakSource(Source):
     """Frames from an OAK device (a context manager; `close()` from any thread)."""
 
     def __init__(self, size: tuple[int, int] = (640, 400), fps: float = 30.0,
@@ -78,21 +78,12 @@ class OakSource:
                  backoff_s: tuple[float, float] = (0.5, 10.0)) -> None:
         self.size, self.fps, self.device_id = size, fps, device_id
         self.queue_size, self.backoff_s = queue_size, backoff_s
-        self._stop = threading.Event()
+        super().__init__()
         self.pairer = StereoPairer()
         self.frames = 0
         self.reconnects = 0
         self.errors: Counter = Counter()
         self.calibration = None
-
-    def close(self) -> None:
-        self._stop.set()
-
-    def __enter__(self) -> OakSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def _build(self):
         import depthai as dai

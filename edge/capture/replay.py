@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import threading
 import time
 from collections import Counter
 from dataclasses import dataclass, field
@@ -24,6 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from edge.capture import Source
 from edge.errors import EdgeError
 from edge.mcap_log import TOPICS
 from edge.types import LidarScan, StereoFrame
@@ -168,7 +168,7 @@ def _camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
 
 
 # -- the source ------------------------------------------------------------------------------
-class McapSource:
+class McapSource(Source):
     """Iterate events of a recording. `realtime=True` paces them by their log times."""
 
     def __init__(self, path: str | Path, topics: TopicMap | None = None,
@@ -181,18 +181,8 @@ class McapSource:
         self.pair_window_ns = pair_window_ns
         self.stats = ReplayStats()
         self.seen_topics: set[str] = set()
-        self._stop = threading.Event()
+        super().__init__()
         self._info: dict[str, tuple] = {}
-
-    def close(self) -> None:
-        """Stop iterating (safe from another thread)."""
-        self._stop.set()
-
-    def __enter__(self) -> McapSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def file_topics(self) -> set[str] | None:
         """Topics listed in the summary, or None for a file without one."""

@@ -9,13 +9,12 @@ closes the port, waits with exponential back-off and reopens, counting the recon
 from __future__ import annotations
 
 import logging
-import threading
 import time
 from collections import Counter
 
 import numpy as np
 
-from edge.capture import ld06, rplidar
+from edge.capture import Source, ld06, rplidar
 from edge.errors import ConfigError, EdgeError
 from edge.types import LidarScan
 
@@ -28,7 +27,7 @@ class LidarDeviceError(EdgeError):
     """The device answered, but not as a working LiDAR (e.g. health status 'error')."""
 
 
-class SerialLidarSource:
+class SerialLidarSource(Source):
     def __init__(self, url: str, model: str = "ld06", baudrate: int | None = None,
                  read_size: int = 1024, timeout_s: float = 0.1,
                  backoff_s: tuple[float, float] = (0.2, 5.0), clock=time.monotonic_ns) -> None:
@@ -39,7 +38,7 @@ class SerialLidarSource:
         self.read_size, self.timeout_s = read_size, timeout_s
         self.backoff_s = backoff_s
         self.clock = clock
-        self._stop = threading.Event()
+        super().__init__()
         self._port = None
         self.scans = 0
         self.reconnects = 0
@@ -49,19 +48,13 @@ class SerialLidarSource:
 
     # -- lifecycle ---------------------------------------------------------------------------
     def close(self) -> None:
-        self._stop.set()
+        super().close()
         port = self._port
         if port is not None:
             try:
                 port.cancel_read()
             except Exception:  # noqa: BLE001 - not every port type can cancel
                 pass
-
-    def __enter__(self) -> SerialLidarSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def _open(self):
         import serial

@@ -6,15 +6,14 @@ revolution that ended just before the exposure), the frame at `period_ms` interv
 
 from __future__ import annotations
 
-import threading
-
 from calibration.model import LidarExtrinsics, StereoCalibration
+from edge.capture import Source
 from edge.capture.replay import GroundTruth
 from edge.sim import RigConfig, make_sample
 from edge.sim.lidar import default_T_cam_lidar
 
 
-class SimSource:
+class SimSource(Source):
     def __init__(self, count: int, seed: int = 0, rig: RigConfig | None = None,
                  lidar: str = "beams16", period_ms: float = 100.0, lidar_lag_ms: float = 5.0,
                  start_ns: int = 1_000_000_000, realtime: bool = False) -> None:
@@ -22,7 +21,7 @@ class SimSource:
         self.period_ns, self.lag_ns = int(period_ms * 1e6), int(lidar_lag_ms * 1e6)
         self.start_ns = start_ns
         self.realtime = realtime
-        self._stop = threading.Event()
+        super().__init__()
         self.frames = self.scans = 0
 
     @property
@@ -31,15 +30,6 @@ class SimSource:
         stereo = StereoCalibration.ideal(r.focal_px, r.baseline_m, (r.width, r.height), r.cx,
                                          r.cy)
         return stereo, LidarExtrinsics(default_T_cam_lidar())
-
-    def close(self) -> None:
-        self._stop.set()
-
-    def __enter__(self) -> SimSource:
-        return self
-
-    def __exit__(self, *exc) -> None:
-        self.close()
 
     def __iter__(self):
         import time
