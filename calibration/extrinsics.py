@@ -179,25 +179,14 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
                 max_frames: int = 20) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
     nearest in time (images rectified with `stereo` unless the recording's already are)."""
-    from edge.capture.replay import McapSource
-    from edge.capture.sync import LidarSync, SyncConfig
-    from edge.types import LidarScan, StereoFrame
+    from edge.capture.replay import synced_frames
 
-    sync = LidarSync(SyncConfig("nearest", 100.0, time_offset_ns))
-    rectifier = stereo.rectifier()
     frames = []
-    for event in McapSource(path):
-        if isinstance(event, LidarScan):
-            sync.add(event)
-        elif isinstance(event, StereoFrame):
-            if event.size != tuple(stereo.image_size):
-                raise CalibrationError(f"image size {event.size} differs from the "
-                                       f"calibration's {stereo.image_size}", path=str(path))
-            points = sync.points_for(event.stamp_ns)
-            if len(points) == 0:
-                continue
-            left, right = ((event.left, event.right) if event.rectified
-                           else rectifier.rectify(event.left, event.right))
+    for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns):
+        if frame.size != tuple(stereo.image_size):
+            raise CalibrationError(f"image size {frame.size} differs from the "
+                                   f"calibration's {stereo.image_size}", path=str(path))
+        if len(points):
             frames.append((left, right, points))
             if len(frames) >= max_frames:
                 break

@@ -346,3 +346,31 @@ class McapSource(Source):
             for s in [s for s in pending if stamp - s > 1_000_000_000]:
                 del pending[s]
                 self.stats.errors["unpaired image"] += 1
+
+
+def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0):
+    """Each frame of a recording with its LiDAR and ground truth, for offline use (training,
+    the extrinsics check): yields (frame as recorded, rectified left, rectified right, points
+    (N, 3) of the revolution nearest in time among those received before it (0 rows if none),
+    GT disparity or None). `stereo` rectifies frames the recording did not store rectified;
+    `time_offset_ns` moves LiDAR stamps into the camera clock."""
+    from edge.capture.sync import LidarSync, SyncConfig
+
+    sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns))
+    rectifier = stereo.rectifier()
+    pending = None  # (frame, left, right, points): waits for its GT, which follows it
+    for event in McapSource(path):
+        if isinstance(event, LidarScan):
+            sync.add(event)
+        elif isinstance(event, StereoFrame):
+            if pending is not None:
+                yield (*pending, None)
+            left, right = ((event.left, event.right) if event.rectified
+                           else rectifier.rectify(event.left, event.right))
+            pending = (event, left, right, sync.points_for(event.stamp_ns))
+        elif isinstance(event, GroundTruth) and pending is not None \
+                and event.stamp_ns == pending[0].stamp_ns:
+            yield (*pending, event.disparity)
+            pending = None
+    if pending is not None:
+        yield (*pending, None)

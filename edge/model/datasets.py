@@ -75,53 +75,25 @@ def scene_folder_arrays(folder: Path) -> dict:
 
 
 # -- MCAP recordings -------------------------------------------------------------------------
-def mcap_arrays(path: Path, max_frames: int | None = None):
+def mcap_arrays(path: Path):
     """Frames of a recording with their LiDAR projected into both views (calibration from the
     recording); GT where the recording carries /sim/gt_disparity."""
     from calibration.io import loads_calibration
     from calibration.projection import project_to_disparity
-    from edge.capture.replay import GroundTruth, McapSource
-    from edge.capture.sync import LidarSync, SyncConfig
-    from edge.types import LidarScan, StereoFrame
+    from edge.capture.replay import McapSource, synced_frames
 
-    source = McapSource(path)
-    text = source.find_calibration()
+    text = McapSource(path).find_calibration()
     if text is None:
         raise ConfigError("data", "a recording with its calibration (/edge/calibration)",
                           str(path))
     stereo, lidar = loads_calibration(text, str(path))
-    rectifier = stereo.rectifier()
-    sync = LidarSync(SyncConfig("nearest", 100.0, lidar.time_offset_ns if lidar else 0))
-    pending = None
-    count = 0
-
-    def finish(frame, gt):
-        left, right = ((frame.left, frame.right) if frame.rectified
-                       else rectifier.rectify(frame.left, frame.right))
-        points = sync.points_for(frame.stamp_ns)
+    offset = lidar.time_offset_ns if lidar else 0
+    for _, left, right, points, gt in synced_frames(path, stereo, offset):
         sparse = sparse_right = None
         if lidar is not None and len(points):
             sparse, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar, "left")
             sparse_right, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar, "right")
-        return _arrays(left, right, gt, None, sparse, sparse_right)
-
-    for event in source:
-        if isinstance(event, LidarScan):
-            sync.add(event)
-        elif isinstance(event, StereoFrame):
-            if pending is not None:
-                yield finish(pending, None)
-                count += 1
-            pending = event
-        elif isinstance(event, GroundTruth) and pending is not None \
-                and event.stamp_ns == pending.stamp_ns:
-            yield finish(pending, event.disparity)
-            count += 1
-            pending = None
-        if max_frames is not None and count >= max_frames:
-            return
-    if pending is not None:
-        yield finish(pending, None)
+        yield _arrays(left, right, gt, None, sparse, sparse_right)
 
 
 # -- KITTI depth completion ------------------------------------------------------------------
