@@ -31,16 +31,9 @@ import cv2
 import numpy as np
 
 from edge.errors import ConfigError
-from edge.sim.folder import list_scene_folders, read_pfm, read_scene_folder
+from edge.sim.folder import list_scene_folders, read_grey, read_pfm, read_scene_folder
 
 log = logging.getLogger(__name__)
-
-
-def _grey(path: Path) -> np.ndarray:
-    image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if image is None:
-        raise ConfigError("data", "a readable image", str(path))
-    return image
 
 
 def _arrays(left, right, gt=None, gt_right=None, sparse=None, sparse_right=None) -> dict:
@@ -142,7 +135,7 @@ def kitti_arrays(root: Path):
                                if lidar_path.exists() else None)
                 gt[cam] = (_depth_to_disparity(read_kitti_depth(gt_path), f, b)
                            if gt_path.exists() else None)
-            yield _arrays(_grey(left_path), _grey(drive / "image_03" / "data" / name),
+            yield _arrays(read_grey(left_path), read_grey(drive / "image_03" / "data" / name),
                           gt["02"], gt["03"], sparse["02"], sparse["03"])
 
 
@@ -175,7 +168,7 @@ def sceneflow_arrays(root: Path, lines: int = 16):
         gt_r = read_pfm(disp_r) if disp_r.exists() else None
         sparse = lidar_like_sample(gt, lines, i) if gt is not None else None
         sparse_r = lidar_like_sample(gt_r, lines, i) if gt_r is not None else None
-        yield _arrays(_grey(left_path), _grey(right_path), gt, gt_r, sparse, sparse_r)
+        yield _arrays(read_grey(left_path), read_grey(right_path), gt, gt_r, sparse, sparse_r)
 
 
 # -- choosing ------------------------------------------------------------------------------

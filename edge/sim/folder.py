@@ -78,7 +78,8 @@ class SceneFolder:
     meta: dict
 
 
-def _read_grey(path: Path) -> np.ndarray:
+def read_grey(path: Path | str) -> np.ndarray:
+    """An 8-bit grey (H, W) image (colour files converted); SceneFolderError if unreadable."""
     image = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
     if image is None:
         raise SceneFolderError(path, "missing or unreadable image")
@@ -90,12 +91,12 @@ def read_scene_folder(path: Path | str) -> SceneFolder:
     path = Path(path)
     if not path.is_dir():
         raise SceneFolderError(path, "not a directory")
-    left, right = _read_grey(path / "left.png"), _read_grey(path / "right.png")
+    left, right = read_grey(path / "left.png"), read_grey(path / "right.png")
     if left.shape != right.shape:
         raise SceneFolderError(path, f"left {left.shape} and right {right.shape} differ in size")
     disp = read_pfm(path / "disp.pfm") if (path / "disp.pfm").exists() else None
     sparse = read_pfm(path / "sparse.pfm") if (path / "sparse.pfm").exists() else None
-    occ = _read_grey(path / "occ.png") > 127 if (path / "occ.png").exists() else None
+    occ = read_grey(path / "occ.png") > 127 if (path / "occ.png").exists() else None
     lidar = np.load(path / "lidar.npy") if (path / "lidar.npy").exists() else None
     meta = json.loads((path / "meta.json").read_text()) if (path / "meta.json").exists() else {}
     for name, arr in (("disp.pfm", disp), ("sparse.pfm", sparse), ("occ.png", occ)):
