@@ -138,7 +138,6 @@ def logger_options(lg: LogConfig) -> dict:
 def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None
                 ) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
-    from calibration.io import dumps_calibration
     from edge.config import load_robot_config
     from edge.mcap_log import RESULT_TOPICS, TOPICS
     from edge.runtime.engine import DEFAULT_BUNDLE
@@ -154,7 +153,7 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     started = time.monotonic()
     try:
         with McapLogger(out or lg.out, topics=topics, **logger_options(lg),
-                        calibration_toml=dumps_calibration(stereo, lidar), live=live) as logger:
+                        live=live) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
                                 SyncConfig(config.sync.mode, config.sync.window_ms),
                                 log_raw=lg.raw)
@@ -182,7 +181,6 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
 def record_command(config_path, out, max_frames: int | None = None) -> int:
     """`edge-depth record --config robot.toml --out rec.mcap`: the live sensors, rectified
     images and raw points, with the calibration, for replay and training later."""
-    from calibration.io import dumps_calibration
     from edge.config import load_robot_config
     from edge.mcap_log import RAW_TOPICS
 
@@ -196,8 +194,8 @@ def record_command(config_path, out, max_frames: int | None = None) -> int:
     errors: Counter = Counter()
     lg = config.log
     try:
-        with McapLogger(out, topics=RAW_TOPICS, **logger_options(lg),
-                        calibration_toml=dumps_calibration(stereo, lidar)) as logger:
+        with McapLogger(out, topics=RAW_TOPICS, **logger_options(lg)) as logger:
+            logger.set_calibration(stereo, lidar)
             for event in source:
                 if isinstance(event, LidarScan):
                     logger.log_scan(event)
@@ -208,10 +206,6 @@ def record_command(config_path, out, max_frames: int | None = None) -> int:
                         continue
                     left, right = (event.left, event.right) if event.rectified else \
                         rectifier.rectify(event.left, event.right)
-                    if frames == 0:
-                        logger.log_calibration(event.stamp_ns, stereo.image_size,
-                                               stereo.focal_px, stereo.principal_point,
-                                               stereo.baseline_m)
                     logger.log_frame(StereoFrame(event.stamp_ns, event.seq, left, right,
                                                  rectified=True))
                     frames += 1

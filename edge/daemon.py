@@ -24,7 +24,6 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from calibration.errors import CalibrationError
-from calibration.io import dumps_calibration
 from calibration.model import LidarExtrinsics, StereoCalibration
 from calibration.projection import project_to_disparity
 from edge.capture.replay import Calibration, GroundTruth
@@ -96,9 +95,8 @@ class Pipeline:
         self.rectifier = stereo.rectifier()
         self.focal_px, self.baseline_m = stereo.focal_px, stereo.baseline_m
         self.principal_point = stereo.principal_point
-        self._calibration_logged = False
         if self.logger is not None:
-            self.logger.calibration_toml = dumps_calibration(stereo, lidar)
+            self.logger.set_calibration(stereo, lidar)
 
     def on_scan(self, scan: LidarScan) -> None:
         with self._lock:
@@ -138,11 +136,6 @@ class Pipeline:
         t3 = time.perf_counter()
         if self.logger is not None:
             if self.log_raw:
-                if not self._calibration_logged:
-                    self.logger.log_calibration(frame.stamp_ns, self.engine.size,
-                                                self.focal_px, self.principal_point,
-                                                self.baseline_m)
-                    self._calibration_logged = True
                 self.logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, left, right,
                                                   rectified=True))
                 if gt is not None:

@@ -120,6 +120,7 @@ class McapLogger:
             raise ValueError(f"unknown topics {sorted(unknown)}; choose from {sorted(TOPICS)}")
         self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
         self.calibration_toml = calibration_toml
+        self.camera: tuple | None = None  # (size, focal_px, principal_point, baseline_m)
         self.chunk_size = chunk_size
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression: expected one of {COMPRESSIONS}, got {compression!r}")
@@ -192,11 +193,24 @@ class McapLogger:
     def _log(self, key: str, message, stamp_ns: int) -> None:
         if key not in self.enabled:
             return
-        if not self._calibration_logged and self.calibration_toml is not None:
+        if not self._calibration_logged:  # first in every file, so each replays on its own
             self._calibration_logged = True
-            self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
+            if self.calibration_toml is not None:
+                self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
+            if self.camera is not None:
+                self.log_calibration(stamp_ns, *self.camera)
         self._channel(key).log(message, log_time=int(stamp_ns))
         self.messages += 1
+
+    def set_calibration(self, stereo, lidar=None) -> None:
+        """The calibration logged at the start of every file from now on (and again now): the
+        TOML on /edge/calibration and the rectified intrinsics of both views."""
+        from calibration.io import dumps_calibration
+
+        self.calibration_toml = dumps_calibration(stereo, lidar)
+        self.camera = (stereo.image_size, stereo.focal_px, stereo.principal_point,
+                       stereo.baseline_m)
+        self._calibration_logged = False
 
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:

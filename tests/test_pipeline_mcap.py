@@ -189,11 +189,17 @@ def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine):
 def test_logger_rotates_by_duration_and_every_file_is_complete(tmp_path):
     sample = make_sample(SEED, RigConfig(width=160, height=96))
     with McapLogger(tmp_path / "rot.mcap", rotate_s=0.25) as logger:
+        logger.set_calibration(sample.calibration())
         for i in range(6):
             logger.log_frame(sample.frame(1_000_000_000 + i * 100_000_000, i))
     assert [p.name for p in logger.files] == ["rot_0001.mcap", "rot_0002.mcap"]
     counts = [topic_counts(p)[TOPICS["left"]] for p in logger.files]
     assert counts == [3, 3]
+    # every file carries the calibration, so each replays on its own
+    for path in logger.files:
+        counts = topic_counts(path)
+        assert counts[TOPICS["calibration_file"]] == 1
+        assert counts[TOPICS["left_calibration"]] == counts[TOPICS["right_calibration"]] == 1
 
 
 def test_sigterm_finishes_the_frame_and_closes_the_output(recording, tmp_path):

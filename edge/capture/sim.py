@@ -54,23 +54,16 @@ def write_sim_recording(path, count: int, seed: int = 0, rig: RigConfig | None =
                         lidar: str = "beams16", period_ms: float = 100.0) -> int:
     """Record rig scenes as a robot would (raw topics, calibration) plus /sim/gt_disparity,
     for replay tests and demos. Returns the number of messages."""
-    from calibration.io import dumps_calibration
     from edge.mcap_log import RAW_TOPICS, McapLogger
 
     source = SimSource(count, seed, rig, lidar, period_ms)
-    stereo, extrinsics = source.calibration
-    with McapLogger(path, topics=RAW_TOPICS,
-                    calibration_toml=dumps_calibration(stereo, extrinsics)) as logger:
-        first = True
+    with McapLogger(path, topics=RAW_TOPICS) as logger:
+        logger.set_calibration(*source.calibration)
         for event in source:
             if isinstance(event, GroundTruth):
                 logger.log_gt(event.stamp_ns, event.disparity)
             elif hasattr(event, "points"):
                 logger.log_scan(event)
             else:
-                if first:
-                    logger.log_calibration(event.stamp_ns, stereo.image_size, stereo.focal_px,
-                                           stereo.principal_point, stereo.baseline_m)
-                    first = False
                 logger.log_frame(event)
         return logger.messages
