@@ -45,7 +45,12 @@ def add_parsers(sub) -> None:
     lid.add_argument("--out", type=Path, default=None,
                      help="write the calibration (with the refined T_cam_lidar if --refine)")
     lid.add_argument("--refine", action="store_true",
-                     help="refine T_cam_lidar by maximising LiDAR/SGBM agreement")
+                     help="refine T_cam_lidar: make each LiDAR point land on the same "
+                          "surface in the left and right image (photometric)")
+    lid.add_argument("--overlay", type=Path, default=None, metavar="PNG",
+                     help="draw the LiDAR points over a left image (before | refined)")
+    lid.add_argument("--max-frames", type=int, default=20,
+                     help="frames taken from the recording (default 20)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
         if args.calib_command == "lidar":
             from calibration.extrinsics import lidar_command
 
-            return lidar_command(args.recording, args.calib, args.out, args.refine)
+            return lidar_command(args.recording, args.calib, args.out, args.refine,
+                                 args.overlay, args.max_frames)
     except (CalibrationError, ValueError) as exc:
         print(f"edge-depth calibrate {args.calib_command}: error: {exc}", file=sys.stderr)
         return 1
