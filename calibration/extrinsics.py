@@ -166,9 +166,10 @@ def refine_extrinsics(frames: list[tuple[np.ndarray, np.ndarray, np.ndarray]],
     visible set recomputed at the new pose until a search moves less than 0.01 deg / 0.1 mm.
     Returns (T, dict(cost_before, cost_after, points)) with both costs on the final stage.
 
-    Measured on the rig (640x400, 64 beams, random 1 degree / 2 cm errors; README): 12
-    frames end within 0.2 degrees / 5 mm; 6 frames at 0.07-0.25 degrees; a 16-beam LiDAR
-    (beams 15 px apart) leaves pitch unobservable and fails."""
+    Measured on the rig (640x400, 64 beams, 1 degree / 2 cm and 2 degree / 5 cm errors, three
+    sets of scenes; `tools/extrinsics_study.py`, README): 6 or 12 frames end within 0.17
+    degrees / 2.7 mm, nearly all of it roll (about the optical axis, the weakest direction).
+    3 frames end up to 0.25 degrees / 6.3 mm off."""
     from scipy.optimize import minimize
 
     if not frames:
@@ -256,8 +257,9 @@ def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarra
     print(f"wrote {path}")
 
 
-# fewer frames than this refine unreliably on the rig (6 frames: up to 0.25 degrees)
-MIN_REFINE_FRAMES = 10
+# fewer frames than this refine unreliably on the rig (tools/extrinsics_study.py: 3 frames end
+# up to 0.25 degrees / 6.3 mm off, 6 frames within 0.14 degrees / 2.5 mm)
+MIN_REFINE_FRAMES = 6
 
 
 def lidar_command(recording: Path, calib_path: Path, out: Path | None,
@@ -300,7 +302,7 @@ def lidar_command(recording: Path, calib_path: Path, out: Path | None,
     if refine:
         if len(data) < MIN_REFINE_FRAMES:
             print(f"warning: {len(data)} frames; refinement wants {MIN_REFINE_FRAMES} or more "
-                  "with depth edges in view (on the rig 6 frames end up to 0.25 deg off)")
+                  "with depth edges in view (on the rig 3 frames end up to 0.25 deg off)")
 
         def progress(sigma: float, points: int, cost: float) -> None:
             print(f"  blur {sigma:.0f} px, {points} points seen by both cameras: "
