@@ -271,6 +271,8 @@ def lidar_command(recording: Path, calib_path: Path, out: Path | None,
     from calibration.model import LidarExtrinsics
     from edge.sim.folder import list_scene_folders, read_scene_folder
 
+    if max_frames < 1:
+        raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")
     stereo, lidar = load_calibration(calib_path)
     if lidar is None:
         raise CalibrationError("no [lidar] section: give an initial T_cam_lidar to refine",

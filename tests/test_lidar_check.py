@@ -112,3 +112,23 @@ def test_calibrate_lidar_refine_writes_the_result_and_an_overlay(tmp_path, capsy
     _, lidar = load_calibration(tmp_path / "refined.toml")
     moved, _ = pose_difference(lidar.T_cam_lidar, bad)
     assert moved > 0.05  # the written extrinsics are the refined ones, not the input
+
+
+def test_refinement_without_usable_points_is_a_clear_error(tmp_path, capsys):
+    import pytest
+
+    from calibration.errors import CalibrationError
+    from calibration.extrinsics import refine_extrinsics
+
+    sample = make_sample(5, RigConfig(width=160, height=100), "beams64")
+    behind = sample.scan.points * np.array([-1.0, 1.0, 1.0], np.float32)  # all behind the rig
+    with pytest.raises(CalibrationError, match="no LiDAR point lands in both images"):
+        refine_extrinsics([(sample.left, sample.right, behind)], sample.calibration(),
+                          sample.T_cam_lidar)
+    with pytest.raises(CalibrationError, match="no frames"):
+        refine_extrinsics([], sample.calibration(), sample.T_cam_lidar)
+    save_calibration(tmp_path / "c.toml", sample.calibration(),
+                     LidarExtrinsics(sample.T_cam_lidar))
+    assert main(["calibrate", "lidar", "--recording", str(tmp_path), "--calib",
+                 str(tmp_path / "c.toml"), "--max-frames", "0"]) == 1
+    assert "--max-frames" in capsys.readouterr().err
