@@ -6,10 +6,11 @@ reported as median and 90th percentile.
 
 The refinement (`refine_extrinsics`) does not use SGBM: it minimises the photometric difference
 between the left and right projections of each LiDAR point both cameras see (`PhotometricCost`).
-SGBM was the first reference and its own errors biased the optimum by 0.2 degrees of pitch and
-8 mm of height (foreground fattening at horizontal edges survives a left-right check; block
-sizes 5, 3 and 1 alike), however it was scored: least squares on |LiDAR - SGBM|, a truncated L1,
-or the fraction of points agreeing within 0.5 px (which ended at 0.16-0.50 degrees).
+SGBM was the first reference and its own errors biased the optimum by 0.2 degrees of pitch
+and 4-8 mm of height (block sizes 5, 3 and 1 alike; with the exact disparity in its place
+the optimum is the true pose), however it was scored: least squares on |LiDAR - SGBM|, a
+truncated L1, or the fraction of points agreeing within 0.5 px (which ended at 0.16-0.50
+degrees).
 """
 
 from __future__ import annotations
@@ -119,9 +120,9 @@ class PhotometricCost:
         self.points = sum(len(p) for p, _, _ in self.items)
 
     def __call__(self, T: np.ndarray) -> float:
-        from calibration.projection import _rectified_lidar, transform_points
+        from calibration.projection import rectified_lidar, transform_points
 
-        Tr = _rectified_lidar(self.calib, T)
+        Tr = rectified_lidar(self.calib, T)
         f = self.calib.focal_px
         cx, cy = self.calib.principal_point
         fb = f * self.calib.baseline_m

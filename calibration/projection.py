@@ -158,7 +158,7 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
     return keep
 
 
-def _rectified_lidar(calib, T_cam_lidar: np.ndarray) -> np.ndarray:
+def rectified_lidar(calib, T_cam_lidar: np.ndarray) -> np.ndarray:
     """(4, 4) transform from the LiDAR to the rectified left camera (R1 after T_cam_lidar)."""
     T_rect = np.eye(4)
     T_rect[:3, :3] = calib.rect["R1"]
@@ -181,7 +181,7 @@ def project_to_disparity(points: np.ndarray, calib, T_cam_lidar: np.ndarray,
     (`filter_occluded`, with the LiDAR's rectified position as the parallax source).
     calib: a `calibration.model.StereoCalibration`. Returns ((H, W) float32, (H, W) bool).
     """
-    T = _rectified_lidar(calib, T_cam_lidar)
+    T = rectified_lidar(calib, T_cam_lidar)
     cx, cy = calib.principal_point
     sparse, valid = project_rectified(transform_points(T, points), calib.focal_px, cx, cy,
                                       calib.baseline_m, calib.image_size, side)
@@ -200,7 +200,7 @@ def visible_points(points: np.ndarray, calib, T_cam_lidar: np.ndarray, side: str
     keeps the points whose range noise made them nearer and biases the set (on the rig, +0.34
     px of disparity at 0.7 m with 1 cm noise)."""
     cfg = occlusion or OcclusionFilterConfig()
-    T = _rectified_lidar(calib, T_cam_lidar)
+    T = rectified_lidar(calib, T_cam_lidar)
     cx, cy = calib.principal_point
     fb = calib.focal_px * calib.baseline_m
     u, v, z, ok = _pixels(transform_points(T, points), calib.focal_px, cx, cy,
