@@ -10,17 +10,7 @@ from calibration.io import save_calibration
 from calibration.model import LidarExtrinsics
 from edge.cli import main
 from edge.sim import RigConfig, make_sample
-
-
-def _perturbed(T, degrees, metres, seed=0):
-    rng = np.random.default_rng(seed)
-    axis = rng.normal(size=3)
-    dR, _ = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))
-    D = np.eye(4)
-    D[:3, :3] = dR
-    direction = rng.normal(size=3)
-    D[:3, 3] = direction / np.linalg.norm(direction) * metres
-    return D @ T
+from tools.extrinsics_study import perturbed
 
 
 def test_disagreement_grows_when_the_extrinsics_are_wrong():
@@ -32,11 +22,11 @@ def test_disagreement_grows_when_the_extrinsics_are_wrong():
     assert good["points"] > 1000
     assert good["median_px"] < 0.5
     for seed in range(3):
-        bad = disagreement(frames, calib, _perturbed(T, 2.0, 0.05, seed))
+        bad = disagreement(frames, calib, perturbed(T, 2.0, 0.05, seed))
         assert bad["median_px"] > 1.1 * good["median_px"]
-    angle, _ = pose_difference(_perturbed(T, 2.0, 0.0), T)
+    angle, _ = pose_difference(perturbed(T, 2.0, 0.0), T)
     assert abs(angle - 2.0) < 1e-6
-    angle, shift = pose_difference(_perturbed(T, 0.0, 0.05), T)
+    angle, shift = pose_difference(perturbed(T, 0.0, 0.05), T)
     assert angle < 1e-6 and abs(shift - 0.05) < 1e-9
 
 
@@ -78,10 +68,11 @@ def test_refinement_recovers_a_one_degree_two_centimetre_error():
     samples = [make_sample(1_000_000 + i, lidar="beams64") for i in range(12)]
     frames = [(s.left, s.right, s.scan.points) for s in samples]
     calib, T = samples[0].calibration(), samples[0].T_cam_lidar
-    bad = _perturbed(T, 1.0, 0.02, seed=0)
+    bad = perturbed(T, 1.0, 0.02, seed=0)
     refined, result = refine_extrinsics(frames, calib, bad)
     angle, shift = pose_difference(refined, T)
-    # measured over 3 perturbations on each of 3 sets of 12 scenes: 0.06-0.11 deg, 2.3-3.1 mm
+    # this case measured 0.142 deg, 1.13 mm; 36 runs of tools/extrinsics_study.py: <= 0.162 deg,
+    # <= 2.67 mm (README)
     assert angle < 0.2 and shift < 0.005
     assert result["cost_after"] < result["cost_before"]
     # the cost is lowest near the truth: the true pose beats the start by a clear margin
@@ -94,7 +85,7 @@ def test_calibrate_lidar_refine_writes_the_result_and_an_overlay(tmp_path, capsy
     assert main(["synth", "--mcap", str(rec), "--frames", "3", "--size", "320x200",
                  "--lidar", "beams64"]) == 0
     sample = make_sample(0, RigConfig(width=320, height=200))
-    bad = _perturbed(sample.T_cam_lidar, 1.0, 0.02)
+    bad = perturbed(sample.T_cam_lidar, 1.0, 0.02)
     save_calibration(tmp_path / "c.toml", sample.calibration(), LidarExtrinsics(bad))
     capsys.readouterr()
     assert main(["calibrate", "lidar", "--recording", str(rec), "--calib",

@@ -25,7 +25,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 
-def perturbed(T: np.ndarray, degrees: float, metres: float, seed: int) -> np.ndarray:
+def perturbed(T: np.ndarray, degrees: float, metres: float, seed: int = 0) -> np.ndarray:
     """T moved by `degrees` about a random axis and `metres` in a random direction."""
     rng = np.random.default_rng(seed)
     axis = rng.normal(size=3)
