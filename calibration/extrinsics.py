@@ -43,25 +43,30 @@ def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> Extri
     return ExtrinsicsFrame(disparity, np.asarray(points, np.float64))
 
 
+def _subpixel(points: np.ndarray, calib: StereoCalibration, T: np.ndarray,
+              min_depth_m: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each LiDAR point's continuous position (u, v) float32 in the rectified left image, its
+    disparity d and its depth z; d, u, v use the depth clamped to `min_depth_m` (callers mask
+    the points nearer than that when it matters)."""
+    from calibration.projection import rectified_lidar, transform_points
+
+    cam = transform_points(rectified_lidar(calib, T), points)
+    zs = np.maximum(cam[:, 2], min_depth_m)
+    f = calib.focal_px
+    cx, cy = calib.principal_point
+    u = (f * cam[:, 0] / zs + cx).astype(np.float32)
+    v = (f * cam[:, 1] / zs + cy).astype(np.float32)
+    return u, v, f * calib.baseline_m / zs, cam[:, 2]
+
+
 def _residuals(frames: list[ExtrinsicsFrame], calib: StereoCalibration, T: np.ndarray,
                min_depth_m: float = 0.2) -> np.ndarray:
     """LiDAR disparity minus SGBM disparity at each projected point (NaN where not comparable)."""
-    R1 = calib.rect["R1"]
-    f = calib.focal_px
-    cx, cy = calib.principal_point
-    fb = f * calib.baseline_m
     out = []
     for frame in frames:
-        cam = frame.points @ T[:3, :3].T + T[:3, 3]
-        cam = cam @ R1.T
-        z = cam[:, 2]
-        ok = z > min_depth_m
-        zs = np.where(ok, z, 1.0)
-        u = (f * cam[:, 0] / zs + cx).astype(np.float32)
-        v = (f * cam[:, 1] / zs + cy).astype(np.float32)
-        sampled = sample_bilinear(frame.stereo_disparity, u, v)
-        res = fb / zs - sampled
-        res[~ok] = np.nan
+        u, v, d, z = _subpixel(frame.points, calib, T, min_depth_m)
+        res = d - sample_bilinear(frame.stereo_disparity, u, v)
+        res[z <= min_depth_m] = np.nan
         out.append(res)
     return np.concatenate(out) if out else np.zeros(0)
 
@@ -120,20 +125,10 @@ class PhotometricCost:
         self.points = sum(len(p) for p, _, _ in self.items)
 
     def __call__(self, T: np.ndarray) -> float:
-        from calibration.projection import rectified_lidar, transform_points
-
-        Tr = rectified_lidar(self.calib, T)
-        f = self.calib.focal_px
-        cx, cy = self.calib.principal_point
-        fb = f * self.calib.baseline_m
         total, count = 0.0, 0
         for points, left, right in self.items:
-            cam = transform_points(Tr, points)
-            z = np.maximum(cam[:, 2], 1e-3)
-            u = (f * cam[:, 0] / z + cx).astype(np.float32)
-            v = (f * cam[:, 1] / z + cy).astype(np.float32)
-            d = (fb / z).astype(np.float32)
-            r = sample_bilinear(left, u, v) - sample_bilinear(right, u - d, v)
+            u, v, d, _ = _subpixel(points, self.calib, T, 1e-3)
+            r = sample_bilinear(left, u, v) - sample_bilinear(right, u - d.astype(np.float32), v)
             r = np.abs(r[np.isfinite(r)])
             total += float(np.minimum(r, self.truncate).sum())
             count += r.size
