@@ -57,3 +57,34 @@ def lidar_linear(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
     gy, gx = np.mgrid[0:h, 0:w]
     dense = interp(gx.ravel(), gy.ravel()).reshape(h, w).astype(np.float32)
     return np.where(np.isfinite(dense), dense, nearest).astype(np.float32)
+
+
+def fill_row_nearest(disparity: np.ndarray) -> np.ndarray:
+    """Holes (<= 0) take the value of the nearest valid pixel in the same row (rows with no
+    valid pixel stay 0); (H, W) float32."""
+    out = disparity.astype(np.float32).copy()
+    h, w = out.shape
+    cols = np.arange(w)
+    for y in range(h):
+        ok = out[y] > 0
+        if ok.all() or not ok.any():
+            continue
+        xs = cols[ok]
+        right = np.clip(np.searchsorted(xs, cols), 0, len(xs) - 1)
+        left = np.clip(right - 1, 0, len(xs) - 1)
+        nearer = np.where(np.abs(xs[left] - cols) <= np.abs(xs[right] - cols), xs[left],
+                          xs[right])
+        out[y] = out[y, nearer]
+    return out
+
+
+def sgbm_disparities_for(max_disparity_px: float) -> int:
+    """SGBM's disparity count for data whose GT reaches `max_disparity_px`: rounded up to a
+    multiple of 16, at least 64."""
+    return max(64, int(np.ceil(max(max_disparity_px, 0.0) / 16.0)) * 16)
+
+
+def sgbm_lidar_fusion(sgbm: np.ndarray, sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The trivial fusion: SGBM where it matched, the nearest LiDAR point in its holes."""
+    nearest = lidar_nearest(sparse, valid)
+    return np.where(sgbm > 0, sgbm, nearest).astype(np.float32)

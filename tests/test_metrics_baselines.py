@@ -49,3 +49,28 @@ def test_sgbm_finds_a_constant_shift():
     disp = sgbm_disparity(left, right)
     core = disp[10:-10, 80:-10]
     assert np.median(core) == 12.0
+
+
+def test_row_fill_takes_the_nearest_valid_value_in_the_row():
+    from edge.baselines import fill_row_nearest
+
+    d = np.array([[0, 5, 0, 0, 9, 0], [0, 0, 0, 0, 0, 0]], np.float32)
+    np.testing.assert_array_equal(fill_row_nearest(d),
+                                  [[5, 5, 5, 9, 9, 9], [0, 0, 0, 0, 0, 0]])
+
+
+def test_sgbm_disparity_count_follows_the_gt_range():
+    from edge.baselines import sgbm_disparities_for
+
+    assert sgbm_disparities_for(105.5) == 112
+    assert sgbm_disparities_for(40.0) == 64
+    assert sgbm_disparities_for(128.0) == 128
+
+
+def test_trivial_fusion_keeps_sgbm_and_fills_its_holes_from_the_lidar():
+    from edge.baselines import sgbm_lidar_fusion
+
+    sgbm = np.array([[3.0, 0.0, 0.0, 4.0]], np.float32)
+    sparse = np.array([[0.0, 0.0, 7.0, 0.0]], np.float32)
+    fused = sgbm_lidar_fusion(sgbm, sparse, sparse > 0)
+    np.testing.assert_array_equal(fused, [[3.0, 7.0, 7.0, 4.0]])

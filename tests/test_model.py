@@ -215,3 +215,36 @@ def test_a_few_steps_on_one_batch_reduce_the_loss():
         opt.step()
         losses.append(float(loss.detach()))
     assert np.mean(losses[-3:]) < 0.8 * np.mean(losses[:3])
+
+
+def test_refinement_starts_as_the_identity_and_only_the_last_step_is_refined():
+    torch.manual_seed(0)
+    net = SparseStereoNet(ModelConfig(gru_iters=2, refine=True)).eval()
+    left = torch.rand(1, 1, 64, 96) * 255
+    right = torch.rand(1, 1, 64, 96) * 255
+    zeros = torch.zeros(1, 1, 64, 96)
+    with torch.no_grad():
+        outs, logit = net(left, right, zeros, zeros, 2, with_confidence=True)
+        state = net.encode(left, right, zeros, zeros)
+        d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
+        d, h, hl, _ = net.step(state, d, h, hl)
+        d, h, hl, mask = net.step(state, d, h, hl)
+        plain = convex_upsample(d, mask, 8)
+    assert logit.shape == (1, 1, 64, 96) and float(logit.abs().max()) == 0.0
+    torch.testing.assert_close(outs[-1], plain)   # zero-initialised head: no residual yet
+    with torch.no_grad():
+        net.refine.out.bias.copy_(torch.tensor([0.5, 2.0]))
+        outs, logit = net(left, right, zeros, zeros, 2, with_confidence=True)
+    torch.testing.assert_close(outs[-1], plain + 1.0)  # residual 0.5 half-res px = 1 px
+    assert torch.allclose(logit, torch.full_like(logit, 2.0))
+
+
+def test_confidence_loss_is_the_cross_entropy_of_being_within_a_pixel():
+    from edge.model.losses import confidence_loss
+
+    gt = torch.tensor([[[[10.0, 10.0, 10.0]]]])
+    disparity = torch.tensor([[[[10.5, 12.0, 3.0]]]])   # within 1 px, off, off
+    logit = torch.tensor([[[[2.0, -1.0, 0.0]]]])
+    valid = torch.tensor([[[[1.0, 1.0, 0.0]]]])          # the last pixel has no GT
+    expected = (np.log1p(np.exp(-2.0)) + np.log1p(np.exp(-1.0))) / 2
+    assert float(confidence_loss(logit, disparity, gt, valid)) == pytest.approx(expected, 1e-5)

@@ -1,8 +1,14 @@
 """Evaluate disparity methods on scene folders against their ground truth, in one run.
 
     python tools/evaluate.py DATA_DIR [--model CHECKPOINT_OR_BUNDLE] [--precision int8]
-        [--methods net,sgbm,lidar-nearest,lidar-linear] [--iters 4] [--json OUT]
+        [--methods net,sgbm,lidar-nearest,lidar-linear] [--no-lidar] [--iters 4] [--json OUT]
         [--plot OUT.png]
+
+Methods: net; net-nolidar (the net with its LiDAR input zeroed: stereo only; --no-lidar adds
+it); sgbm (holes left as holes); sgbm-filled (holes take the row's nearest valid value);
+sgbm+lidar (the trivial fusion: SGBM where it matched, LiDAR-nearest in its holes);
+lidar-nearest; lidar-linear. SGBM's disparity count follows each scene's GT range (rounded up
+to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
 downsample factor) or an exported bundle directory (run with the ONNX Runtime engine at the
@@ -26,12 +32,21 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from edge.baselines import lidar_linear, lidar_nearest, make_sgbm, sgbm_disparity  # noqa: E402
+from edge.baselines import (  # noqa: E402
+    fill_row_nearest,
+    lidar_linear,
+    lidar_nearest,
+    make_sgbm,
+    sgbm_disparities_for,
+    sgbm_disparity,
+    sgbm_lidar_fusion,
+)
 from edge.metrics import depth_metrics, disparity_metrics  # noqa: E402
 from edge.runtime.engine import DEFAULT_BUNDLE  # noqa: E402
 from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
+ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")
 
 
 class TorchNet:
@@ -85,28 +100,36 @@ def load_net(model: Path, precision: str = "int8"):
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8") -> dict[str, dict[str, float]]:
-    net = load_net(model, precision) if "net" in methods else None
-    sgbm = make_sgbm()
+    net = load_net(model, precision) if {"net", "net-nolidar"} & set(methods) else None
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
         if scene.disp is None or scene.sparse is None:
             raise SystemExit(f"{folder}: needs disp.pfm and sparse.pfm")
         valid = scene.sparse > 0
+        gt_max = float(np.max(scene.disp[np.isfinite(scene.disp)], initial=0.0))
+        sgbm = make_sgbm(sgbm_disparities_for(gt_max))
         runs = []  # (name, method, iterations)
         for method in methods:
-            if method == "net":
+            if method in ("net", "net-nolidar"):
                 for iters in iters_list:
-                    runs.append((f"net@{iters}" if len(iters_list) > 1 else "net", method,
-                                 iters))
+                    runs.append((f"{method}@{iters}" if len(iters_list) > 1 else method,
+                                 method, iters))
             else:
                 runs.append((method, method, 0))
         for name, method, iters in runs:
             start = time.perf_counter()
             if method == "net":
                 pred = net(scene.left, scene.right, scene.sparse, iters)
+            elif method == "net-nolidar":
+                pred = net(scene.left, scene.right, np.zeros_like(scene.sparse), iters)
             elif method == "sgbm":
                 pred = sgbm_disparity(scene.left, scene.right, sgbm)
+            elif method == "sgbm-filled":
+                pred = fill_row_nearest(sgbm_disparity(scene.left, scene.right, sgbm))
+            elif method == "sgbm+lidar":
+                pred = sgbm_lidar_fusion(sgbm_disparity(scene.left, scene.right, sgbm),
+                                         scene.sparse, valid)
             elif method == "lidar-nearest":
                 pred = lidar_nearest(scene.sparse, valid)
             else:
@@ -146,19 +169,23 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8",
                    help="for a bundle")
     p.add_argument("--methods", default=",".join(METHODS))
+    p.add_argument("--no-lidar", action="store_true",
+                   help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     args = p.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
-    unknown = sorted(set(methods) - set(METHODS))
+    if args.no_lidar and "net-nolidar" not in methods:
+        methods.append("net-nolidar")
+    unknown = sorted(set(methods) - set(ALL_METHODS))
     if unknown:
-        p.error(f"unknown methods {unknown}; choose from {', '.join(METHODS)}")
+        p.error(f"unknown methods {unknown}; choose from {', '.join(ALL_METHODS)}")
     try:
         iters_list = [int(v) for v in args.iters.split(",")]
     except ValueError:
         p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
-    if "net" in methods and not args.model.exists():
+    if {"net", "net-nolidar"} & set(methods) and not args.model.exists():
         p.error(f"--model {args.model}: no such checkpoint or bundle")
     folders = list_scene_folders(args.data)
     if not folders:
@@ -176,7 +203,7 @@ def main(argv: list[str] | None = None) -> int:
         keys = [f"net@{i}" if len(iters_list) > 1 else "net" for i in iters_list]
         fig, ax = plt.subplots(figsize=(5, 3.5))
         ax.plot(iters_list, [summary[k]["epe"] for k in keys], marker="o", label="net")
-        for base in ("sgbm", "lidar-nearest", "lidar-linear"):
+        for base in ("sgbm", "sgbm-filled", "sgbm+lidar", "lidar-nearest", "lidar-linear"):
             if base in summary:
                 ax.axhline(summary[base]["epe"], ls="--", label=base, color=None)
         ax.set(xlabel="GRU iterations", ylabel="EPE (px)", xscale="log", title=str(args.data))

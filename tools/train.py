@@ -37,6 +37,8 @@ from edge.model.data import (  # noqa: E402
     SyntheticTrainSet,
 )
 from edge.model.losses import (  # noqa: E402
+    CONFIDENCE_WEIGHT,
+    confidence_loss,
     self_supervised_loss,
     sequence_loss,
     split_sparse,
@@ -59,6 +61,8 @@ def parse_args(argv):
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
+    p.add_argument("--refine", action="store_true",
+                   help="add the half-resolution refinement + confidence stage")
     p.add_argument("--patterns", default="beams16")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1,
@@ -69,7 +73,8 @@ def parse_args(argv):
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
     p.add_argument("--data", default=None,
-                   help="scene folders, REC.mcap, kitti:DIR or sceneflow:DIR (default: the rig)")
+                   help="scene folders, REC.mcap, kitti:DIR, sceneflow:DIR or things:DIR "
+                        "(rendered by `edge-depth synth --world things`; default: the rig)")
     return p.parse_args(argv)
 
 
@@ -166,7 +171,7 @@ def main(argv: list[str] | None = None) -> int:
     cw, ch = (int(v) for v in args.crop.split("x"))
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse,
-                         half_res_block=not args.no_half_res_block)
+                         half_res_block=not args.no_half_res_block, refine=args.refine)
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change
@@ -174,6 +179,8 @@ def main(argv: list[str] | None = None) -> int:
         changes = {"gru_iters": args.iters}
         if args.no_half_res_block:
             changes["half_res_block"] = False
+        if args.refine:
+            changes["refine"] = True
         config = ModelConfig.from_dict({**init["config"], **changes})
     net = SparseStereoNet(config)
     opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-5)
@@ -190,6 +197,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"resumed from {last} at step {step}")
     elif init is not None:
         result = net.load_state_dict(init["model"], strict=False)
+        new = [k for k in result.missing_keys if k.startswith("refine.")]
+        if new and args.refine:  # a stage the checkpoint lacks starts as the identity
+            print(f"--init {args.init}: the refinement stage starts fresh ({len(new)} tensors)")
+            result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
         if result.missing_keys:
             raise SystemExit(f"--init {args.init}: the model needs weights the checkpoint "
                              f"lacks: {result.missing_keys[:5]}")
@@ -199,7 +210,12 @@ def main(argv: list[str] | None = None) -> int:
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(net)
     model = net.module if world > 1 else net
-    if args.data is None:
+    if args.data is not None and args.data.startswith("things:"):
+        from edge.model.things_data import ThingsTrainSet
+
+        data = ThingsTrainSet(args.data[len("things:"):], (cw, ch),
+                              seed=(args.seed * 1000 + step) * world + rank)
+    elif args.data is None:
         data = SyntheticTrainSet(seed=(args.seed * 1000 + step) * world + rank, crop=(cw, ch),
                                  patterns=tuple(args.patterns.split(",")))
     else:
@@ -207,7 +223,8 @@ def main(argv: list[str] | None = None) -> int:
                                 shard=rank, shards=world)
     loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
     log_path = args.out / "metrics.csv"
-    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "epe", "val_epe",
+    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "epe",
+              "val_epe",
               "val_bad3", "lr_now", "seconds"]
     new_log = not log_path.exists() or step == 0
     log = open(log_path if main_rank else os.devnull, "w" if new_log else "a", newline="")
@@ -231,10 +248,15 @@ def main(argv: list[str] | None = None) -> int:
     while step < args.steps:
         batch = next(loader)
         if args.mode == "supervised":
-            preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
-                        args.iters)
-            loss = sequence_loss(preds, batch["gt"], (batch["gt"] > 0).float())
+            preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
+                               args.iters, with_confidence=True)
+            has_gt = (batch["gt"] > 0).float()
+            loss = sequence_loss(preds, batch["gt"], has_gt)
             terms, final = {}, preds[-1]
+            if logit is not None:
+                conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
+                loss = loss + CONFIDENCE_WEIGHT * conf
+                terms = dict(confidence=float(conf.detach()))
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0)

@@ -14,7 +14,8 @@ class ModelConfig:
     gru_levels: 1 or 2 (the second runs at half the GRU resolution); corr_levels and
     corr_radius: pyramid depth and lookup radius (pixels of each level); half_res_block: the
     backbone's residual block at 1/2 resolution (the encoder's most expensive layer; False
-    goes from the stem straight to 1/4)."""
+    goes from the stem straight to 1/4); refine: the half-resolution image-guided refinement
+    with its confidence output (`edge.model.refine`)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -29,6 +30,7 @@ class ModelConfig:
     use_cspn: bool = True
     use_sparse: bool = True
     half_res_block: bool = True
+    refine: bool = False
 
     def __post_init__(self) -> None:
         if self.downsample not in (4, 8):

@@ -103,6 +103,20 @@ def sequence_loss(predictions: list[torch.Tensor], gt: torch.Tensor, valid: torc
     return total
 
 
+CONFIDENCE_WEIGHT = 0.2
+CONFIDENCE_PX = 1.0
+
+
+def confidence_loss(logit: torch.Tensor, disparity: torch.Tensor, gt: torch.Tensor,
+                    valid: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of the confidence logits against "the disparity is within
+    CONFIDENCE_PX of the truth", over pixels with GT (the disparity is detached by callers:
+    the confidence learns to judge the estimate, not to move it)."""
+    target = ((disparity - gt).abs() < CONFIDENCE_PX).to(logit.dtype)
+    bce = F.binary_cross_entropy_with_logits(logit, target, reduction="none")
+    return _masked_mean(bce, valid)
+
+
 def split_sparse(valid: torch.Tensor, strategy: str, generator: torch.Generator | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """(input mask, supervision mask) for the split strategies: "all" (every point in, every

@@ -21,6 +21,7 @@ from edge.model.corr import (
 )
 from edge.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge.model.extractor import Encoders
+from edge.model.refine import Refinement
 from edge.model.update import UpdateBlock
 
 
@@ -58,6 +59,7 @@ class SparseStereoNet(nn.Module):
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels)
+        self.refine = Refinement() if cfg.refine else None
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
                valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
@@ -96,14 +98,30 @@ class SparseStereoNet(nn.Module):
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask
 
-    def forward(self, left, right, sparse, valid, iters: int | None = None
-                ) -> list[torch.Tensor]:
-        """Full-resolution disparity (B, 1, H, W) px after each of `iters` GRU steps."""
+    def upsample(self, left, right, disparity, mask):
+        """Convex upsampling, then (if configured) the refinement: full-resolution disparity
+        (B, 1, H, W) px and confidence logits (None without the refinement)."""
+        full = convex_upsample(disparity, mask, self.config.downsample)
+        if self.refine is None:
+            return full, None
+        return self.refine(left, right, full)
+
+    def forward(self, left, right, sparse, valid, iters: int | None = None,
+                with_confidence: bool = False):
+        """Full-resolution disparity (B, 1, H, W) px after each of `iters` GRU steps; with
+        `with_confidence`, also the confidence logits of the last one (None without the
+        refinement stage). Only the last step goes through the refinement (as the engine
+        runs it, once, after its last step); the earlier ones are convex-upsampled only,
+        which keeps training ~35 % cheaper at 6 steps."""
         iters = self.config.gru_iters if iters is None else iters
         state = self.encode(left, right, sparse, valid)
         d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
-        outputs = []
-        for _ in range(iters):
+        outputs, logit = [], None
+        for i in range(iters):
             d, h, hl, mask = self.step(state, d, h, hl)
-            outputs.append(convex_upsample(d, mask, self.config.downsample))
-        return outputs
+            if i < iters - 1:
+                outputs.append(convex_upsample(d, mask, self.config.downsample))
+            else:
+                full, logit = self.upsample(left, right, d, mask)
+                outputs.append(full)
+        return (outputs, logit) if with_confidence else outputs

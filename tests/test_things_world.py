@@ -1,0 +1,171 @@
+"""The things world: exact ray-cast geometry, consistent views, camera effects, storage, the
+GT-sampled LiDAR and the training stream's augmentations."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge.sim.gt_lidar import GtLidarPattern
+from edge.sim.photometry import CameraResponse, apply_camera
+from edge.sim.primitives import Cylinder, PlanePatch, Sphere, box_faces
+from edge.sim.textures import OPENCV_DOC_PHOTOS, texture_pyramids
+from edge.sim.things_store import DISPARITY_SCALE, generate, list_things, read_things
+from edge.sim.world import ThingsScene, WorldConfig, make_things_sample
+
+SMALL = WorldConfig(width=160, height=100, focal_px=120.0, min_objects=3, max_objects=8,
+                    max_disparity_range_px=(20.0, 35.0))
+ORIGIN = np.zeros(3)
+
+
+def test_sphere_hit_is_the_near_surface_on_the_axis_and_a_miss_beside_it():
+    sphere = Sphere(np.array([0.0, 0.0, 5.0]), 1.0, 0, np.eye(3))
+    hit = sphere.intersect(ORIGIN, np.array([[0.0, 0.0, 1.0], [0.5, 0.0, 1.0]]))
+    assert hit.t[0] == pytest.approx(4.0)
+    assert np.isinf(hit.t[1])
+    np.testing.assert_allclose(hit.normal[0], [0, 0, -1], atol=1e-12)
+
+
+def test_plane_patch_respects_its_outline_and_depth_is_the_ray_parameter():
+    patch = PlanePatch(np.array([0.0, 0.0, 2.0]), np.array([1.0, 0, 0]), np.array([0, 1.0, 0]),
+                       (0.5, 0.25), "rect", 0)
+    hit = patch.intersect(ORIGIN, np.array([[0.2, 0.1, 1.0], [0.3, 0.0, 1.0]]))
+    assert hit.t[0] == pytest.approx(2.0)          # (0.4, 0.2) m on the plane: inside
+    assert np.isinf(hit.t[1])                       # 0.6 m > 0.5 m half-width: outside
+    np.testing.assert_allclose(hit.tex[0], [0.4, 0.2])
+
+
+def test_cylinder_hits_its_side_and_stops_at_its_ends():
+    pole = Cylinder(np.array([0.0, -1.0, 4.0]), np.array([0.0, 1.0, 0.0]), 2.0, 0.1, 0)
+    hit = pole.intersect(ORIGIN, np.array([[0.0, 0.0, 1.0], [0.0, 0.3, 1.0]]))
+    assert hit.t[0] == pytest.approx(3.9)
+    assert np.isinf(hit.t[1])                       # y = 1.2 m at z 4: beyond the top end
+
+
+def test_box_has_six_faces_around_its_centre():
+    faces = box_faces(np.array([0.0, 0.0, 3.0]), np.eye(3), np.array([0.5, 0.4, 0.3]), 0)
+    assert len(faces) == 6
+    hit = min(f.intersect(ORIGIN, np.array([[0.0, 0.0, 1.0]])).t[0] for f in faces)
+    assert hit == pytest.approx(2.7)
+
+
+def test_right_view_sees_each_visible_left_point_at_the_same_depth_shifted_by_disparity():
+    scene = ThingsScene(SMALL, np.random.default_rng(3))
+    v, u = np.mgrid[0:SMALL.height, 0:SMALL.width].astype(np.float64)
+    depth, *_ = scene.trace("left", u.ravel(), v.ravel())
+    depth = depth.reshape(u.shape)
+    occluded = scene.occlusion("left", depth)
+    disparity = SMALL.focal_px * SMALL.baseline_m / depth
+    seen = ~occluded
+    assert 0.5 < seen.mean() < 1.0
+    right_depth, *_ = scene.trace("right", (u - disparity)[seen], v[seen])
+    np.testing.assert_allclose(right_depth, depth[seen], rtol=1e-6)
+    # an occluded pixel inside the right image is hidden by something nearer there
+    hidden = occluded & (u - disparity > 0) & np.isfinite(depth)
+    if hidden.any():
+        other, *_ = scene.trace("right", (u - disparity)[hidden], v[hidden])
+        assert (other < depth[hidden]).all()
+
+
+def test_rendered_sample_has_consistent_images_gt_and_range():
+    sample = make_things_sample(5, SMALL)
+    assert sample.left.shape == (100, 160) and sample.left.dtype == np.uint8
+    assert 0.3 < sample.disp_left.min() and sample.disp_left.max() < 40
+    seen = ~sample.occ_left
+    v, u = np.nonzero(seen)
+    u_r = np.rint(u - sample.disp_left[v, u]).astype(int)
+    ok = (u_r >= 0) & (u_r < 160)
+    # the right GT at the correspondent agrees with the left GT (up to the rounding of u_r
+    # and slanted surfaces) for most visible pixels
+    agree = np.abs(sample.disp_right[v[ok], u_r[ok]] - sample.disp_left[v[ok], u[ok]]) < 0.5
+    assert agree.mean() > 0.9
+    assert 20 < sample.left.mean() < 235 and sample.left.std() > 5
+    again = make_things_sample(5, SMALL)
+    np.testing.assert_array_equal(again.left, sample.left)
+
+
+def test_texture_pool_mixes_sources_and_never_uses_the_evaluation_pair():
+    assert not any(n.startswith(("aloe", "left", "right", "tsukuba")) for n in OPENCV_DOC_PHOTOS)
+    pool = texture_pyramids(3)
+    assert len(pool) >= 12 + 6 + 6 + 1                # photos, noise, repetitive, flat
+    for pyramid in pool:
+        assert len(pyramid) == 3 and pyramid[1].shape[0] == (pyramid[0].shape[0] + 1) // 2
+
+
+def test_camera_response_changes_gain_between_views_but_keeps_structure():
+    rng = np.random.default_rng(0)
+    radiance = np.tile(np.linspace(0.2, 0.8, 64, dtype=np.float32), (48, 1))
+    base = CameraResponse(100.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0)
+    image = apply_camera(radiance, base, rng, float(radiance.mean()))
+    assert abs(float(image.mean()) - 100.0) < 1.5    # auto-exposure lands on its target
+    darker = apply_camera(radiance, CameraResponse(80.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0), rng,
+                          float(radiance.mean()))
+    assert float(darker.mean()) == pytest.approx(80.0, abs=1.5)
+    assert np.corrcoef(image.ravel(), darker.ravel())[0, 1] > 0.99
+
+
+def test_store_round_trips_disparity_to_a_sixty_fourth_of_a_pixel(tmp_path):
+    assert generate(tmp_path, 2, 10, SMALL) == 2
+    assert generate(tmp_path, 2, 10, SMALL) == 0       # already there: skipped
+    files = list_things(tmp_path)
+    assert [f.name for f in files] == ["0000010.npz", "0000011.npz"]
+    stored = read_things(files[0])
+    sample = make_things_sample(10, SMALL)
+    assert np.abs(stored["disp_left"] - sample.disp_left).max() <= 0.5 / DISPARITY_SCALE
+    np.testing.assert_array_equal(stored["occ_right"], sample.occ_right)
+
+
+def test_gt_lidar_rows_read_the_gt_where_they_land():
+    gt = np.tile(np.arange(1, 201, dtype=np.float32), (100, 1))  # d = column + 1
+    pattern = GtLidarPattern.evenly(100, 4, column_step=2, noise_px=0.0)
+    sparse = pattern.sample(gt, np.random.default_rng(0))
+    rows = np.unique(np.nonzero(sparse)[0])
+    np.testing.assert_array_equal(rows, [12, 38, 62, 88])  # (k + 0.5) * 100 / 4, rounded
+    ys, xs = np.nonzero(sparse)
+    np.testing.assert_array_equal(sparse[ys, xs], xs + 1)
+    assert len(xs) == 4 * 100
+    shifted = GtLidarPattern.evenly(100, 4, column_step=2, noise_px=0.0, shift_px=(2.0, 0.0))
+    ys, xs = np.nonzero(shifted.sample(gt, np.random.default_rng(0)))
+    assert np.all(shifted.sample(gt, np.random.default_rng(0))[ys, xs] == xs + 3)
+
+
+def test_gt_lidar_random_patterns_include_stereo_only_and_skip_unknown_gt():
+    rng = np.random.default_rng(1)
+    patterns = [GtLidarPattern.random(400, rng) for _ in range(200)]
+    assert 5 < sum(p is None for p in patterns) < 50
+    gt = np.zeros((400, 640), np.float32)
+    some = next(p for p in patterns if p is not None)
+    assert not some.sample(gt, rng).any()
+
+
+def test_training_stream_flips_swap_views_and_lidar_matches_the_gt(tmp_path):
+    from edge.model.things_data import ThingsTrainSet, spatial
+
+    generate(tmp_path, 2, 0, WorldConfig(width=192, height=128, focal_px=140.0,
+                                         max_disparity_range_px=(20.0, 30.0)))
+    arrays = read_things(list_things(tmp_path)[0])
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        out = spatial(dict(arrays), rng, (96, 64))
+        if out["left"].shape == arrays["left"].shape and not np.array_equal(out["left"],
+                                                                            arrays["left"]):
+            np.testing.assert_array_equal(out["left"], arrays["right"][:, ::-1])
+            np.testing.assert_array_equal(out["disp_left"], arrays["disp_right"][:, ::-1])
+            break
+    else:
+        pytest.fail("no unscaled flip in 20 draws")
+    stream = iter(ThingsTrainSet(tmp_path, (96, 64), rig_share=0.0))
+    for _ in range(6):
+        batch = next(stream)
+        assert batch["left"].shape == (1, 64, 96)
+        on = batch["valid"] > 0
+        if on.any():  # the LiDAR reads the GT, noise ≤ 0.3 px std (and a 2 % scale at worst)
+            err = (batch["sparse"][on] - batch["gt"][on]).abs()
+            assert float(err.median()) < 1.0
+
+
+def test_things_stream_refuses_an_empty_folder(tmp_path):
+    from edge.model.things_data import ThingsTrainSet
+
+    with pytest.raises(ValueError, match="no things samples"):
+        ThingsTrainSet(tmp_path)
