@@ -55,7 +55,13 @@ def colorize_depth(depth: np.ndarray, max_m: float = 10.0) -> np.ndarray:
     return colour
 
 
-def demo_picture(left, sparse, pred, gt, sgbm, depth) -> np.ndarray:
+def colorize_confidence(confidence: np.ndarray) -> np.ndarray:
+    """(H, W) confidence 0-1 -> (H, W, 3) uint8 BGR, dark = unsure, bright = sure."""
+    return cv2.applyColorMap(np.clip(confidence * 255, 0, 255).astype(np.uint8),
+                             cv2.COLORMAP_VIRIDIS)
+
+
+def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.ndarray:
     max_d = float(gt.max())
     grey = cv2.cvtColor(left, cv2.COLOR_GRAY2BGR)
     lidar_view = grey.copy()
@@ -71,7 +77,15 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth) -> np.ndarray:
                         _label(colorize_disparity(sgbm, max_d), "OpenCV SGBM"),
                         _label(error_map(sgbm, gt), "SGBM |error| (red = hole)"),
                         _label(colorize_depth(depth), "network depth (0.5-10 m)")])
-    return np.vstack([top, bottom])
+    rows = [top, bottom]
+    if confidence is not None:
+        blank = np.zeros_like(grey)
+        rows.append(np.hstack([_label(colorize_confidence(confidence),
+                                      "network confidence (error < 1 px)"),
+                               _label(colorize_disparity(np.where(confidence >= 0.5, pred, 0),
+                                                         max_d), "network, confidence >= 0.5"),
+                               blank, blank]))
+    return np.vstack(rows)
 
 
 def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "int8",
@@ -108,7 +122,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
             if not picture:
                 picture.append(demo_picture(output.left, output.sparse,
                                             output.result.disparity, gt, sgbm,
-                                            output.result.depth))
+                                            output.result.depth, output.result.confidence))
 
         stats = run(source, pipeline, on_output=on_output)
     cv2.imwrite(str(out / "demo.png"), picture[0])

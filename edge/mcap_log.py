@@ -3,7 +3,8 @@
 Topics (DESIGN.md): /stereo/{left,right}/image_rect (mono8; /stereo/{left,right}/image when
 the pair is not rectified), /stereo/{left,right}/calibration (rectified intrinsics; the right
 one's P carries -f·B, as in ROS), /lidar/points (LiDAR frame, x y z intensity float32),
-/depth/sparse_disparity, /depth/disparity, /depth/image (32FC1), /depth/points, /diagnostics
+/depth/sparse_disparity, /depth/disparity, /depth/image, /depth/confidence (32FC1; confidence
+only from a model with the refinement stage), /depth/points, /diagnostics
 (JSON). Two more of ours: /edge/calibration (JSON, the calibration file's TOML text, logged at
 the start of every file so a recording replays without side files) and /sim/gt_disparity
 (32FC1, ground truth where a simulator made the data).
@@ -27,12 +28,13 @@ TOPICS = dict(
     left_raw="/stereo/left/image", right_raw="/stereo/right/image",
     left_calibration="/stereo/left/calibration", right_calibration="/stereo/right/calibration",
     lidar="/lidar/points", sparse="/depth/sparse_disparity", disparity="/depth/disparity",
-    depth="/depth/image", points="/depth/points", diagnostics="/diagnostics",
+    depth="/depth/image", points="/depth/points", confidence="/depth/confidence",
+    diagnostics="/diagnostics",
     calibration_file="/edge/calibration", gt_disparity="/sim/gt_disparity",
 )
 RAW_TOPICS = ("left", "right", "left_raw", "right_raw", "left_calibration",
               "right_calibration", "lidar", "calibration_file", "gt_disparity")
-RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "diagnostics")
+RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "confidence", "diagnostics")
 # float images barely compress: zstd saved 13 % of a result frame's 3 MB for 9 ms of CPU,
 # lz4 nothing for 3.5 ms (measured on 640x400 disparities); lz4 is the default
 COMPRESSIONS = ("lz4", "zstd", "none")
@@ -254,6 +256,8 @@ class McapLogger:
             self._log("sparse", image_message(sparse.astype(np.float32), t), t)
         self._log("disparity", image_message(result.disparity, t), t)
         self._log("depth", image_message(result.depth, t), t)
+        if result.confidence is not None:
+            self._log("confidence", image_message(result.confidence, t), t)
         if "points" in self.enabled and focal_px is not None and principal_point is not None:
             pts = depth_to_points(result.depth, result.valid, focal_px, principal_point)
             self._log("points", point_cloud_message(pts, t, CAMERA_FRAME), t)

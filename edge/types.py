@@ -115,7 +115,8 @@ class DepthResult:
 
     disparity: (H, W) float32 pixels. depth: (H, W) float32 metres (0 where invalid).
     valid: (H, W) bool. iterations: GRU update steps actually run.
-    timings_ms: stage name -> milliseconds for this frame.
+    timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
+    the model's estimate that the disparity is within 1 px (None when the model has none).
     """
 
     stamp_ns: int
@@ -124,6 +125,7 @@ class DepthResult:
     valid: np.ndarray
     iterations: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    confidence: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)
@@ -143,3 +145,10 @@ class DepthResult:
             raise InvalidDataError("DepthResult.valid", f"{shape} bool", self.valid.shape)
         if self.iterations < 0:
             raise InvalidDataError("DepthResult.iterations", ">= 0", self.iterations)
+        if self.confidence is not None and (
+            not isinstance(self.confidence, np.ndarray)
+            or self.confidence.dtype != np.float32
+            or self.confidence.shape != shape
+        ):
+            raise InvalidDataError("DepthResult.confidence", f"{shape} float32",
+                                   getattr(self.confidence, "shape", self.confidence))

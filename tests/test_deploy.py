@@ -189,3 +189,41 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert cli(["synth", "--out", str(small), "--count", "1", "--size", "320x200"]) == 0
     with pytest.raises(SystemExit, match="export a bundle at this size"):
         evaluate.main([str(small), "--methods", "net"])
+
+
+def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
+    from mcap.reader import make_reader
+
+    from edge.mcap_log import McapLogger
+    from edge.model.config import ModelConfig
+    from edge.model.network import SparseStereoNet
+    from tools.export import export
+
+    torch.manual_seed(0)
+    ckpt = torch.load(CHECKPOINT, weights_only=False)
+    config = ModelConfig.from_dict({**ckpt["config"], "refine": True})
+    net = SparseStereoNet(config)
+    net.load_state_dict(ckpt["model"], strict=False)
+    for p in net.refine.parameters():  # a refinement that does something
+        torch.nn.init.normal_(p, std=0.05)
+    path = tmp_path / "refine.pt"
+    torch.save(dict(model=net.state_dict(), config=config.to_dict(), step=1), path)
+    meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
+    assert meta["export_check"]["max_abs_px"] < 0.01
+    _, left, right, sparse = scene_inputs(77)
+    t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
+         (left, right, sparse, (sparse > 0).astype(np.float32))]
+    with torch.no_grad():
+        outs, logit = net.eval()(*t, iters=2, with_confidence=True)
+    engine = Engine(tmp_path / "bundle", "fp32", threads=1)
+    assert engine.has_confidence
+    result = engine.infer(left, right, sparse, iters=2)
+    np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)
+    np.testing.assert_allclose(result.confidence, torch.sigmoid(logit)[0, 0].numpy(),
+                               atol=1e-4)
+    assert 0 <= result.confidence.min() and result.confidence.max() <= 1
+    with McapLogger(tmp_path / "out.mcap") as logger:
+        logger.log_result(result)
+    with open(tmp_path / "out.mcap", "rb") as f:
+        topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
+    assert "/depth/confidence" in topics

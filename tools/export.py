@@ -5,7 +5,8 @@
 Three graphs (opset 17, static shapes) so the iteration count stays a runtime choice:
 encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
-(the upsampling-mask head and convex upsampling, run once on the last step's output),
+(the upsampling-mask head and convex upsampling, run once on the last step's output; with
+the refinement stage it also takes the images and returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
 summary). The export is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
 """
@@ -28,6 +29,7 @@ STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
+REFINE_INPUTS = ["left", "right"]
 OPSET = 17
 
 
@@ -73,7 +75,20 @@ def build_graphs(net):
             mask = self.net.update.upsampling_mask(hidden)
             return convex_upsample(disparity, mask, self.net.config.downsample)
 
-    return Encoder().eval(), Step().eval(), Upsample().eval()
+    class UpsampleRefine(torch.nn.Module):
+        """Convex upsampling, then the image-guided refinement; (disparity, confidence)."""
+
+        def __init__(self):
+            super().__init__()
+            self.net = net
+
+        def forward(self, disparity, hidden, left, right):
+            mask = self.net.update.upsampling_mask(hidden)
+            full, logit = self.net.upsample(left, right, disparity, mask)
+            return full, torch.sigmoid(logit)
+
+    upsample = UpsampleRefine() if net.config.refine else Upsample()
+    return Encoder().eval(), Step().eval(), upsample.eval()
 
 
 def count_flops(module, args) -> float:
@@ -129,14 +144,21 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
             ("encoder.onnx", encoder, (x, x, x, x), ENCODER_INPUTS,
              ["disparity", "hidden", *STATE]),
             ("step.onnx", step, step_args, STEP_INPUTS, STEP_OUTPUTS),
-            ("upsample.onnx", upsample, (d, hidden), UPSAMPLE_INPUTS, ["disparity_full"]),
         ]
+        if cfg.refine:
+            up_args = (d, hidden, x, x)
+            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS + REFINE_INPUTS,
+                           ["disparity_full", "confidence"]))
+        else:
+            up_args = (d, hidden)
+            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS,
+                           ["disparity_full"]))
         for name, module, args, inputs, outputs in graphs:
             torch.onnx.export(module, args, str(out / name), input_names=inputs,
                               output_names=outputs, opset_version=OPSET, dynamo=False)
         flops = dict(encoder=count_flops(encoder, (x, x, x, x)),
                      step=count_flops(step, step_args),
-                     upsample=count_flops(upsample, (d, hidden)))
+                     upsample=count_flops(upsample, up_args))
     flops["iters_4"] = flops["encoder"] + 4 * flops["step"] + flops["upsample"]
     training = ckpt.get("training") or {}
     if not training and "args" in ckpt:

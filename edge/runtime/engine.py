@@ -1,9 +1,10 @@
 """The budgeted inference engine: an exported bundle run with ONNX Runtime, no torch.
 
 The encoder runs once per frame, the update step up to `iters` times, the convex upsampling
-once after the last step. With a deadline, the engine stops iterating when the next step,
-predicted from this frame's steps so far plus the upsampling time of earlier frames, would
-finish after it; it always runs at least one step.
+once after the last step (with a bundle that has the refinement stage, it also returns the
+per-pixel confidence 0-1 that the disparity is within 1 px). With a deadline, the engine
+stops iterating when the next step, predicted from this frame's steps so far plus the
+upsampling time of earlier frames, would finish after it; it always runs at least one step.
 """
 
 from __future__ import annotations
@@ -61,6 +62,9 @@ class Engine:
                                                     providers=providers)
                          for part, name in files.items()}
         self._enc_outputs = [o.name for o in self.sessions["encoder"].get_outputs()]
+        upsample = self.sessions["upsample"]
+        self._refines = "left" in {i.name for i in upsample.get_inputs()}
+        self.has_confidence = len(upsample.get_outputs()) > 1
         shape = (1, 1, self.height, self.width)
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
                                                                  "valid")}
@@ -127,8 +131,10 @@ class Engine:
         timings["steps"] = float(sum(step_ms))
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
-        (full,) = self.sessions["upsample"].run(
-            None, feed("upsample", dict(disparity=disparity, hidden=hidden)))
+        feeds = dict(disparity=disparity, hidden=hidden)
+        if self._refines:
+            feeds.update(left=buf["left"], right=buf["right"])
+        full, *rest = self.sessions["upsample"].run(None, feed("upsample", feeds))
         up_ms = (time.perf_counter() - t) * 1000
         timings["upsample"] = up_ms
         self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
@@ -136,8 +142,9 @@ class Engine:
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         depth, valid = disparity_to_depth(disp, focal_px, baseline_m)
         timings["engine"] = (time.perf_counter() - t0) * 1000
+        confidence = np.ascontiguousarray(rest[0][0, 0], dtype=np.float32) if rest else None
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
-                           iterations=len(step_ms), timings_ms=timings)
+                           iterations=len(step_ms), timings_ms=timings, confidence=confidence)
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
