@@ -46,3 +46,22 @@ def depth_metrics(pred_disp: np.ndarray, gt_disp: np.ndarray, focal_px: float,
     dinv = (1.0 / z_p - 1.0 / z_gt) * 1000.0  # 1/km
     return dict(rmse_mm=float(np.sqrt(np.mean(dz**2))), mae_mm=float(np.mean(np.abs(dz))),
                 irmse=float(np.sqrt(np.mean(dinv**2))), imae=float(np.mean(np.abs(dinv))))
+
+
+CONFIDENCE_THRESHOLDS = (0.5, 0.7, 0.9)
+
+
+def confidence_calibration(pred: np.ndarray, gt: np.ndarray, confidence: np.ndarray,
+                           thresholds: tuple[float, ...] = CONFIDENCE_THRESHOLDS
+                           ) -> dict[str, float]:
+    """For each threshold t: the share of GT-valid pixels kept (confidence ≥ t, %) and the
+    bad-1 (%) among them; keys kept@t and bad1@t (bad1@t is NaN when nothing is kept)."""
+    valid = np.isfinite(gt) & (gt > 0)
+    err = np.abs(np.where(np.isfinite(pred), pred, 0.0) - gt)[valid]
+    conf = confidence[valid]
+    out = {}
+    for t in thresholds:
+        kept = conf >= t
+        out[f"kept@{t:g}"] = float(kept.mean() * 100) if kept.size else float("nan")
+        out[f"bad1@{t:g}"] = float((err[kept] > 1).mean() * 100) if kept.any() else float("nan")
+    return out

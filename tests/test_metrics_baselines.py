@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from edge.baselines import lidar_linear, lidar_nearest, sgbm_disparity
 from edge.metrics import depth_metrics, disparity_metrics
@@ -74,3 +75,15 @@ def test_trivial_fusion_keeps_sgbm_and_fills_its_holes_from_the_lidar():
     sparse = np.array([[0.0, 0.0, 7.0, 0.0]], np.float32)
     fused = sgbm_lidar_fusion(sgbm, sparse, sparse > 0)
     np.testing.assert_array_equal(fused, [[3.0, 7.0, 7.0, 4.0]])
+
+
+def test_confidence_calibration_reports_share_kept_and_their_bad1():
+    from edge.metrics import confidence_calibration
+
+    gt = np.array([[10.0, 10.0, 10.0, 10.0, np.inf]], np.float32)
+    pred = np.array([[10.2, 13.0, 10.5, 20.0, 1.0]], np.float32)   # good, bad, good, bad, no GT
+    conf = np.array([[0.95, 0.8, 0.6, 0.3, 1.0]], np.float32)
+    cal = confidence_calibration(pred, gt, conf)
+    assert cal["kept@0.5"] == 75.0 and cal["bad1@0.5"] == pytest.approx(100 / 3)
+    assert cal["kept@0.7"] == 50.0 and cal["bad1@0.7"] == 50.0
+    assert cal["kept@0.9"] == 25.0 and cal["bad1@0.9"] == 0.0

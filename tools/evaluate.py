@@ -16,6 +16,8 @@ bundle's input size); the default is the shipped bundle, int8.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
+for a model with a confidence output, its calibration: kept@t, the share of pixels with
+confidence ≥ t (%), and bad1@t, the bad-1 among them, for t = 0.5, 0.7, 0.9;
 `ms` is the median time per pair. `--iters 1,2,4,8` evaluates the network at each count
 (keys net@1, net@2, ...) and plots the EPE-vs-iterations curve with --plot.
 """
@@ -41,7 +43,7 @@ from edge.baselines import (  # noqa: E402
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
-from edge.metrics import depth_metrics, disparity_metrics  # noqa: E402
+from edge.metrics import confidence_calibration, depth_metrics, disparity_metrics  # noqa: E402
 from edge.runtime.engine import DEFAULT_BUNDLE  # noqa: E402
 from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
 
@@ -64,7 +66,8 @@ class TorchNet:
         self.net.eval()
         self.torch = torch
 
-    def __call__(self, left, right, sparse, iters: int) -> np.ndarray:
+    def __call__(self, left, right, sparse, iters: int):
+        """(disparity (H, W), confidence (H, W) or None)."""
         torch = self.torch
         f = self.net.config.downsample
         h, w = left.shape
@@ -74,8 +77,10 @@ class TorchNet:
             return torch.from_numpy(a)[None, None]
         valid = (sparse > 0).astype(np.float32)
         with torch.no_grad():
-            out = self.net(t(left), t(right), t(sparse * valid), t(valid), iters)[-1]
-        return out[0, 0, :h, :w].numpy()
+            outs, logit = self.net(t(left), t(right), t(sparse * valid), t(valid), iters,
+                                   with_confidence=True)
+        confidence = None if logit is None else torch.sigmoid(logit)[0, 0, :h, :w].numpy()
+        return outs[-1][0, 0, :h, :w].numpy(), confidence
 
 
 class BundleNet:
@@ -86,12 +91,13 @@ class BundleNet:
 
         self.engine = Engine(path, precision=precision, threads=2)
 
-    def __call__(self, left, right, sparse, iters: int) -> np.ndarray:
+    def __call__(self, left, right, sparse, iters: int):
         if left.shape != (self.engine.height, self.engine.width):
             raise SystemExit(f"scene is {left.shape[1]}x{left.shape[0]}, the bundle takes "
                              f"{self.engine.width}x{self.engine.height}: evaluate a checkpoint "
                              "or export a bundle at this size (tools/export.py --size)")
-        return self.engine.infer(left, right, sparse, iters=iters).disparity
+        result = self.engine.infer(left, right, sparse, iters=iters)
+        return result.disparity, result.confidence
 
 
 def load_net(model: Path, precision: str = "int8"):
@@ -119,10 +125,12 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
                 runs.append((method, method, 0))
         for name, method, iters in runs:
             start = time.perf_counter()
+            confidence = None
             if method == "net":
-                pred = net(scene.left, scene.right, scene.sparse, iters)
+                pred, confidence = net(scene.left, scene.right, scene.sparse, iters)
             elif method == "net-nolidar":
-                pred = net(scene.left, scene.right, np.zeros_like(scene.sparse), iters)
+                pred, confidence = net(scene.left, scene.right, np.zeros_like(scene.sparse),
+                                       iters)
             elif method == "sgbm":
                 pred = sgbm_disparity(scene.left, scene.right, sgbm)
             elif method == "sgbm-filled":
@@ -139,11 +147,14 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
             if "focal_px" in scene.meta and "baseline_m" in scene.meta:
                 m.update(depth_metrics(pred, scene.disp, scene.meta["focal_px"],
                                        scene.meta["baseline_m"]))
+            if confidence is not None:
+                m.update(confidence_calibration(pred, scene.disp, confidence))
             m["ms"] = ms
             per_method.setdefault(name, []).append(m)
     summary = {}
     for name, rows in per_method.items():
-        summary[name] = {k: float(np.mean([r[k] for r in rows])) for k in rows[0] if k != "ms"}
+        summary[name] = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]
+                         if k != "ms"}
         summary[name]["ms"] = float(np.median([r["ms"] for r in rows]))
         summary[name]["samples"] = len(rows)
     return summary
@@ -151,7 +162,7 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
 
 def markdown_table(summary: dict[str, dict[str, float]]) -> str:
     cols = ["epe", "bad1", "bad2", "bad3", "density", "rmse_mm", "mae_mm", "irmse", "imae",
-            "ms"]
+            "ms", "kept@0.5", "bad1@0.5", "kept@0.7", "bad1@0.7", "kept@0.9", "bad1@0.9"]
     cols = [c for c in cols if any(c in v for v in summary.values())]
     lines = ["| method | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, m in summary.items():
