@@ -68,6 +68,11 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
     synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
     synth.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
+    synth.add_argument("--world", choices=("rig", "things"), default="rig",
+                       help="rig: the planar rig as scene folders; things: the 3-D training "
+                            "world as OUT/NNNNNNN.npz (LiDAR sampled at training time)")
+    synth.add_argument("--workers", type=_positive_int, default=1,
+                       help="rendering processes (--world things)")
 
     demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
     demo.add_argument("--out", type=Path, default=Path("out"))
@@ -115,6 +120,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "synth" and (args.out is None) == (args.mcap is None):
         parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
+    if args.command == "synth" and args.world == "things" and args.mcap:
+        parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
     try:
         if args.command == "synth":
             from edge.sim.export import synth_command
@@ -128,6 +135,11 @@ def main(argv: list[str] | None = None) -> int:
                                         RigConfig(width=w, height=h), args.lidar)
                 print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
                 return 0
+            if args.world == "things":
+                from edge.sim.export import things_command
+
+                return things_command(args.out, args.count, args.seed, args.size,
+                                      args.workers)
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
             from calibration.cli import run

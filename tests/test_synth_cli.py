@@ -110,3 +110,22 @@ def test_failure_midway_removes_the_scenes_already_written(tmp_path, monkeypatch
     out = tmp_path / "scenes"
     assert main(["synth", "--out", str(out), "--count", "4", "--size", "32x32"]) == 1
     assert list_scene_folders(out) == [] and list(out.iterdir()) == []
+
+
+def test_synth_things_world_writes_training_pairs_and_continues(tmp_path, capsys):
+    from edge.sim.things_store import list_things, read_things
+
+    args = ["synth", "--world", "things", "--out", str(tmp_path), "--count", "2", "--seed",
+            "40", "--size", "96x64"]
+    assert main(args) == 0
+    assert [p.name for p in list_things(tmp_path)] == ["0000040.npz", "0000041.npz"]
+    pair = read_things(tmp_path / "0000040.npz")
+    assert pair["left"].shape == (64, 96) and pair["disp_left"].max() > 0
+    assert main(args) == 0
+    assert "wrote 0 things pairs" in capsys.readouterr().out
+
+
+def test_synth_things_world_refuses_an_mcap_output(tmp_path):
+    with pytest.raises(SystemExit) as exc:
+        main(["synth", "--world", "things", "--mcap", str(tmp_path / "x.mcap")])
+    assert exc.value.code == 2
