@@ -15,7 +15,7 @@ import numpy as np
 
 from edge.capture.sync import SyncConfig
 from edge.config import LogConfig
-from edge.daemon import Pipeline, StopFlag, format_latency, run, summarise
+from edge.daemon import Pipeline, StopFlag, format_latency, lidar_summary, run, summarise
 from edge.errors import ConfigError
 from edge.mcap_log import McapLogger
 from edge.runtime.engine import Engine
@@ -65,6 +65,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
+    print(lidar_summary(pipeline))
     if source.stats.truncated:
         print(f"the input was cut off: replayed its first {source.stats.messages} messages")
     if lat:
@@ -74,6 +75,10 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    if stats.frames == 0:
+        reason = dict(stats.errors) or "the recording has no frames on the mapped camera topics"
+        print(f"error: no frame was processed ({reason})", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -155,7 +160,8 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
         with McapLogger(out or lg.out, topics=topics, **logger_options(lg),
                         live=live) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
-                                SyncConfig(config.sync.mode, config.sync.window_ms),
+                                SyncConfig(config.sync.mode, config.sync.window_ms,
+                                           max_wait_ms=config.sync.max_wait_ms),
                                 log_raw=lg.raw)
             print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model},"
                   f" {e.precision} engine, logging to {logger.files[0]}"
@@ -168,6 +174,7 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
           f"dropped, errors {dict(stats.errors) or 'none'}")
+    print(lidar_summary(pipeline))
     if lat:
         print("latency median / p95 ms: " + format_latency(lat))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")

@@ -18,6 +18,7 @@
     [sync]
     mode = "accumulate"         # "nearest" (spinning 3-D) | "accumulate" (2-D scanner)
     window_ms = 100.0
+    max_wait_ms = 200.0         # a frame waits this long for the scans that cover it
 
     [engine]
     bundle = ""                 # "" = the shipped bundle
@@ -72,6 +73,7 @@ class CalibrationConfig:
 class SyncSection:
     mode: str = "accumulate"
     window_ms: float = 100.0
+    max_wait_ms: float = 200.0  # how long a frame waits for the scans that cover it
 
 
 @dataclass(frozen=True)

@@ -6,6 +6,8 @@ frame ──► rectify ──► project the synced LiDAR ──► engine ─�
 Bad input is counted by kind and skipped, never raised out of the loop: a frame of the wrong
 size, a frame that fails to rectify, a scan with no finite points. A live source runs in its
 own thread into a bounded queue that drops the oldest frame when inference falls behind.
+Frames wait, boundedly, for the LiDAR scans that cover them (`edge.capture.sync`): up to
+`sync.max_wait_ms` of host time live, of stream time in replay.
 SIGINT and SIGTERM stop the source, finish the frame in hand and close the MCAP file.
 The commands that wire this up (`run`, `record`, `replay`) are in edge.commands.
 """
@@ -84,9 +86,12 @@ class Pipeline:
         self.set_calibration(stereo, lidar)
         sync = sync or SyncConfig()
         if lidar is not None and sync.time_offset_ns == 0:
-            sync = SyncConfig(sync.mode, sync.window_ms, lidar.time_offset_ns, sync.keep_s)
+            sync = SyncConfig(sync.mode, sync.window_ms, lidar.time_offset_ns, sync.keep_s,
+                              sync.max_wait_ms)
         self.sync = LidarSync(sync)
         self.stats = PipelineStats()
+        self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
+        self._warned_unpaired = False
         self._lock = threading.Lock()
         engine.warm_up()
 
@@ -109,8 +114,32 @@ class Pipeline:
         if self.logger is not None and self.log_raw:
             self.logger.log_scan(scan)
 
-    def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None
-                 ) -> FrameOutput | None:
+    def frame_ready(self, stamp_ns: int) -> bool:
+        """Whether a frame can go on: its scans are in, or there is no LiDAR to wait for."""
+        with self._lock:
+            return self.lidar is None or self.sync.ready(stamp_ns)
+
+    def lidar_delivering(self, stamp_ns: int) -> bool:
+        with self._lock:
+            return self.lidar is not None and self.sync.recent(stamp_ns)
+
+    def _check_pairing(self, stamp_ns: int, paired: bool) -> None:
+        """Warn once per episode when scans arrive but no frame has paired for 5 s."""
+        if paired or self._unpaired_since_ns is None:
+            self._unpaired_since_ns = None if paired else stamp_ns
+            self._warned_unpaired = False
+            return
+        if self.stats.scans and not self._warned_unpaired \
+                and stamp_ns - self._unpaired_since_ns > 5e9:
+            gap = self.sync.median_gap_ms()
+            log.warning("LiDAR scans arrive (%d so far) but no frame has paired with one for "
+                        "5 s: median nearest-scan minus frame stamp %s; check the clocks "
+                        "([lidar] time_offset_ns in the calibration) or [sync] window_ms",
+                        self.stats.scans, "n/a" if gap is None else f"{gap:+.0f} ms")
+            self._warned_unpaired = True
+
+    def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None,
+                 sync_wait_ms: float = 0.0) -> FrameOutput | None:
         t0 = time.perf_counter()
         if frame.size != self.engine.size:
             self.stats.count_error("frame size", f"{frame.size}, expected {self.engine.size}")
@@ -124,6 +153,8 @@ class Pipeline:
         t1 = time.perf_counter()
         with self._lock:
             points = self.sync.points_for(frame.stamp_ns)
+        if self.lidar is not None:
+            self._check_pairing(frame.stamp_ns, len(points) > 0)
         if len(points) and self.lidar is not None:
             sparse, _ = project_to_disparity(points, self.stereo, self.lidar.T_cam_lidar)
         else:
@@ -143,7 +174,7 @@ class Pipeline:
             self.logger.log_result(result, sparse, self.focal_px, self.principal_point)
         t4 = time.perf_counter()
         timings = dict(result.timings_ms, rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000,
-                       log=(t4 - t3) * 1000, frame=(t4 - t0) * 1000,
+                       log=(t4 - t3) * 1000, frame=(t4 - t0) * 1000, sync_wait=sync_wait_ms,
                        iterations=result.iterations)
         self.stats.frames += 1
         self.stats.timings.append(timings)
@@ -153,6 +184,23 @@ class Pipeline:
             metrics = disparity_metrics(result.disparity, gt)
             self.stats.metrics.append(metrics)
         return FrameOutput(result, sparse, left, metrics, gt)
+
+
+def lidar_summary(pipeline: Pipeline) -> str:
+    """The closing line about the LiDAR: how many frames had it, or why none did."""
+    counters, stats = pipeline.sync.counters(), pipeline.stats
+    paired, frames = counters["frames_with_lidar"], stats.frames
+    if pipeline.lidar is None:
+        return "no LiDAR extrinsics: stereo only (add a [lidar] section to the calibration)"
+    if stats.scans == 0:
+        return f"frames with LiDAR: 0 of {frames} (no scan arrived: stereo only)"
+    line = f"frames with LiDAR: {paired} of {frames}"
+    if paired < frames and pipeline.sync.median_gap_ms() is not None:
+        line += (f" (unpaired frames: median nearest-scan minus frame stamp "
+                 f"{pipeline.sync.median_gap_ms():+.0f} ms)")
+    if counters["frames_not_waited_for"]:
+        line += f"; {counters['frames_not_waited_for']} went on before their scans arrived"
+    return line
 
 
 def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
@@ -256,11 +304,11 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
         except (EdgeError, CalibrationError, ValueError) as exc:
             stats.count_error(type(exc).__name__, exc)
 
-    def process(frame: StereoFrame) -> None:
+    def process(frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
         # ground truth follows its frame in our recordings: look for it once the frame is in
         gt = gts.pop(frame.stamp_ns, None)
         try:
-            out = pipeline.on_frame(frame, gt)
+            out = pipeline.on_frame(frame, gt, sync_wait_ms)
         except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
             stats.count_error(f"frame: {type(exc).__name__}", exc)
             out = None
@@ -285,8 +333,39 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
         if pipeline.logger is not None and last_stamp[0] is not None:
             pipeline.logger.log_diagnostics(last_stamp[0], dict(
                 frames=stats.frames, scans=stats.scans, drops=stats.drops,
-                errors=dict(stats.errors), latency_ms=summarise(window) if window else {},
+                errors=dict(stats.errors), lidar_sync=pipeline.sync.counters(),
+                latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window]))
+
+    wait_s = pipeline.sync.config.wait_ms / 1000
+
+    def wait_for_lidar(frame: StereoFrame) -> float:
+        """Live: hold a frame (host time, at most wait_s) while a delivering LiDAR has not
+        yet sent the scans that cover it; returns the ms waited."""
+        start = time.monotonic()
+        while not pipeline.frame_ready(frame.stamp_ns) \
+                and pipeline.lidar_delivering(frame.stamp_ns) and not stop.is_set():
+            if time.monotonic() - start >= wait_s:
+                pipeline.sync.waited_out += 1
+                break
+            time.sleep(0.002)
+        return (time.monotonic() - start) * 1000
+
+    waiting: deque[StereoFrame] = deque()  # replay: frames held in stream time
+    wait_ns = pipeline.sync.config.wait_ms * 1e6
+
+    def flush(latest_ns: int | None, everything: bool = False) -> None:
+        """Replay: process held frames, oldest first, while each is ready, has waited
+        wait_ns of stream time (up to the newest frame's stamp) or the stream has ended."""
+        while waiting and not stop.is_set():
+            head = waiting[0]
+            ready = pipeline.frame_ready(head.stamp_ns)
+            timed_out = latest_ns is not None and latest_ns - head.stamp_ns > wait_ns
+            if not (ready or timed_out or everything):
+                return
+            if not ready and pipeline.lidar is not None:
+                pipeline.sync.waited_out += 1
+            process(waiting.popleft())
 
     def capture() -> None:
         try:
@@ -316,23 +395,25 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
                 if finished.is_set():
                     break
                 continue
-            process(frame)
+            process(frame, wait_for_lidar(frame))
         thread.join(timeout=5)
     else:
-        pending: StereoFrame | None = None
+        # a frame is held at least until the next event that is not its ground truth (so
+        # the GT is in), then until its scans are in or it has waited out
+        latest: int | None = None
         for event in source:
-            # a frame is processed when the next event arrives, so its ground truth is in
-            if pending is not None and not isinstance(event, GroundTruth):
-                process(pending)
-                pending = None
-                if stop.is_set():
-                    break
             if isinstance(event, StereoFrame):
-                pending = event
+                flush(latest if latest is None else max(latest, event.stamp_ns))
+                waiting.append(event)
+                latest = event.stamp_ns if latest is None else max(latest, event.stamp_ns)
+            elif isinstance(event, GroundTruth):
+                safe_handle(event)
             else:
                 safe_handle(event)
-        if pending is not None:
-            process(pending)
+                flush(latest)
+            if stop.is_set():
+                break
+        flush(latest, everything=True)
     if stats.window:
         diagnostics()  # the frames since the last report
     notifier.notify("STOPPING=1")

@@ -111,3 +111,14 @@ def test_live_view_serves_a_foxglove_websocket(tmp_path):
             reply = conn.recv(4096).decode(errors="replace")
     assert reply.startswith("HTTP/1.1 101") and "foxglove" in reply
     assert logger.server is None
+
+
+def test_sync_max_wait_reaches_the_config_and_is_validated(tmp_path):
+    from edge.config import load_robot_config
+
+    path = tmp_path / "robot.toml"
+    path.write_text("[sync]\nmax_wait_ms = 50.0\n")
+    assert load_robot_config(path).sync.max_wait_ms == 50.0
+    path.write_text("[sync]\nmax_wait_ms = 'long'\n")
+    with pytest.raises(ConfigError, match="max_wait_ms"):
+        load_robot_config(path)

@@ -13,18 +13,22 @@ from edge.capture.oak import OakSource, StereoPairer, frame_to_array  # noqa: E4
 from edge.errors import InvalidDataError  # noqa: E402
 
 
-def img_frame(seq: int, seconds: float, image: np.ndarray, kind=None):
+def img_frame(seq: int, seconds: float, image: np.ndarray, kind=None,
+              device_offset_s: float = 0.0):
+    """A frame stamped `seconds` on the host's clock and `seconds + device_offset_s` on the
+    device's own."""
     f = dai.ImgFrame()
     f.setType(kind or dai.ImgFrame.Type.GRAY8)
     f.setWidth(image.shape[1])
     f.setHeight(image.shape[0])
     f.setData(image.ravel())
     f.setSequenceNum(seq)
-    f.setTimestampDevice(datetime.timedelta(seconds=seconds))
+    f.setTimestamp(datetime.timedelta(seconds=seconds))
+    f.setTimestampDevice(datetime.timedelta(seconds=seconds + device_offset_s))
     return f
 
 
-def test_frames_pair_by_sequence_number_with_device_stamps_in_ns():
+def test_frames_pair_by_sequence_number_with_host_stamps_in_ns():
     rng = np.random.default_rng(0)
     images = {(side, s): rng.integers(0, 256, (40, 64), dtype=np.uint8)
               for side in ("left", "right") for s in range(4)}
@@ -34,7 +38,9 @@ def test_frames_pair_by_sequence_number_with_device_stamps_in_ns():
     order = [("left", 0), ("left", 1), ("right", 0), ("left", 2), ("right", 2), ("left", 3),
              ("right", 3)]
     for side, seq in order:
-        pair = pairer.add(side, img_frame(seq, 1.5 + seq / 30, images[(side, seq)]))
+        # the device clock is 5 hours away from the host's: the stamps must not see it
+        pair = pairer.add(side, img_frame(seq, 1.5 + seq / 30, images[(side, seq)],
+                                          device_offset_s=5 * 3600.0))
         if pair is not None:
             out.append(pair)
     assert [p.seq for p in out] == [0, 2, 3]

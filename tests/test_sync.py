@@ -50,3 +50,29 @@ def test_old_scans_are_forgotten_and_bad_settings_rejected():
         SyncConfig("latest")
     with pytest.raises(ConfigError, match="window_ms"):
         SyncConfig(window_ms=0)
+
+
+def test_a_frame_is_ready_once_no_later_scan_could_pair_better():
+    sync = LidarSync(SyncConfig("nearest", window_ms=100))
+    assert not sync.ready(0)                       # nothing yet
+    sync.add(scan(0, 0.0))
+    assert not sync.ready(30 * MS)                 # period unknown: wait for a later scan
+    sync.add(scan(100 * MS, 1.0))                  # period 100 ms
+    assert sync.ready(140 * MS)                    # 40 ms after the newest: nothing nearer
+    assert not sync.ready(160 * MS)                # the next scan (200 ms) would be nearer
+    acc = LidarSync(SyncConfig("accumulate", window_ms=40))
+    acc.add(scan(0, 0.0, n=3, point_stamps=[0, 10 * MS, 20 * MS]))
+    assert acc.ready(0) and not acc.ready(1 * MS)  # needs points up to frame + 20 ms
+
+
+def test_counters_and_the_stamp_gap_of_unpaired_frames():
+    sync = LidarSync(SyncConfig("nearest", window_ms=50, max_wait_ms=30))
+    assert sync.config.wait_ms == 30 and SyncConfig(window_ms=50).wait_ms == 100
+    sync.add(scan(1_000 * MS, 1.0))
+    assert len(sync.points_for(1_010 * MS)) == 4
+    assert len(sync.points_for(3_000 * MS)) == 0   # 2 s away: a clock problem
+    assert sync.counters()["frames_with_lidar"] == 1
+    assert sync.counters()["frames_without_lidar"] == 1
+    assert sync.median_gap_ms() == pytest.approx(-2_000.0)
+    with pytest.raises(ConfigError, match="max_wait_ms"):
+        SyncConfig(max_wait_ms=-1)

@@ -3,9 +3,10 @@
 `OakSource` builds the pipeline (two `Camera` nodes, `requestOutput((w, h), GRAY8, fps)`,
 non-blocking output queues that drop the oldest frame), pairs the two streams by sequence
 number (`StereoPairer`, pure and tested with host-built `ImgFrame`s), stamps frames with the
-device clock in nanoseconds, reads the device's factory calibration, and reconnects with
-back-off after an X_LINK error. Frames are raw (not rectified): the pipeline rectifies them
-with the calibration.
+host-synchronised stamp (`getTimestamp()`: the host's monotonic clock, the one the serial
+LiDARs stamp with; never the device's own clock, which no host sensor shares), in ns, reads
+the device's factory calibration, and reconnects with back-off after an X_LINK error.
+Frames are raw (not rectified): the pipeline rectifies them with the calibration.
 """
 
 from __future__ import annotations
@@ -55,7 +56,7 @@ class StereoPairer:
 
     def add(self, side: str, frame) -> StereoFrame | None:
         seq = int(frame.getSequenceNum())
-        stamp = timedelta_ns(frame.getTimestampDevice())
+        stamp = timedelta_ns(frame.getTimestamp())
         image = frame_to_array(frame)
         other = "right" if side == "left" else "left"
         match = self._pending[other].pop(seq, None)
