@@ -73,6 +73,9 @@ def build_parser() -> argparse.ArgumentParser:
                             "world as OUT/NNNNNNN.npz (LiDAR sampled at training time)")
     synth.add_argument("--workers", type=_positive_int, default=1,
                        help="rendering processes (--world things)")
+    synth.add_argument("--scene-folders", action="store_true",
+                       help="--world things: write scene folders for evaluation (16 GT rows "
+                            "as the LiDAR) instead of training pairs")
 
     demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
     demo.add_argument("--out", type=Path, default=Path("out"))
@@ -135,6 +138,10 @@ def main(argv: list[str] | None = None) -> int:
                                         RigConfig(width=w, height=h), args.lidar)
                 print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
                 return 0
+            if args.world == "things" and args.scene_folders:
+                from edge.sim.export import things_folders_command
+
+                return things_folders_command(args.out, args.count, args.seed, args.size)
             if args.world == "things":
                 from edge.sim.export import things_command
 

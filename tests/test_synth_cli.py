@@ -129,3 +129,15 @@ def test_synth_things_world_refuses_an_mcap_output(tmp_path):
     with pytest.raises(SystemExit) as exc:
         main(["synth", "--world", "things", "--mcap", str(tmp_path / "x.mcap")])
     assert exc.value.code == 2
+
+
+def test_synth_things_scene_folders_carry_gt_rows_as_the_lidar(tmp_path):
+    from edge.sim.folder import read_scene_folder
+
+    assert main(["synth", "--world", "things", "--scene-folders", "--out", str(tmp_path),
+                 "--count", "1", "--seed", "2000000", "--size", "96x64"]) == 0
+    scene = read_scene_folder(tmp_path / "2000000")
+    ys, xs = np.nonzero(scene.sparse)
+    assert len(np.unique(ys)) == 16 and set(np.unique(xs % 2)) == {0}
+    err = scene.sparse[ys, xs] - scene.disp[ys, xs]
+    assert abs(float(np.median(err))) < 0.05 and float(np.std(err)) < 0.2

@@ -24,12 +24,7 @@ def synth_command(out: Path, count: int, seed: int, size: tuple[int, int], lidar
     fails midway, the scenes written by this call are removed again.
     """
     rig = RigConfig(width=size[0], height=size[1])
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create output directory {out}: {exc.strerror}") from None
-    if not os.access(out, os.W_OK | os.X_OK):
-        raise OutputError(f"output directory {out} is not writable")
+    _writable(out)
     written: list[Path] = []
     try:
         for i in range(count):
@@ -47,6 +42,50 @@ def synth_command(out: Path, count: int, seed: int, size: tuple[int, int], lidar
     return 0
 
 
+def _writable(out: Path) -> None:
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"cannot create output directory {out}: {exc.strerror}") from None
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise OutputError(f"output directory {out} is not writable")
+
+
+def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, int]) -> int:
+    """Things-world pairs as scene folders for evaluation, with the real pair's LiDAR recipe
+    (16 rows of the GT, every 2nd column, N(0, 0.1 px); `tools/real_pairs.py`)."""
+    import json
+
+    import cv2
+    import numpy as np
+
+    from edge.sim.folder import write_pfm
+    from edge.sim.gt_lidar import GtLidarPattern
+    from edge.sim.world import WorldConfig, make_things_sample
+
+    cfg = WorldConfig(width=size[0], height=size[1])
+    _writable(out)
+    for i in range(count):
+        sample = make_things_sample(seed + i, cfg)
+        folder = out / f"{seed + i:07d}"
+        folder.mkdir(exist_ok=True)
+        pattern = GtLidarPattern.evenly(cfg.height, 16, column_step=2, noise_px=0.1)
+        sparse = pattern.sample(sample.disp_left, np.random.default_rng(seed + i))
+        cv2.imwrite(str(folder / "left.png"), sample.left)
+        cv2.imwrite(str(folder / "right.png"), sample.right)
+        write_pfm(folder / "disp.pfm", np.where(sample.disp_left > 0, sample.disp_left,
+                                                np.inf).astype(np.float32))
+        cv2.imwrite(str(folder / "occ.png"), sample.occ_left.astype(np.uint8) * 255)
+        write_pfm(folder / "sparse.pfm", sparse)
+        (folder / "meta.json").write_text(json.dumps(dict(
+            focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, cx=cfg.cx, cy=cfg.cy,
+            seed=seed + i, generator="edge.sim.world", lidar="16 GT rows, every 2nd column")))
+        print(f"\rsynth: {i + 1}/{count} things scenes", end="", file=sys.stderr, flush=True)
+    print(file=sys.stderr)
+    print(f"wrote {count} things scene folders to {out} ({size[0]}x{size[1]})")
+    return 0
+
+
 def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
                    workers: int = 1) -> int:
     """Render `count` pairs of the things world into OUT/NNNNNNN.npz (seeds seed …), the
@@ -58,12 +97,7 @@ def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
     from edge.sim.world import WorldConfig
 
     cfg = WorldConfig(width=size[0], height=size[1])
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise OutputError(f"cannot create output directory {out}: {exc.strerror}") from None
-    if not os.access(out, os.W_OK | os.X_OK):
-        raise OutputError(f"output directory {out} is not writable")
+    _writable(out)
     chunk = 25
     starts = list(range(seed, seed + count, chunk))
     done = rendered = 0
