@@ -38,6 +38,27 @@ class _Parser(argparse.ArgumentParser):
         self.exit(2, f"{self.prog}: error: {message}\n")
 
 
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("edge-depth")
+    except PackageNotFoundError:
+        return "unknown (not installed)"
+
+
+def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
+    """stdlib logging on stderr with timestamps and levels: INFO by default, DEBUG with -v,
+    WARNING with -q."""
+    import logging
+
+    level = logging.DEBUG if verbose else logging.WARNING if quiet else logging.INFO
+    # a handler only where none is installed yet (an embedding program's or pytest's stays)
+    logging.basicConfig(stream=sys.stderr,
+                        format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger().setLevel(level)
+
+
 def load_topic_map(path: Path) -> dict:
     import tomllib
 
@@ -56,6 +77,9 @@ def build_parser() -> argparse.ArgumentParser:
     from edge.sim.lidar import PATTERNS
 
     parser = _Parser(prog="edge-depth", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"edge-depth {_version()}")
+    parser.add_argument("-v", "--verbose", action="store_true", help="debug messages too")
+    parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
 
     synth = sub.add_parser("synth", help="write synthetic scene folders with exact ground truth")
@@ -121,6 +145,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
+    configure_logging(args.verbose, args.quiet)
     if args.command == "synth" and (args.out is None) == (args.mcap is None):
         parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
     if args.command == "synth" and args.world == "things" and args.mcap:

@@ -92,6 +92,9 @@ class Pipeline:
         self.stats = PipelineStats()
         self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
         self._warned_unpaired = False
+        if lidar is None:
+            log.warning("no LiDAR extrinsics in the calibration: running stereo only (add a "
+                        "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
         engine.warm_up()
 

@@ -122,3 +122,19 @@ def test_sync_max_wait_reaches_the_config_and_is_validated(tmp_path):
     path.write_text("[sync]\nmax_wait_ms = 'long'\n")
     with pytest.raises(ConfigError, match="max_wait_ms"):
         load_robot_config(path)
+
+
+def test_version_and_log_level_flags(capsys):
+    import logging
+
+    from edge.cli import configure_logging, main
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.startswith("edge-depth ")
+    configure_logging(quiet=True)
+    assert logging.getLogger().level == logging.WARNING
+    configure_logging(verbose=True)
+    assert logging.getLogger().level == logging.DEBUG
+    configure_logging()
+    assert logging.getLogger().level == logging.INFO
