@@ -78,3 +78,26 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000
     assert "int8 engine / SGBM" in md.read_text()
+
+
+def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
+    from tools import ship_checkpoint
+
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "--lr", "1e-4"]) == 0
+    prev = tmp_path / "prev.pt"
+    torch.save(dict(model={}, config={}, training=dict(stages=[dict(steps=5, note="a")])),
+               prev)
+    out = tmp_path / "shipped.pt"
+    assert ship_checkpoint.main([str(run / "final.pt"), "--note", "b", "--previous",
+                                 str(prev), "--out", str(out)]) == 0
+    shipped = torch.load(out, weights_only=False)
+    assert "optimizer" not in shipped and shipped["config"]["refine"] is True
+    stages = shipped["training"]["stages"]
+    assert [s["note"] for s in stages] == ["a", "b"]
+    assert stages[1]["steps"] == 1 and stages[1]["lr"] == 1e-4 and stages[1]["refine"] is True
+    assert shipped["training"]["total_steps"] == 6
+    final = torch.load(run / "final.pt", weights_only=False)
+    for key, value in final["model"].items():
+        assert torch.equal(shipped["model"][key], value)
