@@ -136,6 +136,20 @@ def _convert(path: str, key: str, value, default):
     return value
 
 
+PATH_KEYS = (("calibration", "file"), ("engine", "bundle"), ("log", "out"))
+
+
+def _resolve_paths(sections: dict, base: Path) -> None:
+    """Relative paths in a config file are relative to that file, not to the working
+    directory the daemon happens to start in (systemd starts it in /)."""
+    from dataclasses import replace
+
+    for name, key in PATH_KEYS:
+        value = getattr(sections[name], key)
+        if value and not Path(value).expanduser().is_absolute():
+            sections[name] = replace(sections[name], **{key: str(base / value)})
+
+
 def load_robot_config(path: str | Path) -> RobotConfig:
     path = str(path)
     try:
@@ -170,6 +184,7 @@ def load_robot_config(path: str | Path) -> RobotConfig:
                 raise ConfigError(f"{name}.{key}", "> 0", value, path)
             values[key] = value
         built[name] = cls(**values)
+    _resolve_paths(built, Path(path).parent)
     config = RobotConfig(**built, path=path)
     if config.lidar.model == "sim" and config.camera.source != "sim":
         raise ConfigError("lidar.model", "'sim' only with camera.source = 'sim'", "sim", path)

@@ -138,3 +138,17 @@ def test_version_and_log_level_flags(capsys):
     assert logging.getLogger().level == logging.DEBUG
     configure_logging()
     assert logging.getLogger().level == logging.INFO
+
+
+def test_relative_paths_in_a_config_are_relative_to_the_file(tmp_path):
+    from edge.config import load_robot_config
+
+    folder = tmp_path / "etc"
+    folder.mkdir()
+    path = folder / "robot.toml"
+    path.write_text('[calibration]\nfile = "calib.toml"\n[engine]\nbundle = "/opt/b"\n'
+                    '[log]\nout = "logs/depth.mcap"\n')
+    config = load_robot_config(path)
+    assert config.calibration.file == str(folder / "calib.toml")
+    assert config.engine.bundle == "/opt/b"
+    assert config.log.out == str(folder / "logs" / "depth.mcap")
