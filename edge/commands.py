@@ -7,9 +7,11 @@ the key before any device is opened — then wires sources, the pipeline and the
 from __future__ import annotations
 
 import dataclasses
+import os
 import sys
 import time
 from collections import Counter
+from pathlib import Path
 
 import numpy as np
 
@@ -31,6 +33,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     from edge.capture.replay import McapSource, TopicMap
     from edge.runtime.engine import DEFAULT_BUNDLE
 
+    if Path(out).exists() and Path(path).exists() and os.path.samefile(out, path):
+        raise ConfigError("--out", "a file other than the input recording", str(out))
     source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
     source.check_topics()
     if calib is not None:

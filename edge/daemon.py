@@ -310,6 +310,8 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
     def process(frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
         # ground truth follows its frame in our recordings: look for it once the frame is in
         gt = gts.pop(frame.stamp_ns, None)
+        for stamp in [s for s in gts if s < frame.stamp_ns]:  # frames dropped or skipped
+            del gts[stamp]
         try:
             out = pipeline.on_frame(frame, gt, sync_wait_ms)
         except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon

@@ -132,6 +132,7 @@ class McapLogger:
         self.files: list[Path] = []
         self.messages = 0
         self._writer = None
+        self._next_index = 0
         self._file_start_ns: int | None = None
         self.server = None
         if live:
@@ -140,8 +141,11 @@ class McapLogger:
         self._open(None)
 
     # -- files -------------------------------------------------------------------------------
+    def _is_rotating(self) -> bool:
+        return self.rotate_bytes is not None or self.rotate_s is not None
+
     def _file_path(self, index: int) -> Path:
-        if self.rotate_bytes is None and self.rotate_s is None:
+        if not self._is_rotating():
             return self.path
         return self.path.with_name(f"{self.path.stem}_{index + 1:04d}{self.path.suffix}")
 
@@ -149,7 +153,13 @@ class McapLogger:
         import foxglove
         from foxglove.mcap import MCAPCompression, MCAPWriteOptions
 
-        path = self._file_path(len(self.files))
+        # rotating files never overwrite: a restarted daemon continues at the next free index
+        # instead of replacing the file its predecessor was cut off in
+        path = self._file_path(self._next_index)
+        while self._is_rotating() and path.exists():
+            self._next_index += 1
+            path = self._file_path(self._next_index)
+        self._next_index += 1
         compression = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4,
                        "none": None}[self.compression]
         options = MCAPWriteOptions(chunk_size=self.chunk_size, compression=compression,

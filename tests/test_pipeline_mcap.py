@@ -510,3 +510,22 @@ def test_replay_summary_counts_frames_with_lidar(recording, tmp_path, capsys):
         diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages()
                  if c.topic == TOPICS["diagnostics"]]
     assert diags[-1]["lidar_sync"]["frames_with_lidar"] == 3
+
+
+def test_a_restarted_rotating_logger_never_overwrites_its_predecessor(tmp_path):
+    path = tmp_path / "depth.mcap"
+    frame = next(e for e in SimSource(1, SEED) if isinstance(e, StereoFrame))
+    for _ in range(2):  # two daemon runs with the same log.out
+        with McapLogger(path, rotate_bytes=1 << 30) as logger:
+            logger.log_frame(frame)
+    first, second = tmp_path / "depth_0001.mcap", tmp_path / "depth_0002.mcap"
+    assert logger.files == [second]
+    assert topic_counts(first)[TOPICS["left"]] == 1 and topic_counts(second)[TOPICS["left"]] == 1
+
+
+def test_replay_refuses_to_write_over_its_input(recording, tmp_path, capsys):
+    copy = tmp_path / "rec.mcap"
+    copy.write_bytes(recording.read_bytes())
+    assert main(["replay", str(copy), "--out", str(copy)]) == 1
+    assert "--out" in capsys.readouterr().err
+    assert copy.read_bytes() == recording.read_bytes()
