@@ -200,6 +200,9 @@ def main(argv: list[str] | None = None) -> int:
     except (EdgeError, CalibrationError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:  # Ctrl-C before a command's own handlers were installed
+        print(f"edge-depth {args.command}: interrupted", file=sys.stderr)
+        return 130
     parser.error(f"unknown command {args.command}")
     return 2
 

@@ -152,3 +152,15 @@ def test_relative_paths_in_a_config_are_relative_to_the_file(tmp_path):
     assert config.calibration.file == str(folder / "calib.toml")
     assert config.engine.bundle == "/opt/b"
     assert config.log.out == str(folder / "logs" / "depth.mcap")
+
+
+def test_ctrl_c_before_the_handlers_is_one_line_and_exit_130(monkeypatch, capsys):
+    import edge.sim.export
+    from edge.cli import main
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(edge.sim.export, "synth_command", interrupted)
+    assert main(["synth", "--out", "unused", "--count", "1"]) == 130
+    assert capsys.readouterr().err.strip() == "edge-depth synth: interrupted"
