@@ -331,6 +331,12 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             diagnostics()
             notifier.notify("WATCHDOG=1")
 
+    def source_counters() -> dict:
+        try:
+            return source.counters() if hasattr(source, "counters") else {}
+        except Exception as exc:  # noqa: BLE001 - a counter must never stop the daemon
+            return {"error": f"{type(exc).__name__}: {exc}"}
+
     def diagnostics() -> None:
         """Counters and the latency of the frames since the last report, on /diagnostics."""
         window, stats.window = stats.window, []
@@ -339,6 +345,7 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
             pipeline.logger.log_diagnostics(last_stamp[0], dict(
                 frames=stats.frames, scans=stats.scans, drops=stats.drops,
                 errors=dict(stats.errors), lidar_sync=pipeline.sync.counters(),
+                sources=source_counters(),
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window]))
 

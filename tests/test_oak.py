@@ -80,3 +80,11 @@ def test_real_device_streams_paired_frames():  # pragma: no cover - needs hardwa
             assert frame.left.shape == (400, 640)
             assert source.calibration is not None
             break
+
+
+def test_oak_counters_carry_unpaired_frames_for_diagnostics():
+    source = OakSource((64, 40), 30.0)
+    image = np.zeros((40, 64), np.uint8)
+    source.pairer.add("left", img_frame(0, 1.0, image))
+    source.pairer.add("left", img_frame(20, 1.5, image))  # seq 0 waited too long: lost
+    assert source.counters() == dict(frames=0, unpaired=1, reconnects=0, errors={})

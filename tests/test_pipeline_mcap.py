@@ -510,6 +510,7 @@ def test_replay_summary_counts_frames_with_lidar(recording, tmp_path, capsys):
         diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages()
                  if c.topic == TOPICS["diagnostics"]]
     assert diags[-1]["lidar_sync"]["frames_with_lidar"] == 3
+    assert diags[-1]["sources"]["messages"] > 0 and diags[-1]["sources"]["frames"] == 3
 
 
 def test_a_restarted_rotating_logger_never_overwrites_its_predecessor(tmp_path):

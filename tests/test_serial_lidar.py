@@ -219,6 +219,10 @@ def test_ld06_over_a_pty_survives_an_unplug_and_stops_on_close(tmp_path):
     assert not reader.is_alive()
     second.unplug()
     assert any(k.startswith("read") or k.startswith("open") for k in source.errors)
+    counters = source.counters()  # what reaches /diagnostics
+    assert counters["reconnects"] == 1 and counters["scans"] == len(scans)
+    assert counters["packets"] >= 2 * 37 and counters["crc_errors"] == 0
+    assert counters["errors"] == dict(source.errors)
     # the first connection's first revolutions are whole: 37 or 38 packets of 9.6 degrees
     assert {len(scans[0]), len(scans[1])} <= {37 * 12, 38 * 12}
     np.testing.assert_allclose(np.hypot(*scans[0].points[:12, :2].T),

@@ -19,6 +19,11 @@ class Source:
     def close(self) -> None:
         self._stop.set()
 
+    def counters(self) -> dict:
+        """What the source counted (decode errors, reconnects, unpaired frames …): it goes
+        to /diagnostics and the closing summary. A source with nothing to count: {}."""
+        return {}
+
     def __enter__(self):
         return self
 
@@ -40,6 +45,9 @@ class MergedSource(Source):
         super().close()
         for source in self.sources:
             source.close()
+
+    def counters(self) -> dict:
+        return {type(s).__name__: s.counters() for s in self.sources if s.counters()}
 
     def _pump(self, source) -> None:
         try:

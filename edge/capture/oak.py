@@ -86,6 +86,10 @@ class OakSource(Source):
         self.errors: Counter = Counter()
         self.calibration = None
 
+    def counters(self) -> dict:
+        return dict(frames=self.frames, unpaired=self.pairer.unpaired,
+                    reconnects=self.reconnects, errors=dict(self.errors))
+
     def _build(self):
         import depthai as dai
 

@@ -184,6 +184,11 @@ class McapSource(Source):
         super().__init__()
         self._info: dict[str, tuple] = {}
 
+    def counters(self) -> dict:
+        s = self.stats
+        return dict(messages=s.messages, frames=s.frames, scans=s.scans,
+                    truncated=s.truncated, errors=dict(s.errors))
+
     def file_topics(self) -> set[str] | None:
         """Topics listed in the summary, or None for a file without one."""
         from mcap.reader import make_reader

@@ -46,6 +46,19 @@ class SerialLidarSource(Source):
         self.errors: Counter = Counter()
         self.decoder = None
 
+    def counters(self) -> dict:
+        out = dict(model=self.model, scans=self.scans, reconnects=self.reconnects,
+                   errors=dict(self.errors))
+        decoder = self.decoder
+        if decoder is not None and hasattr(decoder, "stats"):  # LD06 / LD19
+            s = decoder.stats
+            out.update(packets=s.packets, crc_errors=s.crc_errors, bad_span=s.bad_span,
+                       skipped_bytes=s.skipped_bytes)
+        elif decoder is not None:  # RPLIDAR
+            out.update(nodes=decoder.nodes, bad_nodes=decoder.bad_nodes,
+                       skipped_bytes=decoder.skipped_bytes)
+        return out
+
     # -- lifecycle ---------------------------------------------------------------------------
     def close(self) -> None:
         super().close()
