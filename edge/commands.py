@@ -70,6 +70,9 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
     print(lidar_summary(pipeline))
+    if source.stats.errors:
+        print(f"messages skipped while reading: {sum(source.stats.errors.values())} "
+              f"{dict(source.stats.errors)}")
     if source.stats.truncated:
         print(f"the input was cut off: replayed its first {source.stats.messages} messages")
     if lat:
