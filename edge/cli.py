@@ -122,6 +122,8 @@ def build_parser() -> argparse.ArgumentParser:
                              "left_info, right_info, gt) to the recording's topics")
     replay.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     replay.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
+    replay.add_argument("--scale", type=float, default=0.0,
+                        help="camera → network scale (0: the largest that fits the bundle)")
     replay.add_argument("--threads", type=_positive_int, default=2)
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
@@ -188,7 +190,7 @@ def main(argv: list[str] | None = None) -> int:
             topics = load_topic_map(args.topics) if args.topics else None
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
                                   args.calib, topics, args.precision, args.realtime,
-                                  args.threads, args.bundle)
+                                  args.threads, args.bundle, args.scale)
         if args.command == "run":
             from edge.commands import run_command
 

@@ -26,7 +26,7 @@ from edge.types import LidarScan, StereoFrame
 
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
-                   threads: int = 2, bundle=None) -> int:
+                   threads: int = 2, bundle=None, scale: float = 0.0) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
     from calibration.io import load_calibration, loads_calibration
@@ -45,7 +45,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
             raise ConfigError("--calib", "a calibration file: the recording has none on "
                               f"{source.topics.calibration}", None, str(path))
         stereo, lidar = loads_calibration(text, f"{path} {source.topics.calibration}")
-    engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads)
+    engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
+                    scale=scale or None)
     stop = StopFlag()
     stop.install()
 
@@ -157,7 +158,8 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     config = load_robot_config(config_path)
     source, stereo, lidar = open_sources(config, max_frames)
     e = config.engine
-    engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads)
+    engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
+                    scale=e.scale or None)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()

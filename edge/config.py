@@ -23,6 +23,7 @@
     [engine]
     bundle = ""                 # "" = the shipped bundle
     precision = "int8"
+    scale = 0.0                 # camera → network scale; 0 = the largest that fits the bundle
     threads = 2
     iters = 4
     deadline_ms = 0.0           # 0 = no deadline
@@ -80,6 +81,7 @@ class SyncSection:
 class EngineConfig:
     bundle: str = ""
     precision: str = "int8"
+    scale: float = 0.0  # camera → network scale; 0 = the largest that fits the bundle
     threads: int = 2
     iters: int = 4
     deadline_ms: float = 0.0

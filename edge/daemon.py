@@ -30,7 +30,7 @@ from calibration.model import LidarExtrinsics, StereoCalibration
 from calibration.projection import project_to_disparity
 from edge.capture.replay import Calibration, GroundTruth
 from edge.capture.sync import LidarSync, SyncConfig
-from edge.errors import ConfigError, EdgeError
+from edge.errors import EdgeError
 from edge.mcap_log import McapLogger
 from edge.metrics import disparity_metrics
 from edge.runtime.engine import Engine
@@ -78,9 +78,11 @@ class Pipeline:
                  lidar: LidarExtrinsics | None, logger: McapLogger | None = None,
                  iters: int | None = None, deadline_ms: float | None = None,
                  sync: SyncConfig | None = None, log_raw: bool = True) -> None:
-        if tuple(stereo.image_size) != engine.size:
-            raise ConfigError("stereo.image_size", f"the model's input size {engine.size} "
-                              "(export a bundle at the camera's size)", stereo.image_size)
+        plan = engine.plan_for(tuple(stereo.image_size))  # ConfigError if it cannot run
+        if not plan.identity:
+            w, h = plan.scaled
+            log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
+                     *stereo.image_size, *engine.size, plan.scale, w, h)
         self.engine, self.logger = engine, logger
         self.iters, self.deadline_ms, self.log_raw = iters, deadline_ms, log_raw
         self.set_calibration(stereo, lidar)
@@ -144,8 +146,9 @@ class Pipeline:
     def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None,
                  sync_wait_ms: float = 0.0) -> FrameOutput | None:
         t0 = time.perf_counter()
-        if frame.size != self.engine.size:
-            self.stats.count_error("frame size", f"{frame.size}, expected {self.engine.size}")
+        if frame.size != tuple(self.stereo.image_size):
+            self.stats.count_error("frame size", f"{frame.size}, the calibration's is "
+                                   f"{tuple(self.stereo.image_size)}")
             return None
         try:
             left, right = ((frame.left, frame.right) if frame.rectified

@@ -113,11 +113,11 @@ def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
                                rtol=1e-5)
 
 
-def test_engine_rejects_a_wrong_size_and_ignores_nan_lidar():
+def test_engine_rejects_mismatched_shapes_and_ignores_nan_lidar():
     engine = Engine(precision="int8", threads=1)
     small = np.zeros((200, 320), np.uint8)
-    with pytest.raises(InvalidDataError, match="bundle's input size"):
-        engine.infer(small, small, np.zeros((200, 320), np.float32))
+    with pytest.raises(InvalidDataError, match="left image's shape"):
+        engine.infer(small, small, np.zeros((400, 640), np.float32))
     _, left, right, sparse = scene_inputs(1_000_004, (640, 400), "beams16")
     clean = engine.infer(left, right, sparse, iters=1).disparity
     dirty = sparse.copy()
@@ -185,10 +185,10 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert evaluate.main([str(data), "--methods", "net,sgbm", "--json", str(out)]) == 0
     summary = json.loads(out.read_text())
     assert summary["net"]["epe"] < summary["sgbm"]["epe"]
-    small = tmp_path / "small"
+    small = tmp_path / "small"  # another camera size runs on the 640x400 bundle (fit)
     assert cli(["synth", "--out", str(small), "--count", "1", "--size", "320x200"]) == 0
-    with pytest.raises(SystemExit, match="export a bundle at this size"):
-        evaluate.main([str(small), "--methods", "net"])
+    assert evaluate.main([str(small), "--methods", "net", "--json", str(out)]) == 0
+    assert json.loads(out.read_text())["net"]["density"] > 99
 
 
 def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
@@ -227,3 +227,25 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
     with open(tmp_path / "out.mcap", "rb") as f:
         topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
     assert "/depth/confidence" in topics
+
+
+@pytest.mark.parametrize("size", [(640, 480), (1242, 375), (1280, 800), (320, 200)])
+def test_any_camera_size_runs_on_the_shipped_int8_bundle(size):
+    engine = Engine(precision="int8", threads=2)
+    sample, left, right, sparse = scene_inputs(1_000_001, size, "beams64")
+    result = engine.infer(left, right, sparse, iters=4, focal_px=sample.rig.focal_px,
+                          baseline_m=sample.rig.baseline_m)
+    assert result.disparity.shape == (size[1], size[0])
+    plan = engine.plan_for(size)
+    assert plan.scale == pytest.approx(min(1.0, 640 / size[0], 400 / size[1]))
+    # disparities come back in camera pixels: the rig's GT at that size
+    m = disparity_metrics(result.disparity, sample.disp_left)
+    assert m["epe"] < 3.0 and m["density"] > 99, m
+
+
+def test_an_engine_scale_beyond_the_bundle_is_a_config_error():
+    from edge.errors import ConfigError
+
+    engine = Engine(precision="int8", threads=1, scale=1.0)
+    with pytest.raises(ConfigError, match="at most 0.500"):
+        engine.plan_for((1280, 800))

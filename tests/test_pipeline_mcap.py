@@ -530,3 +530,17 @@ def test_replay_refuses_to_write_over_its_input(recording, tmp_path, capsys):
     assert main(["replay", str(copy), "--out", str(copy)]) == 1
     assert "--out" in capsys.readouterr().err
     assert copy.read_bytes() == recording.read_bytes()
+
+
+def test_a_1242x375_recording_replays_on_the_shipped_bundle(tmp_path, capsys):
+    rec = tmp_path / "kitti_sized.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "2", "--seed", str(SEED),
+                 "--size", "1242x375"]) == 0
+    out = tmp_path / "out.mcap"
+    assert main(["replay", str(rec), "--out", str(out), "--iters", "2"]) == 0
+    text = capsys.readouterr().out
+    assert "2 frames" in text and "frames with LiDAR: 2 of 2" in text
+    with open(out, "rb") as f:
+        images = [m for _, c, m in make_reader(f).iter_messages()
+                  if c.topic == TOPICS["disparity"]]
+    assert len(images) == 2

@@ -92,10 +92,6 @@ class BundleNet:
         self.engine = Engine(path, precision=precision, threads=2)
 
     def __call__(self, left, right, sparse, iters: int):
-        if left.shape != (self.engine.height, self.engine.width):
-            raise SystemExit(f"scene is {left.shape[1]}x{left.shape[0]}, the bundle takes "
-                             f"{self.engine.width}x{self.engine.height}: evaluate a checkpoint "
-                             "or export a bundle at this size (tools/export.py --size)")
         result = self.engine.infer(left, right, sparse, iters=iters)
         return result.disparity, result.confidence
 

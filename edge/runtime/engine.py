@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from edge.errors import ConfigError, InvalidDataError
+from edge.runtime.fit import FitPlan
 from edge.types import DepthResult
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
@@ -33,10 +34,15 @@ def load_bundle_meta(bundle: Path) -> dict:
 
 
 class Engine:
-    """`Engine(bundle, precision='int8', threads=2)`; `infer(left, right, sparse)`."""
+    """`Engine(bundle, precision='int8', threads=2)`; `infer(left, right, sparse)`.
+
+    Any camera size runs: images that are not the bundle's size are scaled by `scale` (None
+    or 0: the largest factor ≤ 1 that fits) and padded to it, and the outputs come back at the
+    camera's size (`edge.runtime.fit`)."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
-                 threads: int = 2, meta: dict | None = None) -> None:
+                 threads: int = 2, meta: dict | None = None, scale: float | None = None
+                 ) -> None:
         import onnxruntime as ort
 
         self.bundle = Path(bundle)
@@ -69,6 +75,14 @@ class Engine:
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
                                                                  "valid")}
         self._upsample_ms = 0.0  # running estimate for the deadline
+        self.scale = scale
+        self._plans: dict[tuple[int, int], FitPlan] = {}
+
+    def plan_for(self, camera: tuple[int, int]) -> FitPlan:
+        """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale)."""
+        if camera not in self._plans:
+            self._plans[camera] = FitPlan.make(camera, self.size, self.scale)
+        return self._plans[camera]
 
     def warm_up(self, iters: int = 1) -> None:
         """One untimed inference on a blank frame: the first run of each session allocates
@@ -93,10 +107,15 @@ class Engine:
         iters = self.default_iters if iters is None else int(iters)
         if iters < 1:
             raise ConfigError("iters", ">= 1", iters)
-        for name, image in (("left", left), ("right", right), ("sparse", sparse)):
-            if image.shape != (self.height, self.width):
-                raise InvalidDataError(f"{name} image", f"{self.height}x{self.width} (H, W), "
-                                       "the bundle's input size", image.shape)
+        for name, image in (("right", right), ("sparse", sparse)):
+            if image.shape != left.shape:
+                raise InvalidDataError(f"{name} image", f"the left image's shape {left.shape}",
+                                       image.shape)
+        if left.ndim != 2 or min(left.shape) < 8:
+            raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
+        plan = self.plan_for((left.shape[1], left.shape[0]))
+        if not plan.identity:
+            left, right, sparse = plan.prepare(left, right, sparse)
         buf = self._inputs
         np.copyto(buf["left"][0, 0], left, casting="unsafe")
         np.copyto(buf["right"][0, 0], right, casting="unsafe")
@@ -140,9 +159,12 @@ class Engine:
         self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
             0.2 * up_ms
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
+        confidence = np.ascontiguousarray(rest[0][0, 0], dtype=np.float32) if rest else None
+        if not plan.identity:
+            disp = plan.restore(disp, disparity=True)
+            confidence = None if confidence is None else plan.restore(confidence, False)
         depth, valid = disparity_to_depth(disp, focal_px, baseline_m)
         timings["engine"] = (time.perf_counter() - t0) * 1000
-        confidence = np.ascontiguousarray(rest[0][0, 0], dtype=np.float32) if rest else None
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=len(step_ms), timings_ms=timings, confidence=confidence)
 
