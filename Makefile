@@ -27,13 +27,15 @@ bench: $(STAMP)
 	$(BIN)/python tools/bench.py --json out/bench.json --markdown out/bench.md
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
-# evaluated on the test split)
+# calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
 bundle: $(STAMP)
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
+	test -d data/calib_mix || ($(BIN)/edge-depth synth --out data/calib_mix --count 8 --seed 500000 \
+	  && $(BIN)/edge-depth synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
-	$(BIN)/python tools/quantize.py edge/models/default --calib synthetic:16 --eval data/test16
+	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16
 
 clean:
 	rm -rf $(VENV) out
