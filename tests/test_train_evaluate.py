@@ -101,3 +101,19 @@ def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
     final = torch.load(run / "final.pt", weights_only=False)
     for key, value in final["model"].items():
         assert torch.equal(shipped["model"][key], value)
+
+
+def test_evaluate_reports_the_confidence_calibration_of_a_refining_model(tmp_path):
+    assert cli(["synth", "--out", str(tmp_path / "scenes"), "--count", "1", "--size", "96x64",
+                "--lidar", "beams64"]) == 0
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "--lr", "0"]) == 0
+    out = tmp_path / "eval.json"
+    assert evaluate.main([str(tmp_path / "scenes"), "--model", str(run / "final.pt"),
+                          "--methods", "net,sgbm+lidar", "--json", str(out)]) == 0
+    net = json.loads(out.read_text())["net"]
+    # the confidence head as initialised (lr 0: not moved) says 0.5 everywhere: every pixel
+    # is kept at 0.5, none at 0.9
+    assert net["kept@0.5"] > 99.0 and net["kept@0.9"] == 0.0
+    assert 0 <= net["bad1@0.5"] <= 100
