@@ -1,6 +1,9 @@
-"""Shared fixtures: small synthetic scenes (rendered once per session)."""
+"""Shared fixtures: small synthetic scenes (rendered once per session), a 3-frame rig
+recording and the shipped int8 engine."""
 
 from __future__ import annotations
+
+from pathlib import Path
 
 import pytest
 
@@ -19,3 +22,23 @@ def noiseless_samples(small_rig):
 
     pattern = PATTERNS["beams64"].noiseless()
     return [make_sample(seed, small_rig.noiseless(), pattern) for seed in range(4)]
+
+
+RECORDING_SEED = 1_000_000
+
+
+@pytest.fixture(scope="session")
+def recording(tmp_path_factory) -> Path:
+    from edge.cli import main
+
+    path = tmp_path_factory.mktemp("rec") / "rec.mcap"
+    assert main(["synth", "--mcap", str(path), "--frames", "3", "--seed",
+                 str(RECORDING_SEED)]) == 0
+    return path
+
+
+@pytest.fixture(scope="session")
+def engine():
+    from edge.runtime.engine import Engine
+
+    return Engine(precision="int8", threads=2)

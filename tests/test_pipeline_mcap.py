@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import signal
 import socket
 import subprocess
@@ -22,24 +21,11 @@ from edge.capture.sim import SimSource, write_sim_recording
 from edge.cli import main
 from edge.daemon import Pipeline, StopFlag, run
 from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
-from edge.runtime.engine import Engine
 from edge.sim import RigConfig, make_sample
 from edge.types import LidarScan, StereoFrame
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1_000_000
-
-
-@pytest.fixture(scope="module")
-def recording(tmp_path_factory) -> Path:
-    path = tmp_path_factory.mktemp("rec") / "rec.mcap"
-    assert main(["synth", "--mcap", str(path), "--frames", "3", "--seed", str(SEED)]) == 0
-    return path
-
-
-@pytest.fixture(scope="module")
-def engine() -> Engine:
-    return Engine(precision="int8", threads=2)
 
 
 def topic_counts(path: Path) -> dict[str, int]:
@@ -415,132 +401,3 @@ def test_the_watchdog_is_fed_while_no_frame_arrives(engine, notify_server):
         pass
     assert messages[0] == "READY=1" and messages[-1] == "STOPPING=1"
     assert messages.count("WATCHDOG=1") >= 3
-
-
-class EventList:
-    """A recording's events in a chosen order (what a replay source yields)."""
-
-    def __init__(self, events) -> None:
-        self.events = list(events)
-
-    def __iter__(self):
-        return iter(self.events)
-
-    def close(self) -> None:
-        pass
-
-
-def sim_events(count: int, lag_ms: float):
-    """Per moment: (scan, frame, gt) from the rig, the scan stamped lag_ms before its frame
-    (negative: after it, as a spinning LiDAR's revolution ends after the frame taken in its
-    middle)."""
-    events = list(SimSource(count, SEED, lidar_lag_ms=lag_ms, start_ns=10_000_000_000))
-    return [tuple(events[i:i + 3]) for i in range(0, len(events), 3)]
-
-
-@pytest.mark.parametrize("lag_ms", [5.0, -30.0])
-def test_pairing_does_not_depend_on_whether_scans_are_stored_before_or_after_frames(
-        engine, lag_ms):
-    moments = sim_events(3, lag_ms)
-    stereo, lidar = SimSource(1).calibration
-    sparse_by_order = {}
-    for order in ("scans first", "scans after"):
-        if order == "scans first":
-            events = [e for scan, frame, gt in moments for e in (scan, frame, gt)]
-        else:  # kitti2mcap's order: each scan after its frame's images
-            events = [e for scan, frame, gt in moments for e in (frame, gt, scan)]
-        pipeline = Pipeline(engine, stereo, lidar)
-        outputs: list = []
-        stats = run(EventList(events), pipeline, on_output=lambda f, o, out=outputs: out.append(o))
-        assert stats.frames == 3
-        counters = pipeline.sync.counters()
-        assert counters["frames_with_lidar"] == 3, (order, counters)
-        assert all((o.sparse > 0).sum() > 1000 for o in outputs)
-        sparse_by_order[order] = [o.sparse for o in outputs]
-    for a, b in zip(*sparse_by_order.values(), strict=True):
-        np.testing.assert_array_equal(a, b)
-
-
-def test_a_lidar_on_another_clock_warns_with_the_measured_gap(engine, caplog):
-    moments = sim_events(60, 5.0)
-    shifted = []
-    for scan, frame, gt in moments:  # the LiDAR's stamps 3 s behind the camera's
-        shifted += [LidarScan(scan.stamp_ns - 3_000_000_000, scan.points), frame, gt]
-    pipeline = Pipeline(engine, *SimSource(1).calibration)
-    pipeline.engine = type("NoEngine", (), {
-        "size": engine.size, "infer": lambda self, left, *a, **k: engine_result(left, k)})()
-    with caplog.at_level("WARNING"):
-        run(EventList(shifted), pipeline)
-    assert pipeline.sync.counters()["frames_with_lidar"] == 0
-    warning = [r.getMessage() for r in caplog.records if "no frame has paired" in r.getMessage()]
-    assert len(warning) == 1
-    # the LiDAR is 3 s behind; frames wait 200 ms of stream time for it, so the nearest scan
-    # they see is 2.7-3.0 s older than they are
-    gap = float(re.search(r"stamp ([-+]\d+) ms", warning[0]).group(1))
-    assert -3005 <= gap <= -2700
-
-
-def engine_result(left, kwargs):
-    from edge.types import DepthResult
-
-    zeros = np.zeros(left.shape, np.float32)
-    return DepthResult(kwargs.get("stamp_ns", 0), zeros, zeros, zeros > 0, 1)
-
-
-def test_replay_where_no_frame_can_be_processed_exits_1_and_says_why(tmp_path, capsys):
-    moments = sim_events(2, 5.0)
-    path = tmp_path / "small_frames.mcap"
-    with McapLogger(path, topics=RAW_TOPICS) as logger:
-        logger.set_calibration(*SimSource(1).calibration)   # says 640x400
-        for scan, frame, _ in moments:                      # frames are 320x200
-            logger.log_scan(scan)
-            logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, frame.left[::2, ::2],
-                                         frame.right[::2, ::2], rectified=True))
-    assert main(["replay", str(path), "--out", str(tmp_path / "out.mcap")]) == 1
-    captured = capsys.readouterr()
-    assert "frames with LiDAR: 0 of 0" in captured.out
-    assert "error: no frame was processed ({'frame size': 2})" in captured.err
-
-
-def test_replay_summary_counts_frames_with_lidar(recording, tmp_path, capsys):
-    assert main(["replay", str(recording), "--out", str(tmp_path / "o.mcap"), "--iters",
-                 "1"]) == 0
-    assert "frames with LiDAR: 3 of 3" in capsys.readouterr().out
-    with open(tmp_path / "o.mcap", "rb") as f:
-        diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages()
-                 if c.topic == TOPICS["diagnostics"]]
-    assert diags[-1]["lidar_sync"]["frames_with_lidar"] == 3
-    assert diags[-1]["sources"]["messages"] > 0 and diags[-1]["sources"]["frames"] == 3
-
-
-def test_a_restarted_rotating_logger_never_overwrites_its_predecessor(tmp_path):
-    path = tmp_path / "depth.mcap"
-    frame = next(e for e in SimSource(1, SEED) if isinstance(e, StereoFrame))
-    for _ in range(2):  # two daemon runs with the same log.out
-        with McapLogger(path, rotate_bytes=1 << 30) as logger:
-            logger.log_frame(frame)
-    first, second = tmp_path / "depth_0001.mcap", tmp_path / "depth_0002.mcap"
-    assert logger.files == [second]
-    assert topic_counts(first)[TOPICS["left"]] == 1 and topic_counts(second)[TOPICS["left"]] == 1
-
-
-def test_replay_refuses_to_write_over_its_input(recording, tmp_path, capsys):
-    copy = tmp_path / "rec.mcap"
-    copy.write_bytes(recording.read_bytes())
-    assert main(["replay", str(copy), "--out", str(copy)]) == 1
-    assert "--out" in capsys.readouterr().err
-    assert copy.read_bytes() == recording.read_bytes()
-
-
-def test_a_1242x375_recording_replays_on_the_shipped_bundle(tmp_path, capsys):
-    rec = tmp_path / "kitti_sized.mcap"
-    assert main(["synth", "--mcap", str(rec), "--frames", "2", "--seed", str(SEED),
-                 "--size", "1242x375"]) == 0
-    out = tmp_path / "out.mcap"
-    assert main(["replay", str(rec), "--out", str(out), "--iters", "2"]) == 0
-    text = capsys.readouterr().out
-    assert "2 frames" in text and "frames with LiDAR: 2 of 2" in text
-    with open(out, "rb") as f:
-        images = [m for _, c, m in make_reader(f).iter_messages()
-                  if c.topic == TOPICS["disparity"]]
-    assert len(images) == 2
