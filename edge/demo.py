@@ -82,8 +82,8 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
         blank = np.zeros_like(grey)
         rows.append(np.hstack([_label(colorize_confidence(confidence),
                                       "network confidence (error < 1 px)"),
-                               _label(colorize_disparity(np.where(confidence >= 0.5, pred, 0),
-                                                         max_d), "network, confidence >= 0.5"),
+                               _label(colorize_disparity(np.where(confidence >= 0.9, pred, 0),
+                                                         max_d), "network where confidence >= 0.9"),
                                blank, blank]))
     return np.vstack(rows)
 

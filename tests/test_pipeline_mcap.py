@@ -231,8 +231,10 @@ def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
     net = float(out.split("network (int8) EPE ")[1].split()[0])
     sgbm = float(out.split("OpenCV SGBM     EPE ")[1].split()[0])
     assert net < sgbm
-    assert cv2.imread(str(tmp_path / "demo.png")).shape == (800, 2560, 3)
-    assert topic_counts(tmp_path / "demo.mcap")[TOPICS["depth"]] == 2
+    # the shipped model has a confidence output: a third row (confidence, confident pixels)
+    assert cv2.imread(str(tmp_path / "demo.png")).shape == (1200, 2560, 3)
+    counts = topic_counts(tmp_path / "demo.mcap")
+    assert counts[TOPICS["depth"]] == 2 and counts[TOPICS["confidence"]] == 2
 
 
 def test_stop_flag_stops_a_sequential_replay(recording, engine):

@@ -149,11 +149,16 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
             per_method.setdefault(name, []).append(m)
     summary = {}
     for name, rows in per_method.items():
-        summary[name] = {k: float(np.nanmean([r[k] for r in rows])) for k in rows[0]
-                         if k != "ms"}
+        summary[name] = {k: _mean([r[k] for r in rows]) for k in rows[0] if k != "ms"}
         summary[name]["ms"] = float(np.median([r["ms"] for r in rows]))
         summary[name]["samples"] = len(rows)
     return summary
+
+
+def _mean(values: list[float]) -> float:
+    """Mean over the scenes that have the value (NaN: e.g. nothing kept at a threshold)."""
+    finite = [v for v in values if np.isfinite(v)]
+    return float(np.mean(finite)) if finite else float("nan")
 
 
 def markdown_table(summary: dict[str, dict[str, float]]) -> str:
@@ -162,7 +167,7 @@ def markdown_table(summary: dict[str, dict[str, float]]) -> str:
     cols = [c for c in cols if any(c in v for v in summary.values())]
     lines = ["| method | " + " | ".join(cols) + " |", "|---" * (len(cols) + 1) + "|"]
     for name, m in summary.items():
-        lines.append(f"| {name} | " + " | ".join(f"{m.get(c, float('nan')):.2f}" for c in cols)
+        lines.append(f"| {name} | " + " | ".join(f"{m[c]:.2f}" if c in m else "–" for c in cols)
                      + " |")
     return "\n".join(lines)
 
