@@ -418,14 +418,13 @@ def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool
         latest: int | None = None
         for event in source:
             if isinstance(event, StereoFrame):
-                flush(latest if latest is None else max(latest, event.stamp_ns))
-                waiting.append(event)
                 latest = event.stamp_ns if latest is None else max(latest, event.stamp_ns)
-            elif isinstance(event, GroundTruth):
-                safe_handle(event)
+                flush(latest)
+                waiting.append(event)
             else:
                 safe_handle(event)
-                flush(latest)
+                if not isinstance(event, GroundTruth):
+                    flush(latest)
             if stop.is_set():
                 break
         flush(latest, everything=True)
