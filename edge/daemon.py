@@ -204,8 +204,8 @@ def lidar_summary(pipeline: Pipeline) -> str:
     if paired < frames and pipeline.sync.median_gap_ms() is not None:
         line += (f" (unpaired frames: median nearest-scan minus frame stamp "
                  f"{pipeline.sync.median_gap_ms():+.0f} ms)")
-    if counters["frames_not_waited_for"]:
-        line += f"; {counters['frames_not_waited_for']} went on before their scans arrived"
+    if counters["frames_gone_before_their_scans"]:
+        line += f"; {counters['frames_gone_before_their_scans']} went on before their scans arrived"
     return line
 
 

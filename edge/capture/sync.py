@@ -53,7 +53,7 @@ class LidarSync:
         self._scans: deque[LidarScan] = deque()
         self.unmatched = 0
         self.matched = 0
-        self.waited_out = 0       # frames that went on without waiting for their scans
+        self.waited_out = 0       # frames that waited max_wait_ms and went on without their scans
         self._newest_ns: int | None = None  # latest stamp covered by any scan (LiDAR clock)
         self._gaps_ns: deque[int] = deque(maxlen=50)  # unmatched: nearest scan − frame
         self._stamps: deque[int] = deque(maxlen=16)   # recent scan stamps, for the period
@@ -100,7 +100,7 @@ class LidarSync:
 
     def counters(self) -> dict[str, int]:
         return dict(frames_with_lidar=self.matched, frames_without_lidar=self.unmatched,
-                    frames_not_waited_for=self.waited_out, scans_kept=len(self._scans))
+                    frames_gone_before_their_scans=self.waited_out, scans_kept=len(self._scans))
 
     def points_for(self, stamp_ns: int) -> np.ndarray:
         points = self._points_for(stamp_ns)
