@@ -78,6 +78,19 @@ def load_calibration(path: str | Path) -> tuple[StereoCalibration, LidarExtrinsi
     return loads_calibration(text, path)
 
 
+MAX_TIME_OFFSET_NS = 3600 * 10**9  # an hour: beyond it the clocks are not the same kind
+
+
+def _time_offset(path: str, value) -> int:
+    """An integer of nanoseconds within ±1 h (TOML gives int, float, str, list …)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) \
+            or value != value or abs(value) > MAX_TIME_OFFSET_NS or int(value) != value:
+        raise CalibrationFileError(f"expected an integer of nanoseconds within "
+                                   f"±{MAX_TIME_OFFSET_NS}, got {value!r}", path,
+                                   "lidar.time_offset_ns")
+    return int(value)
+
+
 def loads_calibration(text: str, path: str = "<string>"
                       ) -> tuple[StereoCalibration, LidarExtrinsics | None]:
     """`load_calibration` from TOML text; `path` names where it came from in errors."""
@@ -104,7 +117,7 @@ def loads_calibration(text: str, path: str = "<string>"
         if "lidar" in data:
             lid = data["lidar"]
             lidar = LidarExtrinsics(_numeric(path, "lidar.T_cam_lidar", lid["T_cam_lidar"]),
-                                    int(lid.get("time_offset_ns", 0)))
+                                    _time_offset(path, lid.get("time_offset_ns", 0)))
     except CalibrationFileError:
         raise
     except CalibrationError as exc:

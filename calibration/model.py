@@ -26,12 +26,28 @@ def check_rotation(name: str, R: np.ndarray, tol: float = 1e-4) -> None:
         raise CalibrationError("expected a rotation matrix (R Rᵀ = I, det R = 1)", key=name)
 
 
-def _check_K(name: str, K: np.ndarray) -> None:
+MAX_IMAGE_SIDE = 16384
+MAX_DISTORTION = 1000.0  # |coefficient|: rational models reach hundreds, nothing real 1e3
+MAX_BASELINE_M = 10.0
+
+
+def _check_K(name: str, K: np.ndarray, size: tuple[int, int]) -> None:
+    """Focal lengths between 0.05 and 50 image widths, principal point within half an image
+    of the image: anything else is a unit mistake or a corrupted file, not a camera."""
+    w, h = size
     if K[0, 0] <= 0 or K[1, 1] <= 0:
         raise CalibrationError(f"expected positive focal lengths, got fx={K[0, 0]}, "
                                f"fy={K[1, 1]}", key=name)
     if K[2, 2] != 1 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0:
         raise CalibrationError("expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]", key=name)
+    for f, axis in ((K[0, 0], "fx"), (K[1, 1], "fy")):
+        if not 0.05 * w <= f <= 50 * w:
+            raise CalibrationError(f"expected {axis} within 0.05-50 image widths "
+                                   f"({0.05 * w:g}-{50 * w:g} px for {w} px), got {f:g}",
+                                   key=name)
+    if not (-0.5 * w <= K[0, 2] <= 1.5 * w and -0.5 * h <= K[1, 2] <= 1.5 * h):
+        raise CalibrationError(f"expected the principal point near the {w}x{h} image, got "
+                               f"cx={K[0, 2]:g}, cy={K[1, 2]:g}", key=name)
 
 
 @dataclass(frozen=True)
@@ -63,18 +79,31 @@ class StereoCalibration:
             if dist.size not in (4, 5, 8, 12, 14):
                 raise CalibrationError(f"expected 4, 5, 8, 12 or 14 coefficients, got "
                                        f"{dist.size}", key=name)
+        for name, dist in (("left.dist", self.dist_left), ("right.dist", self.dist_right)):
+            if np.abs(dist).max(initial=0) > MAX_DISTORTION:
+                raise CalibrationError(f"expected distortion coefficients within "
+                                       f"±{MAX_DISTORTION:g}, got {dist.tolist()}", key=name)
         set_(self, "R", _array("extrinsics.R", self.R, (3, 3)))
         set_(self, "T", _array("extrinsics.T", self.T, (3,)))
-        _check_K("left.K", self.K_left)
-        _check_K("right.K", self.K_right)
-        check_rotation("extrinsics.R", self.R)
-        if np.linalg.norm(self.T) <= 0:
-            raise CalibrationError("expected a non-zero baseline", key="extrinsics.T")
         w, h = (int(v) for v in self.image_size)
-        if w <= 0 or h <= 0:
-            raise CalibrationError(f"expected positive (width, height), got {self.image_size}",
-                                   key="image_size")
+        if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
+            raise CalibrationError(f"expected (width, height) in 1-{MAX_IMAGE_SIDE}, got "
+                                   f"{self.image_size}", key="image_size")
         set_(self, "image_size", (w, h))
+        _check_K("left.K", self.K_left, (w, h))
+        _check_K("right.K", self.K_right, (w, h))
+        check_rotation("extrinsics.R", self.R)
+        baseline = float(np.linalg.norm(self.T))
+        if not 0 < baseline <= MAX_BASELINE_M:
+            raise CalibrationError(f"expected a baseline in (0, {MAX_BASELINE_M:g}] m, got "
+                                   f"{baseline:g} m", key="extrinsics.T")
+        right_centre = -self.R.T @ self.T  # the right camera in the left camera's frame
+        if right_centre[0] <= 0:
+            raise CalibrationError(
+                f"the right camera sits at x = {right_centre[0]:+.3f} m in the left camera's "
+                "frame (it must be to the right, x > 0; with X_r = R X_l + T that means T[0] "
+                "< 0): left and right are swapped, or T has the opposite sign convention",
+                key="extrinsics.T")
         R1, R2, P1, P2, Q, _, _ = cv2.stereoRectify(
             self.K_left, self.dist_left, self.K_right, self.dist_right, (w, h), self.R,
             self.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)

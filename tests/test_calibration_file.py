@@ -67,6 +67,26 @@ def _good_text():
     (lambda t: t.replace("dist = [-0.1,", "dist = [nan,"), "stereo.left.dist", "finite"),
     (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = 0\nextra = 1"), "lidar.extra",
      "unexpected key"),
+    # absurd but finite values (issue 17): each refused, naming the key
+    (lambda t: re.sub(r"\[stereo.left\]\nK = \[\[452.0", "[stereo.left]\nK = [[1e300", t),
+     "stereo.left.K", "image widths"),
+    (lambda t: re.sub(r"\[stereo.left\]\nK = \[\[452.0", "[stereo.left]\nK = [[1e-308", t),
+     "stereo.left.K", "image widths"),
+    (lambda t: re.sub(r"(\[stereo.left\]\nK = \[\[[^,]+, [^,]+, )[^\]]+\]", r"\g<1>1e308]", t),
+     "stereo.left.K", "principal point"),
+    (lambda t: t.replace("dist = [-0.1,", "dist = [1e300,"), "stereo.left.dist", "within"),
+    (lambda t: t.replace("T = [-0.075,", "T = [0.075,"), "stereo.extrinsics.T",
+     "left and right are swapped"),
+    (lambda t: t.replace("image_size = [640, 400]", "image_size = [2147483648, 400]"),
+     "stereo.image_size", "1-16384"),
+    (lambda t: t.replace("time_offset_ns = 0", 'time_offset_ns = "abc"'),
+     "lidar.time_offset_ns", "integer of nanoseconds"),
+    (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = nan"),
+     "lidar.time_offset_ns", "integer of nanoseconds"),
+    (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = inf"),
+     "lidar.time_offset_ns", "integer of nanoseconds"),
+    (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = [1, 2]"),
+     "lidar.time_offset_ns", "integer of nanoseconds"),
 ])
 def test_defects_name_the_file_the_key_and_what_was_expected(tmp_path, edit, key, expected):
     text = edit(_good_text())
