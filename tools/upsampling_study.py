@@ -40,16 +40,11 @@ def up(low: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray
     return cv2.resize(low.astype(np.float32), size, interpolation=interpolation) * FACTOR
 
 
-def network_variants(ckpt: Path, scene, iters: int) -> dict[str, np.ndarray]:
+def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
     import torch
 
-    from edge.model.config import ModelConfig
-    from edge.model.network import SparseStereoNet, convex_upsample
+    from edge.model.network import convex_upsample
 
-    c = torch.load(ckpt, map_location="cpu", weights_only=False)
-    net = SparseStereoNet(ModelConfig.from_dict(c["config"]))
-    net.load_state_dict(c["model"])
-    net.eval()
     t = lambda a: torch.from_numpy(a.astype(np.float32))[None, None]  # noqa: E731
     sparse = np.where(np.isfinite(scene.sparse) & (scene.sparse > 0), scene.sparse, 0)
     left, right = t(scene.left), t(scene.right)
@@ -77,6 +72,9 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
+    from tools.export import load_checkpoint
+
+    net, _ = load_checkpoint(args.model)  # once, not per scene
     rows: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -84,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
         low = gt_at_eighth(scene.disp)
         preds = {"GT 1/8, bilinear": up(low, size, cv2.INTER_LINEAR),
                  "GT 1/8, nearest": up(low, size, cv2.INTER_NEAREST)}
-        preds.update(network_variants(args.model, scene, args.iters))
+        preds.update(network_variants(net, scene, args.iters))
         for name, pred in preds.items():
             rows.setdefault(name, []).append(disparity_metrics(pred, scene.disp))
     summary = {k: {m: float(np.mean([r[m] for r in v])) for m in ("epe", "bad1", "bad3")}

@@ -15,7 +15,7 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from edge.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
+from edge.model.data import TRAIN_SEED_LIMIT, sample_to_arrays, to_tensors
 from edge.sim import RigConfig, make_sample
 from edge.sim.gt_lidar import GtLidarPattern
 from edge.sim.things_store import list_things, read_things
@@ -91,14 +91,6 @@ def things_arrays(arrays: dict, rng: np.random.Generator, crop: tuple[int, int])
                 valid_right=sparse["right"] > 0)
 
 
-def crop_tensors(arrays: dict, crop: tuple[int, int], rng: np.random.Generator) -> dict:
-    h, w = arrays["left"].shape
-    cw, ch = crop
-    y0, x0 = int(rng.integers(0, h - ch + 1)), int(rng.integers(0, w - cw + 1))
-    return {k: torch.from_numpy(np.ascontiguousarray(v[y0:y0 + ch, x0:x0 + cw])
-                                .astype(np.float32))[None] for k, v in arrays.items()}
-
-
 class ThingsTrainSet(IterableDataset):
     """Endless augmented stream from a folder of things samples (plus `rig_share` rig
     samples, seeds < 1 000 000)."""
@@ -127,7 +119,8 @@ class ThingsTrainSet(IterableDataset):
             else:
                 arrays = things_arrays(read_things(files[int(rng.integers(len(files)))]), rng,
                                        self.crop)
-            out = crop_tensors(arrays, self.crop, rng)
+            # the rig's crop (same draws); the photometric changes below replace its own
+            out = to_tensors(arrays, self.crop, rng, augment=False)
             out["left"], out["right"] = photometric(out["left"], out["right"], rng)
             out["right"] = eraser(out["right"], rng)
             yield out
