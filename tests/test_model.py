@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 import torch
 
+from edge.errors import ConfigError
 from edge.model.config import ModelConfig
 from edge.model.corr import (
     correlation_pyramid,
@@ -219,7 +220,7 @@ def test_a_few_steps_on_one_batch_reduce_the_loss():
 
 def test_refinement_starts_as_the_identity_and_only_the_last_step_is_refined():
     torch.manual_seed(0)
-    net = SparseStereoNet(ModelConfig(gru_iters=2, refine=True)).eval()
+    net = SparseStereoNet(ModelConfig(gru_iters=2, refine=1)).eval()
     left = torch.rand(1, 1, 64, 96) * 255
     right = torch.rand(1, 1, 64, 96) * 255
     zeros = torch.zeros(1, 1, 64, 96)
@@ -237,6 +238,34 @@ def test_refinement_starts_as_the_identity_and_only_the_last_step_is_refined():
         outs, logit = net(left, right, zeros, zeros, 2, with_confidence=True)
     torch.testing.assert_close(outs[-1], plain + 1.0)  # residual 0.5 half-res px = 1 px
     assert torch.allclose(logit, torch.full_like(logit, 2.0))
+
+
+def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
+    """Version 2: separate heads; the residual's small non-zero start gives its features a
+    gradient from the first step (version 1's zeroed shared layer gave them none), and the
+    LiDAR reaches the stage."""
+    from edge.model.refine import Refinement
+
+    torch.manual_seed(0)
+    assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
+    with pytest.raises(ConfigError):
+        ModelConfig(refine=3)
+    stage = Refinement(2)
+    left = torch.rand(1, 1, 32, 48) * 255
+    right = torch.roll(left, -3, dims=3)
+    disparity = torch.full((1, 1, 32, 48), 3.0)
+    sparse = torch.zeros(1, 1, 32, 48)
+    valid = torch.zeros(1, 1, 32, 48)
+    sparse[..., ::8, ::2], valid[..., ::8, ::2] = 7.0, 1.0
+    refined, logit = stage(left, right, disparity, sparse, valid)
+    assert float((refined.detach() - disparity).abs().max()) < 0.05  # ~the identity
+    assert logit.shape == disparity.shape
+    loss = (refined - 3.5).abs().mean()
+    loss.backward()
+    assert float(stage.inp.weight.grad.abs().sum()) > 0  # the features learn too
+    with torch.no_grad():
+        without = stage(left, right, disparity)[0]
+    assert float((refined.detach() - without).abs().max()) > 0  # the LiDAR changes the output
 
 
 def test_confidence_loss_is_the_cross_entropy_of_being_within_a_pixel():

@@ -93,10 +93,10 @@ def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
     assert ship_checkpoint.main([str(run / "final.pt"), "--note", "b", "--previous",
                                  str(prev), "--out", str(out)]) == 0
     shipped = torch.load(out, weights_only=False)
-    assert "optimizer" not in shipped and shipped["config"]["refine"] is True
+    assert "optimizer" not in shipped and shipped["config"]["refine"] == 2
     stages = shipped["training"]["stages"]
     assert [s["note"] for s in stages] == ["a", "b"]
-    assert stages[1]["steps"] == 1 and stages[1]["lr"] == 1e-4 and stages[1]["refine"] is True
+    assert stages[1]["steps"] == 1 and stages[1]["lr"] == 1e-4 and stages[1]["refine"] == 2
     assert shipped["training"]["total_steps"] == 6
     final = torch.load(run / "final.pt", weights_only=False)
     for key, value in final["model"].items():

@@ -6,7 +6,8 @@ Three graphs (opset 17, static shapes) so the iteration count stays a runtime ch
 encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
-the refinement stage it also takes the images and returns the confidence 0-1 as well),
+the refinement stage it also takes the images (version 2: and the LiDAR) and returns the
+confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
 summary). The export is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
 """
@@ -29,7 +30,7 @@ STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
-REFINE_INPUTS = ["left", "right"]
+REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"]}
 OPSET = 17
 
 
@@ -82,9 +83,9 @@ def build_graphs(net):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, left, right):
+        def forward(self, disparity, hidden, left, right, sparse=None, valid=None):
             mask = self.net.update.upsampling_mask(hidden)
-            full, logit = self.net.upsample(left, right, disparity, mask)
+            full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid)
             return full, torch.sigmoid(logit)
 
     upsample = UpsampleRefine() if net.config.refine else Upsample()
@@ -146,8 +147,9 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
             ("step.onnx", step, step_args, STEP_INPUTS, STEP_OUTPUTS),
         ]
         if cfg.refine:
-            up_args = (d, hidden, x, x)
-            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS + REFINE_INPUTS,
+            refine_inputs = REFINE_INPUTS[cfg.refine]
+            up_args = (d, hidden, *[x] * len(refine_inputs))
+            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS + refine_inputs,
                            ["disparity_full", "confidence"]))
         else:
             up_args = (d, hidden)

@@ -61,8 +61,11 @@ def parse_args(argv):
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
-    p.add_argument("--refine", action="store_true",
-                   help="add the half-resolution refinement + confidence stage")
+    p.add_argument("--refine", type=int, nargs="?", const=2, default=0, choices=(0, 1, 2),
+                   help="add the half-resolution refinement + confidence stage: version 2 "
+                        "(images and LiDAR, the default with a bare --refine) or 1 (images)")
+    p.add_argument("--refine-lr-mult", type=float, default=1.0,
+                   help="the refinement stage's learning rate as a multiple of --lr")
     p.add_argument("--patterns", default="beams16")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1,
@@ -180,11 +183,15 @@ def main(argv: list[str] | None = None) -> int:
         if args.no_half_res_block:
             changes["half_res_block"] = False
         if args.refine:
-            changes["refine"] = True
+            changes["refine"] = args.refine
         config = ModelConfig.from_dict({**init["config"], **changes})
     net = SparseStereoNet(config)
-    opt = torch.optim.AdamW(net.parameters(), lr=args.lr, weight_decay=1e-5)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, args.lr, total_steps=args.steps + 100,
+    stage = [p for n, p in net.named_parameters() if n.startswith("refine.")]
+    rest = [p for n, p in net.named_parameters() if not n.startswith("refine.")]
+    lrs = [args.lr, args.lr * args.refine_lr_mult][:1 + bool(stage)]
+    opt = torch.optim.AdamW([dict(params=rest), dict(params=stage)][:len(lrs)], lr=args.lr,
+                            weight_decay=1e-5)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, lrs, total_steps=args.steps + 100,
                                                 pct_start=0.05, anneal_strategy="linear")
     step = 0
     last = args.out / "last.pt"
@@ -196,7 +203,11 @@ def main(argv: list[str] | None = None) -> int:
         step = ckpt["step"]
         print(f"resumed from {last} at step {step}")
     elif init is not None:
-        result = net.load_state_dict(init["model"], strict=False)
+        weights = init["model"]
+        if args.refine and ModelConfig.from_dict(init["config"]).refine != args.refine:
+            # another version of the stage: its tensors do not fit, it starts fresh
+            weights = {k: v for k, v in weights.items() if not k.startswith("refine.")}
+        result = net.load_state_dict(weights, strict=False)
         new = [k for k in result.missing_keys if k.startswith("refine.")]
         if new and args.refine:  # a stage the checkpoint lacks starts as the identity
             print(f"--init {args.init}: the refinement stage starts fresh ({len(new)} tensors)")

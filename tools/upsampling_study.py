@@ -48,8 +48,9 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
     t = lambda a: torch.from_numpy(a.astype(np.float32))[None, None]  # noqa: E731
     sparse = np.where(np.isfinite(scene.sparse) & (scene.sparse > 0), scene.sparse, 0)
     left, right = t(scene.left), t(scene.right)
+    sparse, valid = t(sparse), t((sparse > 0).astype(np.float32))
     with torch.no_grad():
-        state = net.encode(left, right, t(sparse), t((sparse > 0).astype(np.float32)))
+        state = net.encode(left, right, sparse, valid)
         d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
         for _ in range(iters):
             d, h, hl, mask = net.step(state, d, h, hl)
@@ -57,7 +58,7 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
         out = {"net 1/8, bilinear": up(d[0, 0].numpy(), size, cv2.INTER_LINEAR),
                "net 1/8, convex": convex_upsample(d, mask, FACTOR)[0, 0].numpy()}
         if net.refine is not None:
-            refined, _ = net.upsample(left, right, d, mask)
+            refined, _ = net.upsample(left, right, d, mask, sparse, valid)
             out["net 1/8, convex + refinement"] = refined[0, 0].numpy()
     return out
 

@@ -15,7 +15,8 @@ class ModelConfig:
     corr_radius: pyramid depth and lookup radius (pixels of each level); half_res_block: the
     backbone's residual block at 1/2 resolution (the encoder's most expensive layer; False
     goes from the stem straight to 1/4); refine: the half-resolution image-guided refinement
-    with its confidence output (`edge.model.refine`)."""
+    with its confidence output (`edge.model.refine`): 0 none, 1 the images only (stage 4),
+    2 the images and the LiDAR, with separate residual and confidence heads."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -30,9 +31,13 @@ class ModelConfig:
     use_cspn: bool = True
     use_sparse: bool = True
     half_res_block: bool = True
-    refine: bool = False
+    refine: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.refine, bool):  # configs before versions: True was version 1
+            object.__setattr__(self, "refine", int(self.refine))
+        if self.refine not in (0, 1, 2):
+            raise ConfigError("refine", "0, 1 or 2", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if len(self.widths) != 3 or min(self.widths) < 1:

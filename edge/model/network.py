@@ -59,7 +59,7 @@ class SparseStereoNet(nn.Module):
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels)
-        self.refine = Refinement() if cfg.refine else None
+        self.refine = Refinement(cfg.refine) if cfg.refine else None
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
                valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
@@ -98,13 +98,16 @@ class SparseStereoNet(nn.Module):
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask
 
-    def upsample(self, left, right, disparity, mask):
+    def upsample(self, left, right, disparity, mask, sparse=None, valid=None):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
-        (B, 1, H, W) px and confidence logits (None without the refinement)."""
+        (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
+        `valid` (full resolution) reach the refinement only if the model uses the LiDAR."""
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:
             return full, None
-        return self.refine(left, right, full)
+        if not self.config.use_sparse:
+            sparse = valid = None
+        return self.refine(left, right, full, sparse, valid)
 
     def forward(self, left, right, sparse, valid, iters: int | None = None,
                 with_confidence: bool = False):
@@ -122,6 +125,6 @@ class SparseStereoNet(nn.Module):
             if i < iters - 1:
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
-                full, logit = self.upsample(left, right, d, mask)
+                full, logit = self.upsample(left, right, d, mask, sparse, valid)
                 outputs.append(full)
         return (outputs, logit) if with_confidence else outputs

@@ -69,7 +69,9 @@ class Engine:
                          for part, name in files.items()}
         self._enc_outputs = [o.name for o in self.sessions["encoder"].get_outputs()]
         upsample = self.sessions["upsample"]
-        self._refines = "left" in {i.name for i in upsample.get_inputs()}
+        # a refining upsample graph also takes the images (and, version 2, the LiDAR)
+        self._upsample_extra = [i.name for i in upsample.get_inputs()
+                                if i.name in ("left", "right", "sparse", "valid")]
         self.has_confidence = len(upsample.get_outputs()) > 1
         shape = (1, 1, self.height, self.width)
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
@@ -151,8 +153,7 @@ class Engine:
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
         feeds = dict(disparity=disparity, hidden=hidden)
-        if self._refines:
-            feeds.update(left=buf["left"], right=buf["right"])
+        feeds.update({k: buf[k] for k in self._upsample_extra})
         full, *rest = self.sessions["upsample"].run(None, feed("upsample", feeds))
         up_ms = (time.perf_counter() - t) * 1000
         timings["upsample"] = up_ms
