@@ -57,17 +57,64 @@ def load_camera_info(path: Path | str) -> dict:
 
 
 def load_camera_info_pair(left: Path | str, right: Path | str) -> StereoCalibration:
-    cl, cr = load_camera_info(left), load_camera_info(right)
+    return stereo_from_camera_infos(load_camera_info(left), load_camera_info(right),
+                                    str(right))
+
+
+def stereo_from_camera_infos(cl: dict, cr: dict, where: str,
+                             rectified: bool = False) -> StereoCalibration:
+    """The stereo calibration of a left/right pair of camera infos (dicts of K, D, R, P,
+    size). `rectified`: the images are already rectified (a ROS image_rect pair), so the
+    pair is the ideal one their P matrices describe — no distortion, no rotation."""
     if cl["size"] != cr["size"]:
         raise CalibrationFileError(f"image size {cr['size']} differs from left {cl['size']}",
-                                   str(right), "image_width")
-    baseline = -cr["P"][0, 3] / cr["P"][0, 0]
+                                   where, "image_width")
+    baseline = -cr["P"][0, 3] / cr["P"][0, 0] if cr["P"][0, 0] > 0 else 0.0
     if baseline <= 0:
         raise CalibrationFileError("expected P[0,3] = -f * baseline < 0 in the right camera",
-                                   str(right), "projection_matrix")
+                                   where, "projection_matrix")
+    if rectified:
+        K_left, K_right = cl["P"][:, :3], cr["P"][:, :3]
+        no_distortion = np.zeros(5)
+        return StereoCalibration(K_left, no_distortion, K_right, no_distortion, np.eye(3),
+                                 np.array([-baseline, 0.0, 0.0]), cl["size"])
     R = cr["R"].T @ cl["R"]
     T = -cr["R"].T @ np.array([baseline, 0.0, 0.0])
     return StereoCalibration(cl["K"], cl["D"], cr["K"], cr["D"], R, T, cl["size"])
+
+
+def transform_matrix(translation, rotation_xyzw) -> np.ndarray:
+    """4×4 from a ROS Transform (translation x y z, quaternion x y z w)."""
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_quat(np.asarray(rotation_xyzw, float)).as_matrix()
+    T[:3, 3] = np.asarray(translation, float)
+    return T
+
+
+def chain_transform(edges: list[tuple[str, str, np.ndarray]], target: str, source: str
+                    ) -> tuple[np.ndarray, list[str]] | None:
+    """T_target_source through a TF tree given as (parent, child, T_parent_child) edges
+    (X_parent = T X_child), walking edges either way; (T, the frames passed through), or
+    None where no chain joins the two frames."""
+    links: dict[str, list[tuple[str, np.ndarray]]] = {}
+    for parent, child, T in edges:
+        links.setdefault(child, []).append((parent, T))
+        links.setdefault(parent, []).append((child, np.linalg.inv(T)))
+    # breadth-first from the source: each frame's pose as T_frame_source
+    found = {source: (np.eye(4), [source])}
+    queue = [source]
+    while queue:
+        frame = queue.pop(0)
+        T_frame, path = found[frame]
+        if frame == target:
+            return T_frame, path
+        for nxt, T_next_frame in links.get(frame, []):
+            if nxt not in found:
+                found[nxt] = (T_next_frame @ T_frame, [*path, nxt])
+                queue.append(nxt)
+    return None
 
 
 def _block(rows: int, cols: int, data: np.ndarray) -> dict:

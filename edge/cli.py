@@ -116,10 +116,11 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--iters", type=_positive_int, default=None)
     replay.add_argument("--deadline-ms", type=float, default=None)
     replay.add_argument("--calib", type=Path, default=None,
-                        help="calibration TOML (default: the one in the recording)")
+                        help="calibration TOML (default: the recording's /edge/calibration, else its "
+                             "CameraInfo pair + /tf_static)")
     replay.add_argument("--topics", type=Path, default=None,
                         help="TOML with a [topics] table mapping roles (left, right, lidar, "
-                             "left_info, right_info, gt) to the recording's topics")
+                             "left_info, right_info, tf_static, gt) to the recording's topics")
     replay.add_argument("--precision", choices=("int8", "fp32"), default="int8")
     replay.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
     replay.add_argument("--scale", type=float, default=0.0,

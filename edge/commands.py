@@ -7,6 +7,7 @@ the key before any device is opened — then wires sources, the pipeline and the
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import sys
 import time
@@ -23,13 +24,14 @@ from edge.mcap_log import McapLogger
 from edge.runtime.engine import Engine
 from edge.types import LidarScan, StereoFrame
 
+log = logging.getLogger(__name__)
+
 
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
-    from calibration.io import load_calibration, loads_calibration
     from edge.capture.replay import McapSource, TopicMap
     from edge.runtime.engine import DEFAULT_BUNDLE
 
@@ -37,14 +39,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
         raise ConfigError("--out", "a file other than the input recording", str(out))
     source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
     source.check_topics()
-    if calib is not None:
-        stereo, lidar = load_calibration(calib)
-    else:
-        text = source.find_calibration()
-        if text is None:
-            raise ConfigError("--calib", "a calibration file: the recording has none on "
-                              f"{source.topics.calibration}", None, str(path))
-        stereo, lidar = loads_calibration(text, f"{path} {source.topics.calibration}")
+    stereo, lidar = replay_calibration(source, calib)
     engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
                     scale=scale or None)
     stop = StopFlag()
@@ -88,6 +83,37 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
         print(f"error: no frame was processed ({reason})", file=sys.stderr)
         return 1
     return 0
+
+
+def replay_calibration(source, calib):
+    """The replay's calibration, resolved once before the run in this order: `--calib`, the
+    recording's /edge/calibration, its CameraInfo pair with T_cam_lidar from /tf_static.
+    Logs where it came from; a mapped LiDAR topic with no extrinsics is an error."""
+    from calibration.io import load_calibration
+    from edge.capture.replay import ReplayError, recording_calibration
+
+    if calib is not None:
+        stereo, lidar = load_calibration(calib)
+        origin = f"--calib {calib}"
+    else:
+        found = recording_calibration(source)
+        if found is None:
+            t = source.topics
+            raise ConfigError("--calib", "a calibration file: the recording has neither "
+                              f"{t.calibration or '/edge/calibration'} nor a CameraInfo pair "
+                              f"on {t.left_info or '(left_info)'} and "
+                              f"{t.right_info or '(right_info)'} (map them with --topics)",
+                              None, str(source.path))
+        stereo, lidar, origin = found
+    log.info("calibration: %s", origin)
+    topics = source.file_topics()
+    lidar_topic = source.topics.lidar
+    if lidar is None and lidar_topic and topics is not None and lidar_topic in topics:
+        raise ReplayError(f"{source.path}: the LiDAR topic {lidar_topic} is mapped but "
+                          f"{origin} has no LiDAR extrinsics: give --calib with a [lidar] "
+                          "section (edge-depth calibrate lidar), or map lidar = \"\" in "
+                          "--topics to run stereo only")
+    return stereo, lidar
 
 
 def open_sources(config, max_frames: int | None = None):

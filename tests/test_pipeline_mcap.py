@@ -70,7 +70,7 @@ def test_a_cut_off_recording_replays_up_to_its_last_complete_chunk(recording, tm
     garbage = tmp_path / "garbage.mcap"
     garbage.write_bytes(b"not an mcap file at all" * 10)
     with pytest.raises(ReplayError, match="not a readable MCAP"):
-        McapSource(garbage).find_calibration()
+        McapSource(garbage).scan_calibration()
 
 
 def test_a_mapped_topic_the_file_lacks_is_an_error_listing_its_topics(recording):
@@ -252,58 +252,11 @@ def test_stop_flag_stops_a_sequential_replay(recording, engine):
 
 
 def test_a_ros2_bag_replays_to_the_same_frames_points_and_calibration(tmp_path):
-    import cv2
-    from mcap_ros2.writer import Writer
-
-    from tests.ros2_bag import MSGDEFS, header
+    from tests.ros2_bag import write_bag
 
     samples = [make_sample(SEED + i, RigConfig(width=160, height=96)) for i in range(2)]
     path = tmp_path / "ros2.mcap"
-    with open(path, "wb") as f:
-        w = Writer(f)
-        schemas = {k: w.register_msgdef(k, v) for k, v in MSGDEFS.items()}
-
-        def image(img, stamp, encoding):
-            data = img if encoding == "mono8" else np.repeat(img[..., None], 3, 2)
-            return {"header": header(stamp), "height": img.shape[0], "width": img.shape[1],
-                    "encoding": encoding, "is_bigendian": 0, "step": data.shape[1] * (
-                        1 if encoding == "mono8" else 3), "data": data.tobytes()}
-
-        for key, tx in (("left", 0.0), ("right", -450.0 * 0.075 / 4)):
-            info = {"header": header(1), "height": 96, "width": 160, "distortion_model": "",
-                    "d": [], "k": [112.5, 0, 79.5, 0, 112.5, 47.5, 0, 0, 1],
-                    "r": [1.0, 0, 0, 0, 1, 0, 0, 0, 1],
-                    "p": [112.5, 0, 79.5, tx, 0, 112.5, 47.5, 0, 0, 0, 1, 0],
-                    "binning_x": 0, "binning_y": 0,
-                    "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0,
-                            "do_rectify": False}}
-            w.write_message(f"/{key}/camera_info", schemas["sensor_msgs/msg/CameraInfo"],
-                            info, log_time=1)
-        for i, s in enumerate(samples):
-            t = 10**9 + i * 10**8
-            pts = s.scan.points
-            cloud = np.concatenate([pts, np.ones((len(pts), 1), np.float32)], 1)
-            fields = [{"name": n, "offset": 4 * j, "datatype": 7, "count": 1}
-                      for j, n in enumerate("xyz")]
-            w.write_message("/points", schemas["sensor_msgs/msg/PointCloud2"], {
-                "header": header(t - 5 * 10**6, "lidar"), "height": 1, "width": len(pts),
-                "fields": fields, "is_bigendian": False, "point_step": 16,
-                "row_step": 16 * len(pts), "data": cloud.astype("<f4").tobytes(),
-                "is_dense": True}, log_time=t - 5 * 10**6)
-            ranges = np.array([1.0, 2.0, np.inf, 4.0], np.float32)
-            w.write_message("/scan", schemas["sensor_msgs/msg/LaserScan"], {
-                "header": header(t, "laser"), "angle_min": 0.0, "angle_max": 4.71,
-                "angle_increment": np.pi / 2, "time_increment": 0.0, "scan_time": 0.1,
-                "range_min": 0.1, "range_max": 10.0, "ranges": ranges.tolist(),
-                "intensities": []}, log_time=t)
-            w.write_message("/left/image_rect", schemas["sensor_msgs/msg/Image"],
-                            image(s.left, t, "mono8" if i == 0 else "rgb8"), log_time=t)
-            w.write_message("/right/image_rect", schemas["sensor_msgs/msg/Image"],
-                            image(s.right, t, "bgr8"), log_time=t)
-            png = cv2.imencode(".png", s.right)[1].tobytes()
-            w.write_message("/right/compressed", schemas["sensor_msgs/msg/CompressedImage"],
-                            {"header": header(t), "format": "png", "data": png}, log_time=t)
-        w.finish()
+    write_bag(path, samples)
     topics = TopicMap(left="/left/image_rect", right="/right/image_rect", lidar="/points",
                       left_info="/left/camera_info", right_info="/right/camera_info",
                       calibration="", gt="")
@@ -317,8 +270,9 @@ def test_a_ros2_bag_replays_to_the_same_frames_points_and_calibration(tmp_path):
         np.testing.assert_array_equal(frame.right, s.right)
         np.testing.assert_array_equal(scan.points, s.scan.points)
     assert frames[1].stamp_ns == 1_100_000_000 and scans[0].stamp_ns == 995_000_000
-    assert calib.focal_px == 112.5 and calib.baseline_m == pytest.approx(0.075)
-    assert calib.principal_point == (79.5, 47.5)
+    rig = samples[0].rig
+    assert calib.focal_px == rig.focal_px and calib.baseline_m == pytest.approx(rig.baseline_m)
+    assert calib.principal_point == (rig.cx, rig.cy)
     laser = [e for e in McapSource(path, dataclasses_replace(topics, lidar="/scan"))
              if isinstance(e, LidarScan)]
     np.testing.assert_allclose(laser[0].points, [[1, 0, 0], [0, 2, 0], [0, -4, 0]], atol=1e-5)

@@ -48,6 +48,7 @@ class TopicMap:
     right_info: str = TOPICS["right_calibration"]
     calibration: str = TOPICS["calibration_file"]
     gt: str = TOPICS["gt_disparity"]
+    tf_static: str = "/tf_static"
     rectified: bool = True
 
     @classmethod
@@ -76,6 +77,18 @@ class Calibration:
 class GroundTruth:
     stamp_ns: int
     disparity: np.ndarray
+
+
+@dataclass
+class RecordingCalibration:
+    """What a recording's first messages say about its calibration: our TOML, the two
+    camera infos (K, D, R, P, size, frame_id), the static transforms (parent, child, 4×4)
+    and the LiDAR's frame id."""
+
+    toml: str | None = None
+    infos: dict[str, dict] = field(default_factory=dict)
+    transforms: list[tuple[str, str, np.ndarray]] = field(default_factory=list)
+    lidar_frame: str | None = None
 
 
 @dataclass
@@ -167,6 +180,37 @@ def _camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
     return P[0], P[2], P[6], P[3], (int(msg.width), int(msg.height))
 
 
+def _frame_id(msg) -> str:
+    header = getattr(msg, "header", None)
+    return str(header.frame_id if header is not None else getattr(msg, "frame_id", ""))
+
+
+def camera_info_dict(msg) -> dict:
+    """sensor_msgs/CameraInfo (k d r p) or foxglove CameraCalibration (K D R P) → dict(K, D,
+    R, P, size, frame_id) as `calibration.ros.stereo_from_camera_infos` takes it."""
+    def field_(name: str) -> np.ndarray:
+        value = getattr(msg, name.lower(), None)
+        if value is None or len(value) == 0:
+            value = getattr(msg, name, None) or []
+        return np.asarray([float(v) for v in value], np.float64)
+
+    D = field_("D")
+    return dict(K=field_("K").reshape(3, 3), D=D if D.size else np.zeros(5),
+                R=field_("R").reshape(3, 3), P=field_("P").reshape(3, 4),
+                size=(int(msg.width), int(msg.height)), frame_id=_frame_id(msg))
+
+
+def _static_transforms(msg) -> list[tuple[str, str, np.ndarray]]:
+    from calibration.ros import transform_matrix
+
+    out = []
+    for t in msg.transforms:
+        tr, q = t.transform.translation, t.transform.rotation
+        out.append((str(t.header.frame_id), str(t.child_frame_id),
+                    transform_matrix((tr.x, tr.y, tr.z), (q.x, q.y, q.z, q.w))))
+    return out
+
+
 # -- the source ------------------------------------------------------------------------------
 class McapSource(Source):
     """Iterate events of a recording. `realtime=True` paces them by their log times."""
@@ -200,25 +244,46 @@ class McapSource(Source):
                 return None
         return None if summary is None else {c.topic for c in summary.channels.values()}
 
-    def find_calibration(self, max_messages: int = 1000) -> str | None:
-        """The TOML text of the first /edge/calibration message (logged first in our files),
-        or None if there is none among the first `max_messages`."""
+    def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
+        """Read the recording's first messages for its calibration: /edge/calibration (ours,
+        logged first), the mapped camera infos, /tf_static and the LiDAR's frame id."""
         from mcap.reader import NonSeekingReader
+        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
+        from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
 
+        t, found = self.topics, RecordingCalibration()
+        wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
+        factories, decoders = [ProtobufDecoder(), Ros2Decoder()], {}
         count = 0
         with open(self.path, "rb") as f:
             try:
-                for _, channel, message in NonSeekingReader(f).iter_messages(
+                for schema, channel, message in NonSeekingReader(f).iter_messages(
                         log_time_order=False):
-                    if channel.topic == self.topics.calibration:
-                        return str(json.loads(message.data)["toml"])
                     count += 1
-                    if count >= max_messages:
+                    if count > max_messages:
                         break
+                    if channel.topic not in wanted:
+                        continue
+                    try:
+                        msg = self._decode(schema, channel, message, factories, decoders)
+                        if channel.topic == t.calibration:
+                            found.toml = str(msg["toml"])
+                            break  # ours is complete: nothing else is needed
+                        if channel.topic == t.tf_static:
+                            found.transforms.extend(_static_transforms(msg))
+                        elif channel.topic == t.lidar:
+                            found.lidar_frame = found.lidar_frame or _frame_id(msg)
+                        elif channel.topic not in [i["topic"] for i in found.infos.values()]:
+                            side = "left" if channel.topic == t.left_info else "right"
+                            found.infos[side] = dict(camera_info_dict(msg), topic=channel.topic)
+                        if len(found.infos) == 2 and found.transforms and found.lidar_frame:
+                            break
+                    except Exception as exc:  # noqa: BLE001 - counted like the replay's own
+                        self.stats.errors[f"{channel.topic}: decode {type(exc).__name__}"] += 1
             except Exception as exc:  # noqa: BLE001 - not MCAP at all, or cut off early
                 if count == 0:
                     raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
-        return None
+        return found
 
     def check_topics(self, required: tuple[str, ...] = ("left", "right")) -> None:
         topics = self.file_topics()
@@ -351,6 +416,43 @@ class McapSource(Source):
             for s in [s for s in pending if stamp - s > 1_000_000_000]:
                 del pending[s]
                 self.stats.errors["unpaired image"] += 1
+
+
+def recording_calibration(source: McapSource):
+    """The calibration a recording carries, in precedence order: our /edge/calibration TOML,
+    else the mapped CameraInfo pair with T_cam_lidar from /tf_static (the chain from the
+    LiDAR's frame to the left camera's). (stereo, lidar or None, where it came from), or None
+    when it carries neither."""
+    from calibration.io import loads_calibration
+    from calibration.model import LidarExtrinsics
+    from calibration.ros import chain_transform, stereo_from_camera_infos
+
+    found = source.scan_calibration()
+    t = source.topics
+    if found.toml is not None:
+        stereo, lidar = loads_calibration(found.toml, f"{source.path} {t.calibration}")
+        return stereo, lidar, f"the recording's {t.calibration}"
+    if len(found.infos) < 2:
+        return None
+    left, right = found.infos["left"], found.infos["right"]
+    stereo = stereo_from_camera_infos(left, right, f"{source.path} {t.right_info}",
+                                      rectified=t.rectified)
+    origin = f"the recording's CameraInfo ({t.left_info}, {t.right_info})"
+    lidar = None
+    if found.lidar_frame and found.transforms:
+        chain = chain_transform(found.transforms, left["frame_id"], found.lidar_frame)
+        if chain is not None:
+            T, path = chain
+            if t.rectified:  # the camera info's R turns the raw camera into the rectified one
+                R = np.eye(4)
+                R[:3, :3] = left["R"]
+                T = R @ T
+            lidar = LidarExtrinsics(T)
+            origin += f" and {t.tf_static} ({' → '.join(path)})"
+        else:
+            origin += (f"; {t.tf_static} has no chain from the LiDAR's frame "
+                       f"{found.lidar_frame!r} to the camera's {left['frame_id']!r}")
+    return stereo, lidar, origin
 
 
 def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0):

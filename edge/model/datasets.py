@@ -71,15 +71,14 @@ def scene_folder_arrays(folder: Path) -> dict:
 def mcap_arrays(path: Path):
     """Frames of a recording with their LiDAR projected into both views (calibration from the
     recording); GT where the recording carries /sim/gt_disparity."""
-    from calibration.io import loads_calibration
     from calibration.projection import project_to_disparity
-    from edge.capture.replay import McapSource, synced_frames
+    from edge.capture.replay import McapSource, recording_calibration, synced_frames
 
-    text = McapSource(path).find_calibration()
-    if text is None:
-        raise ConfigError("data", "a recording with its calibration (/edge/calibration)",
-                          str(path))
-    stereo, lidar = loads_calibration(text, str(path))
+    found = recording_calibration(McapSource(path))
+    if found is None:
+        raise ConfigError("data", "a recording with its calibration (/edge/calibration, or "
+                          "a CameraInfo pair)", str(path))
+    stereo, lidar, _ = found
     offset = lidar.time_offset_ns if lidar else 0
     for _, left, right, points, gt in synced_frames(path, stereo, offset):
         sparse = sparse_right = None

@@ -1,0 +1,100 @@
+"""Where the replay's calibration comes from: --calib, the recording's /edge/calibration, or
+a ROS 2 bag's CameraInfo pair with T_cam_lidar from the /tf_static chain."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from calibration.io import save_calibration
+from calibration.ros import chain_transform
+from edge.capture.replay import McapSource, ReplayError, TopicMap, recording_calibration
+from edge.commands import replay_command
+from edge.sim import RigConfig, make_sample
+from tests.ros2_bag import transform, write_bag
+
+TOPICS = dict(left="/left/image_rect", right="/right/image_rect", lidar="/points",
+              left_info="/left/camera_info", right_info="/right/camera_info",
+              calibration="", gt="")
+
+
+def pose(yaw_deg: float, t) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    T = np.eye(4)
+    T[:3, :3] = Rotation.from_euler("zyx", [yaw_deg, 0.3 * yaw_deg, -0.5 * yaw_deg],
+                                    degrees=True).as_matrix()
+    T[:3, 3] = t
+    return T
+
+
+def test_the_chain_walks_edges_either_way_and_says_when_frames_do_not_join():
+    A, B = pose(30, [0.1, 0.2, 0.3]), pose(-50, [1.0, 0.0, -0.4])
+    # base → cam and base → lidar: cam ← lidar goes up one edge and down the other
+    edges = [("base", "cam", A), ("base", "lidar", B), ("world", "other", np.eye(4))]
+    T, path = chain_transform(edges, "cam", "lidar")
+    np.testing.assert_allclose(T, np.linalg.inv(A) @ B, atol=1e-12)
+    assert path == ["lidar", "base", "cam"]
+    T_back, _ = chain_transform(edges, "lidar", "cam")
+    np.testing.assert_allclose(T_back @ T, np.eye(4), atol=1e-12)
+    assert chain_transform(edges, "cam", "other") is None
+
+
+@pytest.fixture(scope="module")
+def samples():
+    return [make_sample(1_000_000 + i, RigConfig(width=160, height=96)) for i in range(2)]
+
+
+def tf_tree(T_cam_lidar) -> list[dict]:
+    """base_link → camera and base_link → lidar, composing to T_cam_lidar."""
+    A = pose(20, [0.05, -0.02, 0.3])  # T_base_camera
+    return [transform("base_link", "camera", A),
+            transform("base_link", "lidar", A @ T_cam_lidar)]
+
+
+def test_a_bag_with_camera_info_and_tf_static_replays_with_its_lidar(samples, tmp_path,
+                                                                    caplog, capsys):
+    bag = tmp_path / "bag.mcap"
+    write_bag(bag, samples, tf=tf_tree(samples[0].T_cam_lidar))
+    stereo, lidar, origin = recording_calibration(McapSource(bag, TopicMap(**TOPICS)))
+    np.testing.assert_allclose(lidar.T_cam_lidar, samples[0].T_cam_lidar, atol=1e-6)
+    assert stereo.focal_px == pytest.approx(samples[0].rig.focal_px)
+    assert stereo.baseline_m == pytest.approx(samples[0].rig.baseline_m)
+    assert "lidar → base_link → camera" in origin
+    caplog.set_level(logging.INFO)
+    assert replay_command(bag, tmp_path / "out.mcap", iters=2, topics=TOPICS) == 0
+    assert "calibration: the recording's CameraInfo" in caplog.text
+    assert "frames with LiDAR: 2 of 2" in capsys.readouterr().out
+
+
+def test_without_a_transform_a_mapped_lidar_is_an_error_and_unmapped_runs_stereo_only(
+        samples, tmp_path, caplog):
+    bag = tmp_path / "bag.mcap"
+    write_bag(bag, samples)
+    with pytest.raises(ReplayError, match="no LiDAR extrinsics.*calibrate lidar"):
+        replay_command(bag, tmp_path / "out.mcap", iters=2, topics=TOPICS)
+    stereo_only = dict(TOPICS, lidar="")
+    assert replay_command(bag, tmp_path / "out.mcap", iters=2, topics=stereo_only) == 0
+
+
+def test_calib_comes_first_and_a_recording_with_nothing_names_the_options(samples, tmp_path,
+                                                                         caplog):
+    bag = tmp_path / "bag.mcap"
+    write_bag(bag, samples)  # CameraInfo but no transforms: --calib supplies the LiDAR
+    calib = tmp_path / "calib.toml"
+    save_calibration(calib, samples[0].calibration(), _lidar(samples[0]))
+    caplog.set_level(logging.INFO)
+    assert replay_command(bag, tmp_path / "out.mcap", iters=2, calib=calib,
+                          topics=TOPICS) == 0
+    assert f"calibration: --calib {calib}" in caplog.text
+    nothing = dict(TOPICS, left_info="", right_info="")
+    with pytest.raises(ValueError, match="neither.*CameraInfo pair"):
+        replay_command(bag, tmp_path / "out.mcap", iters=2, topics=nothing)
+
+
+def _lidar(sample):
+    from calibration.model import LidarExtrinsics
+
+    return LidarExtrinsics(sample.T_cam_lidar)
