@@ -116,8 +116,8 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--iters", type=_positive_int, default=None)
     replay.add_argument("--deadline-ms", type=float, default=None)
     replay.add_argument("--calib", type=Path, default=None,
-                        help="calibration TOML (default: the recording's /edge/calibration, else its "
-                             "CameraInfo pair + /tf_static)")
+                        help="calibration TOML (default: the recording's /edge/calibration, "
+                             "else its CameraInfo pair + /tf_static)")
     replay.add_argument("--topics", type=Path, default=None,
                         help="TOML with a [topics] table mapping roles (left, right, lidar, "
                              "left_info, right_info, tf_static, gt) to the recording's topics")
