@@ -78,6 +78,9 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    if stats.fatal:
+        print(f"error: {stats.fatal}", file=sys.stderr)
+        return 1
     if stats.frames == 0:
         reason = dict(stats.errors) or "the recording has no frames on the mapped camera topics"
         print(f"error: no frame was processed ({reason})", file=sys.stderr)
@@ -213,6 +216,9 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     if lat:
         print("latency median / p95 ms: " + format_latency(lat))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    if stats.fatal:
+        print(f"error: {stats.fatal}", file=sys.stderr)
+        return 1
     if stats.source_failed and not stop.is_set():
         print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
               file=sys.stderr)

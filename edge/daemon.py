@@ -39,6 +39,11 @@ from edge.types import DepthResult, LidarScan, StereoFrame
 log = logging.getLogger(__name__)
 
 
+class FatalInputError(EdgeError):
+    """Input that every later frame would share (the first frame's size differs from the
+    calibration's): the run stops with this message instead of skipping frame after frame."""
+
+
 @dataclass
 class FrameOutput:
     result: DepthResult
@@ -64,6 +69,7 @@ class PipelineStats:
     window: list[dict] = field(default_factory=list)
     metrics: list[dict] = field(default_factory=list)
     source_failed: bool = False
+    fatal: str | None = None  # why the run stopped early (FatalInputError), if it did
 
     def count_error(self, kind: str, detail: object) -> None:
         if self.errors[kind] == 0:
@@ -147,8 +153,14 @@ class Pipeline:
                  sync_wait_ms: float = 0.0) -> FrameOutput | None:
         t0 = time.perf_counter()
         if frame.size != tuple(self.stereo.image_size):
-            self.stats.count_error("frame size", f"{frame.size}, the calibration's is "
-                                   f"{tuple(self.stereo.image_size)}")
+            sizes = f"{frame.size}, the calibration's is {tuple(self.stereo.image_size)}"
+            if self.stats.frames == 0:
+                raise FatalInputError(f"the camera's frames are {frame.size[0]}x"
+                                      f"{frame.size[1]} but the calibration is for "
+                                      f"{self.stereo.image_size[0]}x"
+                                      f"{self.stereo.image_size[1]}: calibrate at the "
+                                      "camera's size (or set [camera] size to match)")
+            self.stats.count_error("frame size", sizes)  # one odd frame later on: skipped
             return None
         try:
             left, right = ((frame.left, frame.right) if frame.rectified
@@ -264,171 +276,199 @@ class StopFlag:
             signal.signal(sig, handler)
 
 
-def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool = False,
-        queue_size: int = 2, on_output=None, diagnostics_period_s: float = 1.0,
-        max_frames: int | None = None) -> PipelineStats:
-    """Feed a source's events through the pipeline until it ends or `stop` is set.
+class Runner:
+    """Feeds a source's events through the pipeline until it ends or `stop` is set:
+    source → (live: its own thread, then a queue of `queue_size` frames that drops the
+    oldest when full) → frames held until their scans are in → pipeline → on_output.
 
-    threaded=True (live sources): the source runs in its own thread into a queue of
-    `queue_size` frames that drops the oldest when full. on_output(frame, FrameOutput) is
-    called for every processed frame."""
-    stop = stop or StopFlag()
-    stop.on_stop.append(source.close)
-    notifier = SystemdNotifier()
-    stats = pipeline.stats
-    frames: deque = deque()
-    cond = threading.Condition()
-    finished = threading.Event()
-    gts: dict[int, np.ndarray] = {}
-    last_diag = [time.monotonic()]
-    last_stamp: list[int | None] = [None]
+    Replay (threaded=False) holds frames in stream time, live in host time. /diagnostics and
+    the systemd watchdog tick once a period, also while no frame comes."""
 
-    def handle_event(event) -> None:
-        if isinstance(event, LidarScan):
-            pipeline.on_scan(event)
-        elif isinstance(event, StereoFrame):
-            if threaded:
-                with cond:
-                    if len(frames) >= queue_size:
-                        frames.popleft()
-                        stats.drops += 1
-                    frames.append(event)
-                    cond.notify()
-            else:
-                process(event)
-        elif isinstance(event, GroundTruth):
-            gts[event.stamp_ns] = event.disparity
-        elif isinstance(event, Calibration) and event.toml is not None:
-            from calibration.io import loads_calibration
+    def __init__(self, source, pipeline: Pipeline, stop: StopFlag | None = None,
+                 threaded: bool = False, queue_size: int = 2, on_output=None,
+                 diagnostics_period_s: float = 1.0, max_frames: int | None = None) -> None:
+        self.source, self.pipeline = source, pipeline
+        self.stop = stop or StopFlag()
+        self.stop.on_stop.append(source.close)
+        self.threaded, self.queue_size = threaded, queue_size
+        self.on_output, self.max_frames = on_output, max_frames
+        self.period_s = diagnostics_period_s
+        self.notifier = SystemdNotifier()
+        self.stats = pipeline.stats
+        self.frames: deque[StereoFrame] = deque()  # live: the capture thread's queue
+        self.cond = threading.Condition()
+        self.finished = threading.Event()
+        self.waiting: deque[StereoFrame] = deque()  # replay: frames held in stream time
+        self.gts: dict[int, np.ndarray] = {}
+        self.last_diag = time.monotonic()
+        self.last_stamp: int | None = None
+        self.wait_ms = pipeline.sync.config.wait_ms
 
-            stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
-            pipeline.set_calibration(stereo, lidar or pipeline.lidar)
-
-    def safe_handle(event) -> None:
+    # -- events ------------------------------------------------------------------------------
+    def handle(self, event) -> None:
+        """Errors an event raises are counted by kind; the loop goes on."""
         try:
-            handle_event(event)
+            if isinstance(event, LidarScan):
+                self.pipeline.on_scan(event)
+            elif isinstance(event, StereoFrame):
+                self._enqueue(event) if self.threaded else self.process(event)
+            elif isinstance(event, GroundTruth):
+                self.gts[event.stamp_ns] = event.disparity
+            elif isinstance(event, Calibration) and event.toml is not None:
+                from calibration.io import loads_calibration
+
+                stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
+                self.pipeline.set_calibration(stereo, lidar or self.pipeline.lidar)
         except (EdgeError, CalibrationError, ValueError) as exc:
-            stats.count_error(type(exc).__name__, exc)
+            self.stats.count_error(type(exc).__name__, exc)
 
-    def process(frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
+    def _enqueue(self, frame: StereoFrame) -> None:
+        with self.cond:
+            if len(self.frames) >= self.queue_size:
+                self.frames.popleft()
+                self.stats.drops += 1
+            self.frames.append(frame)
+            self.cond.notify()
+
+    def process(self, frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
         # ground truth follows its frame in our recordings: look for it once the frame is in
-        gt = gts.pop(frame.stamp_ns, None)
-        for stamp in [s for s in gts if s < frame.stamp_ns]:  # frames dropped or skipped
-            del gts[stamp]
+        gt = self.gts.pop(frame.stamp_ns, None)
+        for stamp in [s for s in self.gts if s < frame.stamp_ns]:  # frames dropped, skipped
+            del self.gts[stamp]
         try:
-            out = pipeline.on_frame(frame, gt, sync_wait_ms)
-        except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
-            stats.count_error(f"frame: {type(exc).__name__}", exc)
+            out = self.pipeline.on_frame(frame, gt, sync_wait_ms)
+        except FatalInputError as exc:  # every frame would fail: stop, say why
+            self.stats.fatal = str(exc)
+            log.error("%s", exc)
+            self.stop.set()
             out = None
-        if out is not None and on_output is not None:
-            on_output(frame, out)
-        if max_frames is not None and stats.frames >= max_frames:
-            stop.set()
-        last_stamp[0] = frame.stamp_ns
-        tick()
+        except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
+            self.stats.count_error(f"frame: {type(exc).__name__}", exc)
+            out = None
+        if out is not None and self.on_output is not None:
+            self.on_output(frame, out)
+        if self.max_frames is not None and self.stats.frames >= self.max_frames:
+            self.stop.set()
+        self.last_stamp = frame.stamp_ns
+        self.tick()
 
-    def tick() -> None:
+    # -- health ------------------------------------------------------------------------------
+    def tick(self) -> None:
         """Once a period: /diagnostics and the systemd watchdog (also while no frame comes:
         a camera that is reconnecting must not get the daemon killed)."""
-        if time.monotonic() - last_diag[0] >= diagnostics_period_s:
-            diagnostics()
-            notifier.notify("WATCHDOG=1")
+        if time.monotonic() - self.last_diag >= self.period_s:
+            self.diagnostics()
+            self.notifier.notify("WATCHDOG=1")
 
-    def source_counters() -> dict:
+    def _source_counters(self) -> dict:
         try:
-            return source.counters() if hasattr(source, "counters") else {}
+            return self.source.counters() if hasattr(self.source, "counters") else {}
         except Exception as exc:  # noqa: BLE001 - a counter must never stop the daemon
             return {"error": f"{type(exc).__name__}: {exc}"}
 
-    def diagnostics() -> None:
+    def diagnostics(self) -> None:
         """Counters and the latency of the frames since the last report, on /diagnostics."""
+        stats, pipeline = self.stats, self.pipeline
         window, stats.window = stats.window, []
-        last_diag[0] = time.monotonic()
-        if pipeline.logger is not None and last_stamp[0] is not None:
-            pipeline.logger.log_diagnostics(last_stamp[0], dict(
+        self.last_diag = time.monotonic()
+        if pipeline.logger is not None and self.last_stamp is not None:
+            pipeline.logger.log_diagnostics(self.last_stamp, dict(
                 frames=stats.frames, scans=stats.scans, drops=stats.drops,
                 errors=dict(stats.errors), lidar_sync=pipeline.sync.counters(),
-                sources=source_counters(),
+                sources=self._source_counters(),
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window]))
 
-    wait_s = pipeline.sync.config.wait_ms / 1000
-
-    def wait_for_lidar(frame: StereoFrame) -> float:
-        """Live: hold a frame (host time, at most wait_s) while a delivering LiDAR has not
+    # -- waiting for the LiDAR -----------------------------------------------------------------
+    def _wait_for_lidar(self, frame: StereoFrame) -> float:
+        """Live: hold a frame (host time, at most wait_ms) while a delivering LiDAR has not
         yet sent the scans that cover it; returns the ms waited."""
-        start = time.monotonic()
+        pipeline, start = self.pipeline, time.monotonic()
         while not pipeline.frame_ready(frame.stamp_ns) \
-                and pipeline.lidar_delivering(frame.stamp_ns) and not stop.is_set():
-            if time.monotonic() - start >= wait_s:
+                and pipeline.lidar_delivering(frame.stamp_ns) and not self.stop.is_set():
+            if time.monotonic() - start >= self.wait_ms / 1000:
                 pipeline.sync.waited_out += 1
                 break
             time.sleep(0.002)
         return (time.monotonic() - start) * 1000
 
-    waiting: deque[StereoFrame] = deque()  # replay: frames held in stream time
-    wait_ns = pipeline.sync.config.wait_ms * 1e6
-
-    def flush(latest_ns: int | None, everything: bool = False) -> None:
+    def _flush(self, latest_ns: int | None, everything: bool = False) -> None:
         """Replay: process held frames, oldest first, while each is ready, has waited
-        wait_ns of stream time (up to the newest frame's stamp) or the stream has ended."""
-        while waiting and not stop.is_set():
-            head = waiting[0]
-            ready = pipeline.frame_ready(head.stamp_ns)
-            timed_out = latest_ns is not None and latest_ns - head.stamp_ns > wait_ns
+        wait_ms of stream time (up to the newest frame's stamp) or the stream has ended."""
+        while self.waiting and not self.stop.is_set():
+            head = self.waiting[0]
+            ready = self.pipeline.frame_ready(head.stamp_ns)
+            timed_out = latest_ns is not None and latest_ns - head.stamp_ns > self.wait_ms * 1e6
             if not (ready or timed_out or everything):
                 return
-            if not ready and pipeline.lidar is not None:
-                pipeline.sync.waited_out += 1
-            process(waiting.popleft())
+            if not ready and self.pipeline.lidar is not None:
+                self.pipeline.sync.waited_out += 1
+            self.process(self.waiting.popleft())
 
-    def capture() -> None:
+    # -- the two loops -------------------------------------------------------------------------
+    def _capture(self) -> None:
         try:
-            for event in source:
-                if stop.is_set():
+            for event in self.source:
+                if self.stop.is_set():
                     break
-                safe_handle(event)
+                self.handle(event)
         except Exception as exc:  # noqa: BLE001 - reported, and the daemon exits non-zero
-            stats.count_error("source", f"{type(exc).__name__}: {exc}")
-            stats.source_failed = True
+            self.stats.count_error("source", f"{type(exc).__name__}: {exc}")
+            self.stats.source_failed = True
         finally:
-            finished.set()
-            with cond:
-                cond.notify()
+            self.finished.set()
+            with self.cond:
+                self.cond.notify()
 
-    notifier.notify("READY=1")
-    if threaded:
-        thread = threading.Thread(target=capture, name="capture", daemon=True)
+    def _next_frame(self) -> StereoFrame | None:
+        with self.cond:
+            while not self.frames and not self.finished.is_set() and not self.stop.is_set():
+                self.cond.wait(0.1)
+                self.tick()
+            return self.frames.popleft() if self.frames else None
+
+    def _run_live(self) -> None:
+        thread = threading.Thread(target=self._capture, name="capture", daemon=True)
         thread.start()
-        while not stop.is_set():
-            with cond:
-                while not frames and not finished.is_set() and not stop.is_set():
-                    cond.wait(0.1)
-                    tick()
-                frame = frames.popleft() if frames else None
+        while not self.stop.is_set():
+            frame = self._next_frame()
             if frame is None:
-                if finished.is_set():
+                if self.finished.is_set():
                     break
                 continue
-            process(frame, wait_for_lidar(frame))
+            self.process(frame, self._wait_for_lidar(frame))
         thread.join(timeout=5)
-    else:
+
+    def _run_replay(self) -> None:
         # a frame is held at least until the next event that is not its ground truth (so
         # the GT is in), then until its scans are in or it has waited out
         latest: int | None = None
-        for event in source:
+        for event in self.source:
             if isinstance(event, StereoFrame):
                 latest = event.stamp_ns if latest is None else max(latest, event.stamp_ns)
-                flush(latest)
-                waiting.append(event)
+                self._flush(latest)
+                self.waiting.append(event)
             else:
-                safe_handle(event)
+                self.handle(event)
                 if not isinstance(event, GroundTruth):
-                    flush(latest)
-            if stop.is_set():
+                    self._flush(latest)
+            if self.stop.is_set():
                 break
-        flush(latest, everything=True)
-    if stats.window:
-        diagnostics()  # the frames since the last report
-    notifier.notify("STOPPING=1")
-    return stats
+        self._flush(latest, everything=True)
+
+    def run(self) -> PipelineStats:
+        self.notifier.notify("READY=1")
+        self._run_live() if self.threaded else self._run_replay()
+        if self.stats.window:
+            self.diagnostics()  # the frames since the last report
+        self.notifier.notify("STOPPING=1")
+        return self.stats
+
+
+def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool = False,
+        queue_size: int = 2, on_output=None, diagnostics_period_s: float = 1.0,
+        max_frames: int | None = None) -> PipelineStats:
+    """`Runner(...).run()`: see Runner. on_output(frame, FrameOutput) is called for every
+    processed frame."""
+    return Runner(source, pipeline, stop, threaded, queue_size, on_output,
+                  diagnostics_period_s, max_frames).run()

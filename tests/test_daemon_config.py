@@ -164,3 +164,19 @@ def test_ctrl_c_before_the_handlers_is_one_line_and_exit_130(monkeypatch, capsys
     monkeypatch.setattr(edge.sim.export, "synth_command", interrupted)
     assert main(["synth", "--out", "unused", "--count", "1"]) == 130
     assert capsys.readouterr().err.strip() == "edge-depth synth: interrupted"
+
+
+def test_a_camera_size_the_calibration_does_not_have_stops_at_the_first_frame(tmp_path,
+                                                                             capsys):
+    from calibration.io import save_calibration
+    from edge.capture.sim import SimSource
+
+    calib = tmp_path / "calib.toml"
+    save_calibration(calib, *SimSource(1).calibration)  # 640x400
+    out = tmp_path / "depth.mcap"
+    text = SIM.format(out=out).replace("fps = 20.0\n", "fps = 20.0\nsize = [320, 200]\n")
+    cfg = write(tmp_path, text + f'[calibration]\nfile = "{calib}"\n')
+    assert main(["run", "--config", str(cfg), "--max-frames", "3"]) == 1
+    captured = capsys.readouterr()
+    assert "0 frames" in captured.out
+    assert "the camera's frames are 320x200 but the calibration is for 640x400" in captured.err

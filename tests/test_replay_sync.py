@@ -89,7 +89,7 @@ def engine_result(left, kwargs):
     return DepthResult(kwargs.get("stamp_ns", 0), zeros, zeros, zeros > 0, 1)
 
 
-def test_replay_where_no_frame_can_be_processed_exits_1_and_says_why(tmp_path, capsys):
+def test_replay_whose_first_frame_has_another_size_stops_naming_both(tmp_path, capsys):
     moments = sim_events(2, 5.0)
     path = tmp_path / "small_frames.mcap"
     with McapLogger(path, topics=RAW_TOPICS) as logger:
@@ -101,7 +101,9 @@ def test_replay_where_no_frame_can_be_processed_exits_1_and_says_why(tmp_path, c
     assert main(["replay", str(path), "--out", str(tmp_path / "out.mcap")]) == 1
     captured = capsys.readouterr()
     assert "frames with LiDAR: 0 of 0" in captured.out
-    assert "error: no frame was processed ({'frame size': 2})" in captured.err
+    assert "error: the camera's frames are 320x200 but the calibration is for 640x400" \
+        in captured.err
+    assert captured.out.count("frame ") == 0  # stopped at the first frame, none processed
 
 
 def test_replay_summary_counts_frames_with_lidar(recording, tmp_path, capsys):
