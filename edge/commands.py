@@ -128,13 +128,20 @@ def open_sources(config, max_frames: int | None = None):
     from edge.sim import RigConfig
 
     cam, lid = config.camera, config.lidar
+    stereo = lidar = None
     if config.calibration.file:
         stereo, lidar = load_calibration(config.calibration.file)
-    elif cam.source == "sim":
-        stereo = lidar = None
-    else:
-        raise ConfigError("calibration.file", "a calibration TOML (for an OAK's factory "
-                          "calibration: edge-depth calibrate import-oak)", "", config.path)
+        log.info("calibration: %s (the config's calibration.file)", config.calibration.file)
+    elif cam.source == "oak":
+        from calibration.oak import stereo_from_oak
+
+        stereo = stereo_from_oak(None, tuple(cam.size))  # opens the device briefly
+        log.info("calibration: the OAK's factory calibration at %dx%d (no LiDAR "
+                 "extrinsics)", *cam.size)
+    if lidar is None and lid.model not in ("sim", "none"):
+        raise ConfigError("lidar.model", "\"none\", or LiDAR extrinsics in the calibration "
+                          "(a [lidar] section: edge-depth calibrate lidar; the OAK's factory "
+                          "calibration has none)", lid.model, config.path)
     sources = []
     if cam.source == "sim":
         w, h = cam.size

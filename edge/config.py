@@ -13,7 +13,8 @@
 
     [calibration]
     file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
-                                # calibration and no LiDAR extrinsics (LiDAR unused)
+                                # calibration, which has no LiDAR extrinsics (then a
+                                # LiDAR model other than "none" is an error)
 
     [sync]
     mode = "accumulate"         # "nearest" (spinning 3-D) | "accumulate" (2-D scanner)

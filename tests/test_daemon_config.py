@@ -180,3 +180,31 @@ def test_a_camera_size_the_calibration_does_not_have_stops_at_the_first_frame(tm
     captured = capsys.readouterr()
     assert "0 frames" in captured.out
     assert "the camera's frames are 320x200 but the calibration is for 640x400" in captured.err
+
+
+def test_no_calibration_file_on_an_oak_uses_its_factory_calibration(tmp_path, monkeypatch,
+                                                                   caplog):
+    import logging
+
+    import calibration.oak as oak_calibration
+    from calibration.model import StereoCalibration
+    from edge.commands import open_sources
+
+    asked = []
+
+    def factory(eeprom_json, size):
+        asked.append(size)
+        return StereoCalibration.ideal(400.0, 0.075, size)
+
+    monkeypatch.setattr(oak_calibration, "stereo_from_oak", factory)
+    caplog.set_level(logging.INFO)
+    cfg = load_robot_config(write(tmp_path, "[camera]\nsource = 'oak'\nsize = [640, 480]\n"
+                                  "[lidar]\nmodel = 'none'\n"))
+    source, stereo, lidar = open_sources(cfg)
+    assert asked == [(640, 480)] and stereo.image_size == (640, 480) and lidar is None
+    assert "the OAK's factory calibration at 640x480" in caplog.text
+    # a LiDAR needs extrinsics, which the factory calibration does not have
+    cfg = load_robot_config(write(tmp_path, "[camera]\nsource = 'oak'\n[lidar]\n"
+                                  "model = 'ld06'\n"))
+    with pytest.raises(ConfigError, match="lidar.model.*calibrate lidar"):
+        open_sources(cfg)
