@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from calibration.errors import CalibrationError
+from edge.errors import EdgeError
 
 
 def add_parsers(sub) -> None:
@@ -41,7 +42,11 @@ def add_parsers(sub) -> None:
     lid.add_argument("--recording", required=True, type=Path,
                      help="a .mcap recording, or scene folders (a folder of them) with "
                           "lidar.npy")
-    lid.add_argument("--calib", required=True, type=Path)
+    lid.add_argument("--calib", type=Path, default=None,
+                     help="the calibration with the T_cam_lidar to check (default: the "
+                          "recording's own: /edge/calibration, or CameraInfo + /tf_static)")
+    lid.add_argument("--topics", type=Path, default=None,
+                     help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
     lid.add_argument("--out", type=Path, default=None,
                      help="write the calibration (with the refined T_cam_lidar if --refine)")
     lid.add_argument("--refine", action="store_true",
@@ -78,10 +83,13 @@ def run(args: argparse.Namespace) -> int:
             return 0
         if args.calib_command == "lidar":
             from calibration.extrinsics import lidar_command
+            from edge.capture.replay import TopicMap
+            from edge.cli import load_topic_map
 
+            topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
             return lidar_command(args.recording, args.calib, args.out, args.refine,
-                                 args.overlay, args.max_frames)
-    except (CalibrationError, ValueError) as exc:
+                                 args.overlay, args.max_frames, topics)
+    except (CalibrationError, ValueError, EdgeError) as exc:
         print(f"edge-depth calibrate {args.calib_command}: error: {exc}", file=sys.stderr)
         return 1
     return 2

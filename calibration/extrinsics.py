@@ -198,13 +198,15 @@ def pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
 
 
 def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
-                max_frames: int = 20) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+                max_frames: int = 20, topics=None
+                ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
     nearest in time (images rectified with `stereo` unless the recording's already are)."""
     from edge.capture.replay import synced_frames
 
     frames = []
-    for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns):
+    for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
+                                                       topics=topics):
         if frame.size != tuple(stereo.image_size):
             raise CalibrationError(f"image size {frame.size} differs from the "
                                    f"calibration's {stereo.image_size}", path=str(path))
@@ -258,24 +260,44 @@ def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarra
 MIN_REFINE_FRAMES = 6
 
 
-def lidar_command(recording: Path, calib_path: Path, out: Path | None,
+def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool, topics):
+    """(stereo, lidar or None, where it came from): --calib, else the recording's own."""
+    from calibration.io import load_calibration
+    from edge.capture.replay import McapSource, recording_calibration
+
+    if calib_path is not None:
+        return (*load_calibration(calib_path), f"--calib {calib_path}")
+    found = recording_calibration(McapSource(recording, topics)) if is_mcap else None
+    if found is None:
+        raise CalibrationError("--calib is needed: the recording carries no calibration "
+                               "(/edge/calibration, or a CameraInfo pair mapped with --topics)",
+                               path=str(recording))
+    return found
+
+
+def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
                   refine: bool = False, overlay_path: Path | None = None,
-                  max_frames: int = 20) -> int:
+                  max_frames: int = 20, topics=None) -> int:
     """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities,
-    optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image."""
-    from calibration.io import load_calibration, save_calibration
+    optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image.
+    Without `calib_path`, a recording's own calibration is used (ours, or a ROS 2 bag's
+    CameraInfo pair and /tf_static; `topics` maps the bag's topics)."""
+    from calibration.io import save_calibration
     from calibration.model import LidarExtrinsics
     from edge.sim.folder import list_scene_folders, read_scene_folder
 
     if max_frames < 1:
         raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")
-    stereo, lidar = load_calibration(calib_path)
+    is_mcap = Path(recording).suffix == ".mcap"
+    stereo, lidar, origin = _initial_calibration(recording, calib_path, is_mcap, topics)
     if lidar is None:
-        raise CalibrationError("no [lidar] section: give an initial T_cam_lidar to refine",
-                               path=str(calib_path), key="lidar")
+        raise CalibrationError(f"{origin} has no LiDAR extrinsics: give an initial "
+                               "T_cam_lidar to refine (a [lidar] section in --calib)",
+                               key="lidar")
+    print(f"calibration: {origin}")
     data = []  # (left, right, points)
-    if Path(recording).suffix == ".mcap":
-        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames)
+    if is_mcap:
+        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics)
         folders = []
     else:
         folders = list_scene_folders(recording)

@@ -98,3 +98,24 @@ def _lidar(sample):
     from calibration.model import LidarExtrinsics
 
     return LidarExtrinsics(sample.T_cam_lidar)
+
+
+def test_calibrate_lidar_reads_a_ros2_bag_with_its_topics_and_own_calibration(samples,
+                                                                             tmp_path,
+                                                                             capsys):
+    from edge.cli import main
+
+    bag = tmp_path / "bag.mcap"
+    write_bag(bag, samples, tf=tf_tree(samples[0].T_cam_lidar))
+    topics = tmp_path / "topics.toml"
+    topics.write_text("[topics]\n" + "".join(f'{k} = "{v}"\n' for k, v in TOPICS.items()))
+    assert main(["calibrate", "lidar", "--recording", str(bag), "--topics", str(topics),
+                 "--max-frames", "2"]) == 0
+    out = capsys.readouterr().out
+    assert "calibration: the recording's CameraInfo" in out and "/tf_static" in out
+    # without the transform there is nothing to check: one line says so
+    bare = tmp_path / "bare.mcap"
+    write_bag(bare, samples)
+    assert main(["calibrate", "lidar", "--recording", str(bare), "--topics",
+                 str(topics)]) == 1
+    assert "no LiDAR extrinsics" in capsys.readouterr().err

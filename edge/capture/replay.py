@@ -455,18 +455,19 @@ def recording_calibration(source: McapSource):
     return stereo, lidar, origin
 
 
-def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0):
+def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
+                  topics: TopicMap | None = None):
     """Each frame of a recording with its LiDAR and ground truth, for offline use (training,
     the extrinsics check): yields (frame as recorded, rectified left, rectified right, points
     (N, 3) of the revolution nearest in time among those received before it (0 rows if none),
     GT disparity or None). `stereo` rectifies frames the recording did not store rectified;
-    `time_offset_ns` moves LiDAR stamps into the camera clock."""
+    `time_offset_ns` moves LiDAR stamps into the camera clock; `topics` maps a ROS 2 bag's."""
     from edge.capture.sync import LidarSync, SyncConfig
 
     sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns))
     rectifier = stereo.rectifier()
     pending = None  # (frame, left, right, points): waits for its GT, which follows it
-    for event in McapSource(path):
+    for event in McapSource(path, topics):
         if isinstance(event, LidarScan):
             sync.add(event)
         elif isinstance(event, StereoFrame):
