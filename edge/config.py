@@ -116,8 +116,33 @@ CHOICES = {
     ("engine", "precision"): ("int8", "fp32"),
     ("log", "compression"): ("lz4", "zstd", "none"),
 }
-POSITIVE = {("camera", "fps"), ("engine", "threads"), ("engine", "iters"), ("log", "queue"),
-            ("sync", "window_ms")}
+# accepted ranges, inclusive (NaN and inf are outside every one); OFF_OR: 0 also accepted
+RANGES = {
+    ("camera", "fps"): (0.5, 1000.0),
+    ("camera", "size"): (8, 16384),  # each side
+    ("lidar", "baudrate"): (0, 10_000_000),
+    ("sync", "window_ms"): (1.0, 10_000.0),
+    ("sync", "max_wait_ms"): (0.0, 10_000.0),
+    ("engine", "scale"): (0.0, 4.0),
+    ("engine", "threads"): (1, 256),
+    ("engine", "iters"): (1, 64),
+    ("engine", "deadline_ms"): (0.0, 60_000.0),
+    ("log", "rotate_mb"): (1.0, 1e7),
+    ("log", "rotate_s"): (1.0, 1e8),
+    ("log", "queue"): (1, 1000),
+}
+OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
+
+
+def _check_range(path: str, name: str, key: str, value) -> None:
+    if (name, key) not in RANGES:
+        return
+    lo, hi = RANGES[(name, key)]
+    values = value if isinstance(value, tuple) else (value,)
+    if all(lo <= v <= hi for v in values) or ((name, key) in OFF_OR and value == 0):
+        return
+    off = " (or 0: off)" if (name, key) in OFF_OR else ""
+    raise ConfigError(f"{name}.{key}", f"{lo}–{hi}{off}", value, path)
 
 
 def _convert(path: str, key: str, value, default):
@@ -153,6 +178,23 @@ def _resolve_paths(sections: dict, base: Path) -> None:
             sections[name] = replace(sections[name], **{key: str(base / value)})
 
 
+def _log_out(log: LogConfig, path: str) -> LogConfig:
+    """`log.out` names a file to write (rotated as NAME_0001.mcap, ...): a directory gets
+    depth.mcap inside it; empty and device paths are refused."""
+    from dataclasses import replace
+
+    out = Path(log.out).expanduser()
+    if not log.out.strip():
+        raise ConfigError("log.out", "a file path for the recordings", log.out, path)
+    if str(out).startswith("/dev/") or (out.exists() and not (out.is_file() or out.is_dir())):
+        raise ConfigError("log.out", "a regular file path (not a device: to keep nothing, "
+                          "set log.raw = false and point log.out at a scratch folder)",
+                          log.out, path)
+    if out.is_dir() or log.out.endswith("/"):
+        return replace(log, out=str(out / "depth.mcap"))
+    return log
+
+
 def load_robot_config(path: str | Path) -> RobotConfig:
     path = str(path)
     try:
@@ -162,6 +204,10 @@ def load_robot_config(path: str | Path) -> RobotConfig:
         raise ConfigError("file", "an existing TOML file", path) from None
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError("file", f"valid TOML ({exc})", path) from None
+    except UnicodeDecodeError as exc:
+        raise ConfigError("file", f"UTF-8 text (byte {exc.start} is not)", path) from None
+    except IsADirectoryError:
+        raise ConfigError("file", "a TOML file, not a directory", path) from None
     sections = {f.name: f for f in fields(RobotConfig) if f.name != "path"}
     unknown = set(data) - set(sections)
     if unknown:
@@ -183,11 +229,11 @@ def load_robot_config(path: str | Path) -> RobotConfig:
             if (name, key) in CHOICES and value not in CHOICES[(name, key)]:
                 raise ConfigError(f"{name}.{key}", f"one of {CHOICES[(name, key)]}", value,
                                   path)
-            if (name, key) in POSITIVE and not value > 0:
-                raise ConfigError(f"{name}.{key}", "> 0", value, path)
+            _check_range(path, name, key, value)
             values[key] = value
         built[name] = cls(**values)
     _resolve_paths(built, Path(path).parent)
+    built["log"] = _log_out(built["log"], path)
     config = RobotConfig(**built, path=path)
     if config.lidar.model == "sim" and config.camera.source != "sim":
         raise ConfigError("lidar.model", "'sim' only with camera.source = 'sim'", "sim", path)

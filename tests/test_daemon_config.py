@@ -42,6 +42,21 @@ def write(tmp_path, text, name="robot.toml"):
     ("[engine]\nbatch = 4\n", "engine.batch"),
     ("[motors]\n", "motors"),
     ("[camera]\nsource = 'oak'\n[lidar]\nmodel = 'sim'\n", "lidar.model"),
+    # values that are the right type but cannot be meant (issue 17: tracebacks or hangs)
+    ("[camera]\nfps = 1e-300\n", "camera.fps"),
+    ("[camera]\nfps = 1e-3\n", "camera.fps"),
+    ("[camera]\nsize = [100000, 400]\n", "camera.size"),
+    ("[engine]\nthreads = 1099511627776\n", "engine.threads"),
+    ("[engine]\niters = 1000000000\n", "engine.iters"),
+    ("[engine]\nscale = nan\n", "engine.scale"),
+    ("[sync]\nwindow_ms = inf\n", "sync.window_ms"),
+    ("[log]\nrotate_mb = nan\n", "log.rotate_mb"),
+    ("[log]\nrotate_mb = inf\n", "log.rotate_mb"),
+    ("[log]\nrotate_mb = -1.0\n", "log.rotate_mb"),
+    ("[log]\nrotate_mb = 0.000001\n", "log.rotate_mb"),
+    ("[log]\nrotate_s = -5.0\n", "log.rotate_s"),
+    ("[log]\nout = ''\n", "log.out"),
+    ("[log]\nout = '/dev/null'\n", "log.out"),
 ])
 def test_config_errors_name_the_file_and_the_key(tmp_path, text, key):
     path = write(tmp_path, text)
@@ -208,3 +223,38 @@ def test_no_calibration_file_on_an_oak_uses_its_factory_calibration(tmp_path, mo
                                   "model = 'ld06'\n"))
     with pytest.raises(ConfigError, match="lidar.model.*calibrate lidar"):
         open_sources(cfg)
+
+
+def test_a_config_that_is_not_utf8_or_points_log_out_at_a_folder(tmp_path):
+    path = tmp_path / "robot.toml"
+    path.write_bytes(b"[camera]\nsource = 'sim'\n# caf\xe9\n")
+    with pytest.raises(ConfigError, match="UTF-8"):
+        load_robot_config(path)
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    path.write_text(f"[log]\nout = '{logs}'\n")
+    assert load_robot_config(path).log.out == str(logs / "depth.mcap")  # files inside it
+    path.write_text("[log]\nrotate_mb = 0.0\nrotate_s = 0.0\n")  # 0 = never rotate
+    assert load_robot_config(path).log.rotate_mb == 0.0
+
+
+@pytest.mark.parametrize("damage", ["empty model.json", "model.json without keys",
+                                    "garbage ONNX"])
+def test_a_damaged_bundle_is_one_line_naming_it(tmp_path, capsys, damage):
+    import shutil
+
+    from edge.runtime.engine import DEFAULT_BUNDLE
+
+    bundle = tmp_path / "bundle"
+    shutil.copytree(DEFAULT_BUNDLE, bundle)
+    if damage == "empty model.json":
+        (bundle / "model.json").write_text("")
+    elif damage == "model.json without keys":
+        (bundle / "model.json").write_text("{}")
+    else:
+        (bundle / "step.int8.onnx").write_bytes(b"\x08\x07garbage" * 100)
+    out = tmp_path / "depth.mcap"
+    cfg = write(tmp_path, SIM.format(out=out) + f'[engine]\nbundle = "{bundle}"\n')
+    assert main(["run", "--config", str(cfg), "--max-frames", "1"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "bundle" in err and "Traceback" not in err

@@ -28,9 +28,15 @@ def load_bundle_meta(bundle: Path) -> dict:
     if not path.is_file():
         raise ConfigError("bundle", "a directory with model.json (tools/export.py)", str(bundle))
     try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
+        meta = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError("bundle", f"valid JSON in {path}", str(exc)) from None
+    missing = [k for k in ("size", "downsample", "precisions") if not isinstance(meta, dict)
+               or k not in meta]
+    if missing:
+        raise ConfigError("bundle", f"{path} with the keys size, downsample and precisions "
+                          "(tools/export.py writes them)", f"missing {missing}")
+    return meta
 
 
 class Engine:
@@ -64,9 +70,16 @@ class Engine:
         # from the next one (DESIGN.md)
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
         providers = ["CPUExecutionProvider"]
-        self.sessions = {part: ort.InferenceSession(str(self.bundle / name), opts,
-                                                    providers=providers)
-                         for part, name in files.items()}
+        self.sessions = {}
+        for part, name in files.items():
+            try:
+                self.sessions[part] = ort.InferenceSession(str(self.bundle / name), opts,
+                                                           providers=providers)
+            except Exception as exc:  # noqa: BLE001 - ONNX Runtime's errors have no base
+                first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else ""
+                raise ConfigError("bundle", f"a loadable ONNX graph at {self.bundle / name} "
+                                  "(re-export with tools/export.py)",
+                                  f"{type(exc).__name__}: {first}") from None
         self._enc_outputs = [o.name for o in self.sessions["encoder"].get_outputs()]
         upsample = self.sessions["upsample"]
         # a refining upsample graph also takes the images (and, version 2, the LiDAR)
