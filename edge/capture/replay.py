@@ -247,43 +247,45 @@ class McapSource(Source):
     def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
         """Read the recording's first messages for its calibration: /edge/calibration (ours,
         logged first), the mapped camera infos, /tf_static and the LiDAR's frame id."""
-        from mcap.reader import NonSeekingReader
         from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
         from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
+
+        from edge.capture.mcap_tolerant import ReadReport, iter_messages
 
         t, found = self.topics, RecordingCalibration()
         wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
         factories, decoders = [ProtobufDecoder(), Ros2Decoder()], {}
-        count = 0
-        with open(self.path, "rb") as f:
-            try:
-                for schema, channel, message in NonSeekingReader(f).iter_messages(
-                        log_time_order=False):
-                    count += 1
-                    if count > max_messages:
+        try:
+            messages = iter_messages(self.path, ReadReport())
+            for count, (schema, channel, message) in enumerate(messages):
+                if count >= max_messages:
+                    break
+                if channel.topic not in wanted:
+                    continue
+                try:
+                    msg = self._decode(schema, channel, message, factories, decoders)
+                    if channel.topic == t.calibration:
+                        found.toml = str(msg["toml"])
+                        break  # ours is complete: nothing else is needed
+                    if self._found(found, channel.topic, msg):
                         break
-                    if channel.topic not in wanted:
-                        continue
-                    try:
-                        msg = self._decode(schema, channel, message, factories, decoders)
-                        if channel.topic == t.calibration:
-                            found.toml = str(msg["toml"])
-                            break  # ours is complete: nothing else is needed
-                        if channel.topic == t.tf_static:
-                            found.transforms.extend(_static_transforms(msg))
-                        elif channel.topic == t.lidar:
-                            found.lidar_frame = found.lidar_frame or _frame_id(msg)
-                        elif channel.topic not in [i["topic"] for i in found.infos.values()]:
-                            side = "left" if channel.topic == t.left_info else "right"
-                            found.infos[side] = dict(camera_info_dict(msg), topic=channel.topic)
-                        if len(found.infos) == 2 and found.transforms and found.lidar_frame:
-                            break
-                    except Exception as exc:  # noqa: BLE001 - counted like the replay's own
-                        self.stats.errors[f"{channel.topic}: decode {type(exc).__name__}"] += 1
-            except Exception as exc:  # noqa: BLE001 - not MCAP at all, or cut off early
-                if count == 0:
-                    raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
+                except Exception as exc:  # noqa: BLE001 - counted like the replay's own
+                    self.stats.errors[f"{channel.topic}: decode {type(exc).__name__}"] += 1
+        except ValueError as exc:  # not MCAP at all
+            raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
         return found
+
+    def _found(self, found: RecordingCalibration, topic: str, msg) -> bool:
+        """Adds a transform, LiDAR frame or camera info to `found`; True once it has all."""
+        t = self.topics
+        if topic == t.tf_static:
+            found.transforms.extend(_static_transforms(msg))
+        elif topic == t.lidar:
+            found.lidar_frame = found.lidar_frame or _frame_id(msg)
+        elif topic not in [i["topic"] for i in found.infos.values()]:
+            side = "left" if topic == t.left_info else "right"
+            found.infos[side] = dict(camera_info_dict(msg), topic=topic)
+        return len(found.infos) == 2 and bool(found.transforms) and bool(found.lidar_frame)
 
     def check_topics(self, required: tuple[str, ...] = ("left", "right")) -> None:
         topics = self.file_topics()
@@ -296,9 +298,58 @@ class McapSource(Source):
                               f"{', '.join(required)}); the file has: "
                               f"{', '.join(sorted(topics)) or 'no topics'}")
 
+    def _file_messages(self):
+        """(schema, channel, message) past damaged chunks (`edge.capture.mcap_tolerant`):
+        each is counted, named and warned about as it is found; a cut-off end is too."""
+        from edge.capture.mcap_tolerant import ReadReport, iter_messages
+
+        report, seen = ReadReport(), 0
+        first_time = last_time = None
+        try:
+            for item in iter_messages(self.path, report):
+                for d in report.damage[seen:]:
+                    self._damaged(d)
+                seen = len(report.damage)
+                first_time = item[2].log_time if first_time is None else first_time
+                last_time = item[2].log_time
+                yield item
+        except ValueError as exc:  # not MCAP at all
+            raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
+        for d in report.damage[seen:]:
+            self._damaged(d)
+        if report.unknown_channel:
+            self.stats.errors["message on a channel no intact record declares"] += \
+                report.unknown_channel
+        if report.truncated_at is not None:
+            self.stats.truncated = True
+            self.stats.bytes_read = report.truncated_at
+            span = 0.0 if first_time is None else (last_time - first_time) / 1e9
+            log.warning("%s is cut off at byte %d: replayed the %d messages of its complete "
+                        "chunks, %.2f s of recording; the rest of its %.1f MB is unreadable",
+                        self.path, report.truncated_at, self.stats.messages, span,
+                        self.path.stat().st_size / 1e6)
+
+    def _damaged(self, damage) -> None:
+        lost = "?" if damage.messages_lost is None else damage.messages_lost
+        self.stats.errors[f"damaged data at byte {damage.offset} ({damage.reason}, "
+                          f"{lost} messages lost)"] += 1
+        log.warning("%s: damaged data at byte %d (%s): skipped, reading on at the next "
+                    "intact chunk", self.path, damage.offset, damage.reason)
+
+    def _pace(self, log_time: int) -> None:
+        """realtime: sleep until the message's log time; a jump of over a minute (a clock
+        step, or a corrupted time) restarts the pacing instead of sleeping through it."""
+        now = time.monotonic()
+        if self._pace_origin is None:
+            self._pace_origin = (log_time, now)
+        lag = (log_time - self._pace_origin[0]) / 1e9 - (now - self._pace_origin[1])
+        if abs(lag) > 60:
+            self.stats.errors["log time jump over 60 s (pacing restarted)"] += 1
+            self._pace_origin = (log_time, now)
+        elif lag > 0:
+            self._stop.wait(lag)
+
     def __iter__(self):
-        from mcap.exceptions import McapError
-        from mcap.reader import NonSeekingReader
         from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
         from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
 
@@ -307,52 +358,31 @@ class McapSource(Source):
         wanted = {t.left, t.right, t.lidar, t.left_info, t.right_info, t.calibration, t.gt}
         wanted.discard("")
         pending: dict[int, dict[str, np.ndarray]] = {}
-        first_log = wall0 = None
-        with open(self.path, "rb") as f:
-            factories = [ProtobufDecoder(), Ros2Decoder()]
-            decoders: dict[int, object] = {}
-            messages = NonSeekingReader(f, validate_crcs=True).iter_messages(
-                log_time_order=False)
-            first_time = last_time = None
-            while not self._stop.is_set():
-                try:
-                    schema, channel, message = next(messages)
-                except StopIteration:
-                    break
-                except (McapError, EOFError, ValueError, OSError) as exc:
-                    self.stats.truncated = True
-                    self.stats.bytes_read = f.tell()
-                    span = 0.0 if first_time is None else (last_time - first_time) / 1e9
-                    log.warning("%s is cut off (%s): replayed the %d messages of its complete "
-                                "chunks, %.2f s of recording; the rest of its %.1f MB is "
-                                "unreadable", self.path, type(exc).__name__,
-                                self.stats.messages, span, self.path.stat().st_size / 1e6)
-                    break
-                first_time = message.log_time if first_time is None else first_time
-                last_time = message.log_time
-                topic = channel.topic
-                self.seen_topics.add(topic)
-                self.stats.messages += 1
-                if topic not in wanted:
-                    continue
-                try:
-                    decoded = self._decode(schema, channel, message, factories, decoders)
-                except Exception as exc:  # noqa: BLE001 - a message that does not decode
-                    self.stats.errors[f"{topic}: decode {type(exc).__name__}"] += 1
-                    continue
-                if self.realtime:
-                    if first_log is None:
-                        first_log, wall0 = message.log_time, time.monotonic()
-                    lag = (message.log_time - first_log) / 1e9 - (time.monotonic() - wall0)
-                    if lag > 0:
-                        self._stop.wait(lag)
-                try:
-                    yield from self._handle(topic, message, decoded, pending)
-                except (ValueError, TypeError, AttributeError, IndexError) as exc:
-                    self.stats.errors[f"{topic}: {exc}"[:120]] += 1
-                    log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
+        self._pace_origin = None
+        factories = [ProtobufDecoder(), Ros2Decoder()]
+        decoders: dict[int, object] = {}
+        for schema, channel, message in self._file_messages():
             if self._stop.is_set():
                 return  # closed by the caller: no end-of-file checks
+            topic = channel.topic
+            self.seen_topics.add(topic)
+            self.stats.messages += 1
+            if topic not in wanted:
+                continue
+            try:
+                decoded = self._decode(schema, channel, message, factories, decoders)
+            except Exception as exc:  # noqa: BLE001 - a message that does not decode
+                self.stats.errors[f"{topic}: decode {type(exc).__name__}"] += 1
+                continue
+            if self.realtime:
+                self._pace(message.log_time)
+            try:
+                yield from self._handle(topic, message, decoded, pending)
+            except (ValueError, TypeError, AttributeError, IndexError, OverflowError) as exc:
+                self.stats.errors[f"{topic}: {exc}"[:120]] += 1
+                log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
+        if self._stop.is_set():
+            return
         if not self.stats.truncated:
             self.stats.bytes_read = self.path.stat().st_size
         if self.stats.frames == 0 and t.left not in self.seen_topics:
