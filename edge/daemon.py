@@ -345,6 +345,10 @@ class Runner:
         except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
             self.stats.count_error(f"frame: {type(exc).__name__}", exc)
             out = None
+        logger = self.pipeline.logger
+        if logger is not None and logger.stopped is not None and not self.stats.fatal:
+            self.stats.fatal = logger.stopped  # the disk is full: stop, exit non-zero
+            self.stop.set()
         if out is not None and self.on_output is not None:
             self.on_output(frame, out)
         if self.max_frames is not None and self.stats.frames >= self.max_frames:

@@ -17,11 +17,15 @@ the summary (the caller makes sure it runs, on signals too: see edge.daemon and 
 from __future__ import annotations
 
 import json
+import logging
+import shutil
 from pathlib import Path
 
 import numpy as np
 
 from edge.types import DepthResult, LidarScan, StereoFrame
+
+log = logging.getLogger(__name__)
 
 TOPICS = dict(
     left="/stereo/left/image_rect", right="/stereo/right/image_rect",
@@ -100,8 +104,16 @@ def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
         np.float32)
 
 
+MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
+
+
 class McapLogger:
     """Log frames, scans and results to rotating MCAP files (a context manager).
+
+    Before each frame and result it checks the free space on the log's disk: below
+    `min_free_bytes` it closes the file while its summary still fits, says so once, and
+    `stopped` holds the reason (the daemon then exits non-zero, so systemd restarts it once
+    space is made); the file stays complete and replayable.
 
     `topics`: which keys of TOPICS to write (default all); `rotate_bytes` / `rotate_s`: start
     a new file after this many bytes (as counted on disk) or seconds of log time;
@@ -111,7 +123,8 @@ class McapLogger:
     def __init__(self, path: str | Path, topics: tuple[str, ...] | None = None,
                  rotate_bytes: int | None = None, rotate_s: float | None = None,
                  calibration_toml: str | None = None, chunk_size: int = 1 << 20,
-                 compression: str = "lz4", live: bool = False, live_port: int = 8765) -> None:
+                 compression: str = "lz4", live: bool = False, live_port: int = 8765,
+                 min_free_bytes: int = MIN_FREE_BYTES) -> None:
         import foxglove
 
         self.path = Path(path)
@@ -135,6 +148,8 @@ class McapLogger:
         self._next_index = 0
         self._file_start_ns: int | None = None
         self.server = None
+        self.min_free_bytes = min_free_bytes
+        self.stopped: str | None = None  # why logging stopped early (the disk filling up)
         if live:
             self.server = foxglove.start_server(context=self.context, host="127.0.0.1",
                                                 port=live_port, name="edge-depth")
@@ -170,7 +185,26 @@ class McapLogger:
         self._file_start_ns = stamp_ns
         self._calibration_logged = False
 
+    def _disk_full(self) -> bool:
+        """True once logging has stopped for want of space (checked now)."""
+        if self.stopped is not None:
+            return True
+        try:
+            free = shutil.disk_usage(self.files[-1].parent).free
+        except OSError:
+            return False
+        if free >= self.min_free_bytes:
+            return False
+        self.stopped = (f"the disk holding {self.files[-1]} is full ({free / 2**20:.0f} MB "
+                        f"free, below {self.min_free_bytes / 2**20:.0f} MB): closed the file "
+                        "with its summary; make space and restart")
+        log.error("%s", self.stopped)
+        self._close_writer()
+        return True
+
     def _maybe_rotate(self, stamp_ns: int) -> None:
+        if self._writer is None:  # stopped: no new file either
+            return
         if self._file_start_ns is None:
             self._file_start_ns = stamp_ns
         too_big = (self.rotate_bytes is not None and self.files[-1].exists()
@@ -178,7 +212,7 @@ class McapLogger:
         too_long = (self.rotate_s is not None
                     and stamp_ns - self._file_start_ns >= self.rotate_s * 1e9)
         if too_big or too_long:
-            self._writer.close()
+            self._close_writer()
             self._open(stamp_ns)
 
     def _channel(self, key: str):
@@ -203,7 +237,7 @@ class McapLogger:
         return self._channels[key]
 
     def _log(self, key: str, message, stamp_ns: int) -> None:
-        if key not in self.enabled:
+        if key not in self.enabled or self._writer is None:
             return
         if not self._calibration_logged:  # first in every file, so each replays on its own
             self._calibration_logged = True
@@ -226,6 +260,8 @@ class McapLogger:
 
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:
+        if self._disk_full():
+            return
         self._maybe_rotate(frame.stamp_ns)
         left, right = ("left", "right") if frame.rectified else ("left_raw", "right_raw")
         self._log(left, image_message(frame.left, frame.stamp_ns), frame.stamp_ns)
@@ -261,6 +297,8 @@ class McapLogger:
                    focal_px: float | None = None,
                    principal_point: tuple[float, float] | None = None) -> None:
         t = result.stamp_ns
+        if self._disk_full():
+            return
         self._maybe_rotate(t)
         if sparse is not None:
             self._log("sparse", image_message(sparse.astype(np.float32), t), t)
@@ -275,10 +313,18 @@ class McapLogger:
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)
 
+    def _close_writer(self) -> None:
+        if self._writer is None:
+            return
+        writer, self._writer = self._writer, None
+        try:
+            writer.close()
+        except (OSError, RuntimeError) as exc:  # no room for the summary: the chunks stay
+            log.error("closing %s: %s (it replays up to its last complete chunk)",
+                      self.files[-1], exc)
+
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
+        self._close_writer()
         if self.server is not None:
             self.server.stop()
             self.server = None

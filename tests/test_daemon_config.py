@@ -258,3 +258,33 @@ def test_a_damaged_bundle_is_one_line_naming_it(tmp_path, capsys, damage):
     assert main(["run", "--config", str(cfg), "--max-frames", "1"]) == 1
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "bundle" in err and "Traceback" not in err
+
+
+def test_a_disk_that_fills_closes_the_file_complete_and_exits_1(tmp_path, monkeypatch,
+                                                                capsys, caplog):
+    from collections import namedtuple
+
+    from mcap.reader import make_reader
+
+    import edge.mcap_log as mcap_log
+
+    usage = namedtuple("usage", "total used free")
+    calls = []
+
+    def disk_usage(path):  # plenty for the first frames, then 10 MB
+        calls.append(path)
+        free = 10 * 2**30 if len(calls) <= 4 else 10 * 2**20
+        return usage(20 * 2**30, 20 * 2**30 - free, free)
+
+    monkeypatch.setattr(mcap_log.shutil, "disk_usage", disk_usage)
+    out = tmp_path / "depth.mcap"
+    cfg = write(tmp_path, SIM.format(out=out))
+    assert main(["run", "--config", str(cfg), "--max-frames", "20"]) == 1
+    captured = capsys.readouterr()
+    assert "is full (10 MB free, below 64 MB)" in captured.err
+    assert caplog.text.count("is full") == 1  # said once
+    frames = int(captured.out.split(" frames in")[0].split()[-1])
+    assert 1 <= frames < 20  # it stopped instead of inferring on
+    with open(out, "rb") as f:
+        assert make_reader(f).get_summary() is not None  # closed cleanly, summary written
+    assert topic_counts(out)[TOPICS["disparity"]] >= 1
