@@ -272,3 +272,52 @@ def test_rplidar_over_a_pty_answers_health_and_streams_nodes():
     assert len(scans[1]) >= 300
     r = np.hypot(scans[1].points[:, 0], scans[1].points[:, 1])
     assert r.min() >= 0.5 and r.max() <= 0.86
+
+
+def test_a_revolution_that_never_wraps_is_cut_at_the_point_limit():
+    asm = ld06.RevolutionAssembler(max_points=120)
+    scans = []
+    for k in range(100):  # the start angle never wraps (a failing encoder)
+        p = ld06.LD06Packet(3600, 10.0, 19.6, 0, tuple([2000] * 12), tuple([100] * 12))
+        s = asm.add(p, k)
+        assert asm._count <= 120  # bounded
+        if s is not None:
+            scans.append(s)
+    assert asm.cut == len(scans) == 9 and all(len(s) == 120 for s in scans)
+
+
+def test_rplidar_without_start_flags_is_cut_and_counted(monkeypatch):
+    monkeypatch.setattr(ld06, "MAX_REVOLUTION_POINTS", 50)
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    stop = threading.Event()
+
+    def device() -> None:
+        import select
+
+        streaming, i = False, 0
+        requests = bytearray()
+        while not stop.is_set():
+            if select.select([master], [], [], 0.0005)[0]:
+                requests.extend(os.read(master, 64))
+                if requests.endswith(rplidar.request(rplidar.CMD_SCAN)) and not streaming:
+                    os.write(master, rplidar.SCAN_DESCRIPTOR)
+                    streaming = True
+            if streaming and i < 400:  # never a start flag
+                os.write(master, rplidar.encode_node(False, 15, float(i % 360), 800.0))
+                i += 1
+
+    thread = threading.Thread(target=device, daemon=True)
+    thread.start()
+    source = SerialLidarSource(os.ttyname(slave), "rplidar-a2")
+    scans = []
+    for scan in source:
+        scans.append(scan)
+        if len(scans) == 3:
+            source.close()
+    stop.set()
+    thread.join()
+    os.close(master)
+    os.close(slave)
+    assert len(scans) >= 3 and all(len(s) == 50 for s in scans)  # closing ends the batch
+    assert source.counters()["errors"]["revolution cut (no start flag)"] >= len(scans)

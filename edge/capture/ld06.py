@@ -146,15 +146,26 @@ def _parse(frame: bytes) -> LD06Packet:
     return LD06Packet(speed, start % 360.0, end % 360.0, stamp, tuple(dist), tuple(inten))
 
 
+# ~10x the most points a revolution of the supported LiDARs holds (LD06: ~450 at 10 Hz,
+# RPLIDAR A2: ~800): past it a revolution is cut, so memory stays bounded when the angle
+# never wraps (a failing encoder) or the start flag never comes
+MAX_REVOLUTION_POINTS = 20_000
+
+
 class RevolutionAssembler:
-    """Packets -> one `LidarScan` per revolution (emitted when the start angle wraps).
+    """Packets -> one `LidarScan` per revolution (emitted when the start angle wraps, or cut
+    at `max_points`, counted in `cut`).
 
     `add(packet, stamp_ns)`: stamp_ns is the host time the packet arrived; the scan's stamp is
     its first packet's, each point carries its packet's stamp. Zero distances are no return.
     """
 
-    def __init__(self, min_range_m: float = 0.02) -> None:
+    def __init__(self, min_range_m: float = 0.02,
+                 max_points: int = MAX_REVOLUTION_POINTS) -> None:
         self.min_range_m = min_range_m
+        self.max_points = max_points
+        self.cut = 0  # revolutions emitted at max_points because the angle never wrapped
+        self._count = 0
         self._points: list[np.ndarray] = []
         self._intensity: list[np.ndarray] = []
         self._stamps: list[np.ndarray] = []
@@ -175,6 +186,9 @@ class RevolutionAssembler:
         scan = None
         if self._last_start is not None and start < self._last_start - 180.0:
             scan = self.flush()
+        elif self._count + len(ranges) > self.max_points:  # bounded memory: a revolution
+            scan = self.flush()                             # that never closes is cut
+            self.cut += 1
         self._last_start = start
         if self._scan_stamp is None:
             self._scan_stamp = int(stamp_ns)
@@ -183,6 +197,7 @@ class RevolutionAssembler:
         self._points.append(np.stack([r * np.cos(a), -r * np.sin(a), np.zeros_like(r)], 1))
         self._intensity.append(inten[keep])
         self._stamps.append(np.full(int(keep.sum()), int(stamp_ns), np.int64))
+        self._count += len(ranges)
         return scan
 
     def flush(self) -> LidarScan | None:
@@ -193,5 +208,5 @@ class RevolutionAssembler:
         scan = LidarScan(self._scan_stamp, pts, np.concatenate(self._intensity),
                          np.concatenate(self._stamps))
         self._points, self._intensity, self._stamps = [], [], []
-        self._scan_stamp = None
+        self._scan_stamp, self._count = None, 0
         return scan

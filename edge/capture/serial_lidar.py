@@ -45,10 +45,13 @@ class SerialLidarSource(Source):
         self.connects = 0
         self.errors: Counter = Counter()
         self.decoder = None
+        self.assembler: ld06.RevolutionAssembler | None = None
 
     def counters(self) -> dict:
         out = dict(model=self.model, scans=self.scans, reconnects=self.reconnects,
                    errors=dict(self.errors))
+        if self.assembler is not None and self.assembler.cut:
+            out["errors"]["revolution cut (the angle never wrapped)"] = self.assembler.cut
         decoder = self.decoder
         if decoder is not None and hasattr(decoder, "stats"):  # LD06 / LD19
             s = decoder.stats
@@ -122,7 +125,7 @@ class SerialLidarSource(Source):
         import serial
 
         delay = self.backoff_s[0]
-        assembler = ld06.RevolutionAssembler()
+        self.assembler = assembler = ld06.RevolutionAssembler()
         revolution: list[rplidar.ScanNode] = []
         rev_stamp = 0
         try:
@@ -147,7 +150,9 @@ class SerialLidarSource(Source):
                     self.errors[f"read: {type(exc).__name__}"] += 1
                     log.warning("%s: %s; reconnecting", self.url, exc)
                     self._close_port()
-                    assembler = ld06.RevolutionAssembler()
+                    cut = assembler.cut  # a fresh revolution; the count goes on
+                    self.assembler = assembler = ld06.RevolutionAssembler()
+                    assembler.cut = cut
                     revolution = []
                     continue
                 if not data:
@@ -161,7 +166,10 @@ class SerialLidarSource(Source):
                             yield scan
                 else:
                     for node in self.decoder.feed(data):
-                        if node.start and revolution:
+                        too_long = len(revolution) >= ld06.MAX_REVOLUTION_POINTS
+                        if too_long:  # the start flag never came: cut, bounded memory
+                            self.errors["revolution cut (no start flag)"] += 1
+                        if (node.start or too_long) and revolution:
                             self.scans += 1
                             yield nodes_to_scan(revolution, rev_stamp)
                             revolution = []
