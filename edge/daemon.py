@@ -313,7 +313,7 @@ class Runner:
             elif isinstance(event, StereoFrame):
                 self._enqueue(event) if self.threaded else self.process(event)
             elif isinstance(event, GroundTruth):
-                self.gts[event.stamp_ns] = event.disparity
+                self._keep_gt(event)
             elif isinstance(event, Calibration) and event.toml is not None:
                 from calibration.io import loads_calibration
 
@@ -322,19 +322,31 @@ class Runner:
         except (EdgeError, CalibrationError, ValueError) as exc:
             self.stats.count_error(type(exc).__name__, exc)
 
+    def _keep_gt(self, gt: GroundTruth) -> None:
+        """Ground truth follows its frame: live, it is kept only while that frame is queued
+        (a dropped frame's 1 MB of truth must not outlive it)."""
+        if not self.threaded:
+            self.gts[gt.stamp_ns] = gt.disparity
+            return
+        with self.cond:
+            if any(f.stamp_ns == gt.stamp_ns for f in self.frames):
+                self.gts[gt.stamp_ns] = gt.disparity
+
     def _enqueue(self, frame: StereoFrame) -> None:
         with self.cond:
             if len(self.frames) >= self.queue_size:
-                self.frames.popleft()
+                dropped = self.frames.popleft()
+                self.gts.pop(dropped.stamp_ns, None)
                 self.stats.drops += 1
             self.frames.append(frame)
             self.cond.notify()
 
     def process(self, frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
         # ground truth follows its frame in our recordings: look for it once the frame is in
-        gt = self.gts.pop(frame.stamp_ns, None)
-        for stamp in [s for s in self.gts if s < frame.stamp_ns]:  # frames dropped, skipped
-            del self.gts[stamp]
+        with self.cond:
+            gt = self.gts.pop(frame.stamp_ns, None)
+            for stamp in [s for s in self.gts if s < frame.stamp_ns]:  # dropped, skipped
+                del self.gts[stamp]
         try:
             out = self.pipeline.on_frame(frame, gt, sync_wait_ms)
         except FatalInputError as exc:  # every frame would fail: stop, say why
