@@ -11,7 +11,6 @@ import logging
 import os
 import sys
 import time
-from collections import Counter
 from pathlib import Path
 
 import numpy as np
@@ -22,7 +21,7 @@ from edge.daemon import Pipeline, StopFlag, format_latency, lidar_summary, run, 
 from edge.errors import ConfigError
 from edge.mcap_log import McapLogger
 from edge.runtime.engine import Engine
-from edge.types import LidarScan, StereoFrame
+from edge.types import LidarScan
 
 log = logging.getLogger(__name__)
 
@@ -241,35 +240,17 @@ def record_command(config_path, out, max_frames: int | None = None) -> int:
 
     config = load_robot_config(config_path)
     source, stereo, lidar = open_sources(config, max_frames)
-    rectifier = stereo.rectifier()
     stop = StopFlag()
     stop.install()
-    stop.on_stop.append(source.close)
-    frames = scans = 0
-    errors: Counter = Counter()
-    lg = config.log
     try:
-        with McapLogger(out, topics=RAW_TOPICS, **logger_options(lg)) as logger:
-            logger.set_calibration(stereo, lidar)
-            for event in source:
-                if isinstance(event, LidarScan):
-                    logger.log_scan(event)
-                    scans += 1
-                elif isinstance(event, StereoFrame):
-                    if event.size != tuple(stereo.image_size):
-                        errors["frame size"] += 1
-                        continue
-                    left, right = (event.left, event.right) if event.rectified else \
-                        rectifier.rectify(event.left, event.right)
-                    logger.log_frame(StereoFrame(event.stamp_ns, event.seq, left, right,
-                                                 rectified=True))
-                    frames += 1
-                    if max_frames is not None and frames >= max_frames:
-                        stop.set()
-                if stop.is_set():
-                    break
+        with McapLogger(out, topics=RAW_TOPICS, **logger_options(config.log)) as logger:
+            pipeline = Pipeline(None, stereo, lidar, logger)  # no engine: the recorder
+            stats = run(source, pipeline, stop, threaded=True, max_frames=max_frames)
     finally:
         stop.restore()
-    print(f"recorded {frames} frames and {scans} scans to "
-          f"{', '.join(str(p) for p in logger.files)}; errors {dict(errors) or 'none'}")
+    print(f"recorded {stats.frames} frames ({stats.drops} dropped) and {stats.scans} scans to "
+          f"{', '.join(str(p) for p in logger.files)}; errors {dict(stats.errors) or 'none'}")
+    if stats.fatal:
+        print(f"error: {stats.fatal}", file=sys.stderr)
+        return 1
     return 0

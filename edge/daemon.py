@@ -78,14 +78,17 @@ class PipelineStats:
 
 
 class Pipeline:
-    """One frame at a time: `on_scan(scan)`, `on_frame(frame, gt=None) -> FrameOutput`."""
+    """One frame at a time: `on_scan(scan)`, `on_frame(frame, gt=None) -> FrameOutput`.
 
-    def __init__(self, engine: Engine, stereo: StereoCalibration,
+    With `engine=None` it is the recorder: frames are checked, rectified and logged with
+    the raw scans, and nothing is inferred (`on_frame` returns None)."""
+
+    def __init__(self, engine: Engine | None, stereo: StereoCalibration,
                  lidar: LidarExtrinsics | None, logger: McapLogger | None = None,
                  iters: int | None = None, deadline_ms: float | None = None,
                  sync: SyncConfig | None = None, log_raw: bool = True) -> None:
-        plan = engine.plan_for(tuple(stereo.image_size))  # ConfigError if it cannot run
-        if not plan.identity:
+        plan = engine.plan_for(tuple(stereo.image_size)) if engine else None  # ConfigError
+        if plan is not None and not plan.identity:                          # if it cannot run
             w, h = plan.scaled
             log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
                      *stereo.image_size, *engine.size, plan.scale, w, h)
@@ -100,11 +103,12 @@ class Pipeline:
         self.stats = PipelineStats()
         self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
         self._warned_unpaired = False
-        if lidar is None:
+        if lidar is None and engine is not None:
             log.warning("no LiDAR extrinsics in the calibration: running stereo only (add a "
                         "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
-        engine.warm_up()
+        if engine is not None:
+            engine.warm_up()
 
     def set_calibration(self, stereo: StereoCalibration, lidar: LidarExtrinsics | None) -> None:
         self.stereo, self.lidar = stereo, lidar
@@ -128,7 +132,7 @@ class Pipeline:
     def frame_ready(self, stamp_ns: int) -> bool:
         """Whether a frame can go on: its scans are in, or there is no LiDAR to wait for."""
         with self._lock:
-            return self.lidar is None or self.sync.ready(stamp_ns)
+            return self.engine is None or self.lidar is None or self.sync.ready(stamp_ns)
 
     def lidar_delivering(self, stamp_ns: int) -> bool:
         with self._lock:
@@ -149,24 +153,35 @@ class Pipeline:
                         self.stats.scans, "n/a" if gap is None else f"{gap:+.0f} ms")
             self._warned_unpaired = True
 
+    def _size_fits(self, frame: StereoFrame) -> bool:
+        """A first frame of another size stops the run (every frame would be skipped); one
+        odd frame later on is counted and skipped."""
+        if frame.size == tuple(self.stereo.image_size):
+            return True
+        (w, h), (cw, ch) = frame.size, self.stereo.image_size
+        if self.stats.frames == 0:
+            raise FatalInputError(f"the camera's frames are {w}x{h} but the calibration is "
+                                  f"for {cw}x{ch}: calibrate at the camera's size (or set "
+                                  "[camera] size to match)")
+        self.stats.count_error("frame size", f"{frame.size}, the calibration's is {(cw, ch)}")
+        return False
+
     def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None,
                  sync_wait_ms: float = 0.0) -> FrameOutput | None:
         t0 = time.perf_counter()
-        if frame.size != tuple(self.stereo.image_size):
-            sizes = f"{frame.size}, the calibration's is {tuple(self.stereo.image_size)}"
-            if self.stats.frames == 0:
-                raise FatalInputError(f"the camera's frames are {frame.size[0]}x"
-                                      f"{frame.size[1]} but the calibration is for "
-                                      f"{self.stereo.image_size[0]}x"
-                                      f"{self.stereo.image_size[1]}: calibrate at the "
-                                      "camera's size (or set [camera] size to match)")
-            self.stats.count_error("frame size", sizes)  # one odd frame later on: skipped
+        if not self._size_fits(frame):
             return None
         try:
             left, right = ((frame.left, frame.right) if frame.rectified
                            else self.rectifier.rectify(frame.left, frame.right))
         except Exception as exc:  # noqa: BLE001 - OpenCV errors are not one type
             self.stats.count_error("rectify", exc)
+            return None
+        if self.engine is None:  # recording: the rectified pair, nothing inferred
+            if self.logger is not None:
+                self.logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, left, right,
+                                                  rectified=True))
+            self.stats.frames += 1
             return None
         t1 = time.perf_counter()
         with self._lock:
