@@ -277,3 +277,22 @@ def test_confidence_loss_is_the_cross_entropy_of_being_within_a_pixel():
     valid = torch.tensor([[[[1.0, 1.0, 0.0]]]])          # the last pixel has no GT
     expected = (np.log1p(np.exp(-2.0)) + np.log1p(np.exp(-1.0))) / 2
     assert float(confidence_loss(logit, disparity, gt, valid)) == pytest.approx(expected, 1e-5)
+
+
+def test_refinement_v2_trunk_gets_a_tenth_of_the_confidence_gradient(monkeypatch):
+    import edge.model.refine as refine
+
+    torch.manual_seed(1)
+    stage = refine.Refinement(2)
+    torch.nn.init.normal_(stage.confidence.weight, std=0.1)
+    left = torch.rand(1, 1, 32, 48) * 255
+    args = (left, torch.roll(left, -2, dims=3), torch.full((1, 1, 32, 48), 2.0))
+
+    def trunk_grad(share: float) -> torch.Tensor:
+        monkeypatch.setattr(refine, "CONFIDENCE_TRUNK_GRAD", share)
+        stage.zero_grad()
+        stage(*args)[1].sum().backward()
+        return stage.inp.weight.grad.clone()
+
+    torch.testing.assert_close(trunk_grad(0.1), 0.1 * trunk_grad(1.0))
+    assert float(trunk_grad(0.0).abs().max()) == 0.0

@@ -23,7 +23,8 @@ from torch.nn import functional as F
 
 from edge.model.losses import warp_horizontal
 
-RESIDUAL_INIT_STD = 1e-3  # version 2: small enough to start as ~the identity, not zero
+RESIDUAL_INIT_STD = 1e-2  # version 2: ~the identity at the start (residuals of ~0.1 px), not zero
+CONFIDENCE_TRUNK_GRAD = 0.1  # how much of the confidence's gradient reaches the shared trunk
 
 
 class ResidualDilated(nn.Module):
@@ -79,7 +80,11 @@ class Refinement(nn.Module):
             inputs.extend(sparse_at_half(sparse, valid, disp2))
         x = self.blocks(F.relu(self.inp(torch.cat(inputs, 1))))
         if self.version >= 2:
-            residual, logit = self.residual(x), self.confidence(x)
+            # the trunk learns mostly for the residual: the confidence's larger, steadier
+            # gradient would otherwise decide what its features become (run stage5's
+            # first try: the residual's weights stayed at their initial 1e-3 for 600 steps)
+            to_confidence = x.detach() + CONFIDENCE_TRUNK_GRAD * (x - x.detach())
+            residual, logit = self.residual(x), self.confidence(to_confidence)
         else:
             residual, logit = self.out(x).chunk(2, 1)
         size = disparity.shape[-2:]
