@@ -321,3 +321,53 @@ def test_rplidar_without_start_flags_is_cut_and_counted(monkeypatch):
     os.close(slave)
     assert len(scans) >= 3 and all(len(s) == 50 for s in scans)  # closing ends the batch
     assert source.counters()["errors"]["revolution cut (no start flag)"] >= len(scans)
+
+
+class FakePort:
+    """A serial port whose reads return prepared chunks (and say how much is waiting)."""
+
+    def __init__(self, chunks: list[bytes]) -> None:
+        self.chunks = list(chunks)
+
+    @property
+    def in_waiting(self) -> int:
+        return len(self.chunks[0]) if self.chunks else 0
+
+    def read(self, n: int) -> bytes:
+        if not self.chunks:
+            time.sleep(0.01)
+            return b""
+        chunk = self.chunks.pop(0)
+        assert n >= len(chunk)  # reads take what has arrived, not a fixed size
+        return chunk
+
+    def write(self, data: bytes) -> None:
+        pass
+
+    def cancel_read(self) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def test_serial_stamps_are_each_packets_first_point_not_the_reads_return(monkeypatch):
+    import serial
+
+    revolution = b"".join(ld06.encode_packet(3600, 10.0 * k, 10.0 * k + 9.0, 0, [1000] * 12,
+                                             [100] * 12) for k in range(36))
+    wrap = ld06.encode_packet(3600, 0.0, 9.0, 0, [1000] * 12, [100] * 12)
+    monkeypatch.setattr(serial, "serial_for_url",
+                        lambda *a, **k: FakePort([revolution, wrap]))
+    reads = iter([5_000_000_000, 5_100_000_000])  # host time when each read returned
+    source = SerialLidarSource("fake", "ld06", read_size=4096,
+                               clock=lambda: next(reads, 6_000_000_000))
+    scan = next(iter(source))
+    source.close()
+    byte_ns = 10e9 / 230400
+    sweep_ns = 9.0 / 3600 * 1e9  # 12 points over 9 degrees at 3600 deg/s
+    expected = [int(5_000_000_000 - (36 - k) * 47 * byte_ns - sweep_ns) for k in range(36)]
+    stamps = sorted(set(scan.point_stamps_ns.tolist()))
+    assert stamps == expected
+    assert scan.stamp_ns == expected[0]  # ~73 ms before the read returned
+    assert 5_000_000_000 - scan.stamp_ns == pytest.approx(36 * 47 * byte_ns + sweep_ns, abs=1)

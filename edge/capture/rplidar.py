@@ -23,6 +23,7 @@ SCAN_DESCRIPTOR = bytes([0xA5, 0x5A, 0x05, 0x00, 0x00, 0x40, 0x81])
 HEALTH_TYPE = 0x06
 HEALTH_STATUS = {0: "good", 1: "warning", 2: "error"}
 DEFAULT_PWM = 660
+NODE_SIZE = 5  # bytes of one standard-scan node
 
 
 def request(cmd: int, payload: bytes = b"") -> bytes:
@@ -111,7 +112,7 @@ class RPLidarDecoder:
             i = at + len(SCAN_DESCRIPTOR)
             self._need_descriptor = False
         out = []
-        while len(buf) - i >= 5:
+        while len(buf) - i >= NODE_SIZE:
             if not valid_node(buf, i):
                 i += 1
                 self.bad_nodes += 1
@@ -122,6 +123,6 @@ class RPLidarDecoder:
             dist_q2 = buf[i + 3] | (buf[i + 4] << 8)
             out.append(ScanNode(bool(b0 & 1), b0 >> 2, angle_q6 / 64.0, dist_q2 / 4.0))
             self.nodes += 1
-            i += 5
+            i += NODE_SIZE
         del buf[:i]
         return out

@@ -4,6 +4,14 @@ Opened with `serial.serial_for_url`, so `/dev/ttyUSB0`, a pseudo-terminal and `l
 work. A read timeout is not an error; a `SerialException` or `OSError` (unplugged cable)
 closes the port, waits with exponential back-off and reopens, counting the reconnect.
 `close()` from another thread stops the iteration promptly (`cancel_read`).
+
+Stamps are the host's monotonic clock, as the camera's are. A read returns what has
+arrived (never waiting for a full buffer), and each packet is stamped at its first point:
+the read's return time, less the bytes that arrived after the packet (10 bits a byte at the
+baud rate), less the packet's own transmission and, for the LD06, the time its 12 points
+took to sweep (span / speed). The error left is the USB-serial adapter's latency — about
+1 ms for a CP210x, up to 16 ms with an FTDI's default latency timer — plus the OS's wake-up
+after the read, a few ms; revolutions are ~100 ms, the sync window 100 ms.
 """
 
 from __future__ import annotations
@@ -143,7 +151,8 @@ class SerialLidarSource(Source):
                         delay = min(delay * 2, self.backoff_s[1])
                         continue
                 try:
-                    data = self._port.read(self.read_size)
+                    waiting = getattr(self._port, "in_waiting", 0) or 1
+                    data = self._port.read(min(self.read_size, waiting))
                 except (serial.SerialException, OSError) as exc:
                     if self._stop.is_set():
                         break
@@ -158,14 +167,20 @@ class SerialLidarSource(Source):
                 if not data:
                     continue
                 now = int(self.clock())
+                byte_ns = 10e9 / self.baudrate  # start + 8 data + stop bits
                 if isinstance(self.decoder, ld06.LD06Decoder):
-                    for packet in self.decoder.feed(data):
-                        scan = assembler.add(packet, now)
+                    packets = self.decoder.feed(data)
+                    for k, packet in enumerate(packets):
+                        after = (len(packets) - k) * ld06.PACKET_SIZE  # its own bytes too
+                        sweep = packet.span_deg() / max(packet.speed_deg_s, 1) * 1e9
+                        scan = assembler.add(packet, int(now - after * byte_ns - sweep))
                         if scan is not None:
                             self.scans += 1
                             yield scan
                 else:
-                    for node in self.decoder.feed(data):
+                    nodes = self.decoder.feed(data)
+                    for k, node in enumerate(nodes):
+                        node_ns = int(now - (len(nodes) - k) * rplidar.NODE_SIZE * byte_ns)
                         too_long = len(revolution) >= ld06.MAX_REVOLUTION_POINTS
                         if too_long:  # the start flag never came: cut, bounded memory
                             self.errors["revolution cut (no start flag)"] += 1
@@ -174,7 +189,7 @@ class SerialLidarSource(Source):
                             yield nodes_to_scan(revolution, rev_stamp)
                             revolution = []
                         if not revolution:
-                            rev_stamp = now
+                            rev_stamp = node_ns
                         revolution.append(node)
         finally:
             self._close_port()
