@@ -110,6 +110,14 @@ def replay_calibration(source, calib):
     log.info("calibration: %s", origin)
     topics = source.file_topics()
     lidar_topic = source.topics.lidar
+    others = ", ".join(source.unmapped_lidar_topics())
+    there = f"; LiDAR-like topics there: {others}" if others else ""
+    if lidar_topic and topics is not None and lidar_topic not in topics:
+        log.warning("the mapped LiDAR topic %s is not in the recording%s: running stereo "
+                    "only (map lidar in --topics)", lidar_topic, there)
+    elif not lidar_topic and others:
+        log.warning("no LiDAR topic is mapped%s: running stereo only (map lidar in --topics)",
+                    there)
     if lidar is None and lidar_topic and topics is not None and lidar_topic in topics:
         raise ReplayError(f"{source.path}: the LiDAR topic {lidar_topic} is mapped but "
                           f"{origin} has no LiDAR extrinsics: give --calib with a [lidar] "

@@ -119,3 +119,20 @@ def test_calibrate_lidar_reads_a_ros2_bag_with_its_topics_and_own_calibration(sa
     assert main(["calibrate", "lidar", "--recording", str(bare), "--topics",
                  str(topics)]) == 1
     assert "no LiDAR extrinsics" in capsys.readouterr().err
+
+
+def test_an_unmapped_or_missing_lidar_topic_is_said_and_left_equal_right_refused(
+        samples, tmp_path, caplog):
+    bag = tmp_path / "bag.mcap"
+    write_bag(bag, samples)
+    stereo_only = dict(TOPICS, lidar="")
+    assert replay_command(bag, tmp_path / "out.mcap", iters=1, topics=stereo_only) == 0
+    assert "no LiDAR topic is mapped; LiDAR-like topics there: /points, /scan" in caplog.text
+    caplog.clear()
+    calib = tmp_path / "calib.toml"
+    save_calibration(calib, samples[0].calibration(), _lidar(samples[0]))
+    assert replay_command(bag, tmp_path / "out.mcap", iters=1, calib=calib,
+                          topics=dict(TOPICS, lidar="/velodyne_points")) == 0
+    assert "the mapped LiDAR topic /velodyne_points is not in the recording" in caplog.text
+    with pytest.raises(ReplayError, match="left and right are the same topic"):
+        TopicMap.from_dict(dict(TOPICS, right=TOPICS["left"]))

@@ -57,7 +57,11 @@ class TopicMap:
         if unknown:
             raise ReplayError(f"topic map: unknown roles {sorted(unknown)}; "
                               f"known: {sorted(cls.__dataclass_fields__)}")
-        return cls(**data)
+        topics = cls(**data)
+        if topics.left == topics.right:
+            raise ReplayError(f"topic map: left and right are the same topic {topics.left!r}: "
+                              "no frame could pair; map the right camera's own topic")
+        return topics
 
 
 @dataclass(frozen=True)
@@ -235,6 +239,11 @@ class McapSource(Source):
 
     def file_topics(self) -> set[str] | None:
         """Topics listed in the summary, or None for a file without one."""
+        schemas = self.file_schemas()
+        return None if schemas is None else set(schemas)
+
+    def file_schemas(self) -> dict[str, str] | None:
+        """{topic: schema name} from the summary, or None for a file without one."""
         from mcap.reader import make_reader
 
         with open(self.path, "rb") as f:
@@ -242,7 +251,18 @@ class McapSource(Source):
                 summary = make_reader(f).get_summary()
             except Exception:  # noqa: BLE001 - no or broken summary: a cut-off file
                 return None
-        return None if summary is None else {c.topic for c in summary.channels.values()}
+        if summary is None:
+            return None
+        return {c.topic: (summary.schemas[c.schema_id].name if c.schema_id in summary.schemas
+                          else "") for c in summary.channels.values()}
+
+    def unmapped_lidar_topics(self) -> list[str]:
+        """Point-cloud or laser-scan topics in the file that are not the mapped LiDAR."""
+        schemas = self.file_schemas() or {}
+        kinds = ("PointCloud2", "LaserScan", "foxglove.PointCloud")
+        return sorted(topic for topic, name in schemas.items()
+                      if name.split("/")[-1] in kinds and topic != self.topics.lidar
+                      and topic not in (TOPICS["points"],))  # our own depth cloud
 
     def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
         """Read the recording's first messages for its calibration: /edge/calibration (ours,
