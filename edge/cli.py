@@ -73,6 +73,10 @@ def load_topic_map(path: Path) -> dict:
     return data["topics"]
 
 
+PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas) or ros2 (ROS 2 "
+                "messages in CDR, for ros2 bag play)")
+
+
 def build_parser() -> argparse.ArgumentParser:
     from edge.sim.lidar import PATTERNS
 
@@ -110,6 +114,8 @@ def build_parser() -> argparse.ArgumentParser:
     demo.add_argument("--iters", type=_positive_int, default=None,
                       help="GRU iterations (default: the bundle's)")
     demo.add_argument("--deadline-ms", type=float, default=None)
+    demo.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+                      help=PROFILE_HELP)
     replay = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
     replay.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
     replay.add_argument("--out", type=Path, required=True, help="output MCAP")
@@ -128,6 +134,8 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--threads", type=_positive_int, default=2)
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
+    replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+                        help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")
     run.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
     run.add_argument("--out", type=Path, default=None, help="override log.out")
@@ -135,10 +143,14 @@ def build_parser() -> argparse.ArgumentParser:
                      help="also serve a Foxglove WebSocket on 127.0.0.1:8765")
     run.add_argument("--max-frames", type=_positive_int, default=None,
                      help="stop after this many frames (dry runs)")
+    run.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
+                     help="override log.profile (foxglove or ros2)")
     record = sub.add_parser("record", help="record the live sensors to MCAP")
     record.add_argument("--config", type=Path, required=True)
     record.add_argument("--out", type=Path, required=True)
     record.add_argument("--max-frames", type=_positive_int, default=None)
+    record.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
+                        help="override log.profile (foxglove or ros2)")
     from calibration.cli import add_parsers
 
     add_parsers(sub)
@@ -184,22 +196,23 @@ def main(argv: list[str] | None = None) -> int:
             from edge.demo import demo_command
 
             return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
-                                args.deadline_ms)
+                                args.deadline_ms, args.profile)
         if args.command == "replay":
             from edge.commands import replay_command
 
             topics = load_topic_map(args.topics) if args.topics else None
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
                                   args.calib, topics, args.precision, args.realtime,
-                                  args.threads, args.bundle, args.scale)
+                                  args.threads, args.bundle, args.scale, args.profile)
         if args.command == "run":
             from edge.commands import run_command
 
-            return run_command(args.config, args.out, args.live, args.max_frames)
+            return run_command(args.config, args.out, args.live, args.max_frames,
+                               args.profile)
         if args.command == "record":
             from edge.commands import record_command
 
-            return record_command(args.config, args.out, args.max_frames)
+            return record_command(args.config, args.out, args.max_frames, args.profile)
     except (EdgeError, CalibrationError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
         return 1

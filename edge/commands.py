@@ -19,7 +19,7 @@ from edge.capture.sync import SyncConfig
 from edge.config import LogConfig
 from edge.daemon import Pipeline, StopFlag, format_latency, lidar_summary, run, summarise
 from edge.errors import ConfigError
-from edge.mcap_log import McapLogger
+from edge.mcap_log import open_logger
 from edge.runtime.engine import Engine
 from edge.types import LidarScan
 
@@ -28,7 +28,8 @@ log = logging.getLogger(__name__)
 
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
-                   threads: int = 2, bundle=None, scale: float = 0.0) -> int:
+                   threads: int = 2, bundle=None, scale: float = 0.0,
+                   profile: str = "foxglove") -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
     from edge.capture.replay import McapSource, TopicMap
@@ -53,7 +54,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
         print(line, flush=True)
 
     try:
-        with McapLogger(out) as logger:
+        with open_logger(out, profile) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
             # with --calib given, the recording's own calibration is ignored
             if calib is not None:
@@ -185,14 +186,19 @@ class _FramesOnly:
         return (e for e in self.source if not isinstance(e, LidarScan))
 
 
-def logger_options(lg: LogConfig) -> dict:
-    """McapLogger's rotation and compression from the config's [log] (0 = never rotate)."""
-    return dict(rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
-                rotate_s=lg.rotate_s or None, compression=lg.compression)
+def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
+    """open_logger's profile, rotation and compression from the config's [log] (0 = never
+    rotate); `profile` overrides log.profile."""
+    options = dict(profile=profile or lg.profile,
+                   rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
+                   rotate_s=lg.rotate_s or None, compression=lg.compression)
+    if options["profile"] == "ros2":
+        options.update(prefix=lg.ros2_prefix, parent_frame=lg.ros2_parent_frame)
+    return options
 
 
-def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None
-                ) -> int:
+def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None,
+                profile: str | None = None) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
     from edge.config import load_robot_config
     from edge.mcap_log import RESULT_TOPICS, TOPICS
@@ -209,8 +215,8 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     stop.install()
     started = time.monotonic()
     try:
-        with McapLogger(out or lg.out, topics=topics, **logger_options(lg),
-                        live=live) as logger:
+        options = logger_options(lg, profile)
+        with open_logger(out or lg.out, topics=topics, live=live, **options) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
                                 SyncConfig(config.sync.mode, config.sync.window_ms,
                                            max_wait_ms=config.sync.max_wait_ms),
@@ -240,7 +246,8 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     return 0
 
 
-def record_command(config_path, out, max_frames: int | None = None) -> int:
+def record_command(config_path, out, max_frames: int | None = None,
+                   profile: str | None = None) -> int:
     """`edge-depth record --config robot.toml --out rec.mcap`: the live sensors, rectified
     images and raw points, with the calibration, for replay and training later."""
     from edge.config import load_robot_config
@@ -251,7 +258,8 @@ def record_command(config_path, out, max_frames: int | None = None) -> int:
     stop = StopFlag()
     stop.install()
     try:
-        with McapLogger(out, topics=RAW_TOPICS, **logger_options(config.log)) as logger:
+        with open_logger(out, topics=RAW_TOPICS,
+                         **logger_options(config.log, profile)) as logger:
             pipeline = Pipeline(None, stereo, lidar, logger)  # no engine: the recorder
             stats = run(source, pipeline, stop, threaded=True, max_frames=max_frames)
     finally:

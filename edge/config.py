@@ -96,6 +96,9 @@ class LogConfig:
     rotate_s: float = 0.0
     compression: str = "lz4"
     queue: int = 2
+    profile: str = "foxglove"  # or "ros2": ROS 2 messages, for ros2 bag play
+    ros2_prefix: str = "/"     # the ros2 profile's topic namespace
+    ros2_parent_frame: str = ""  # the ros2 profile's /tf_static: camera_left under this
 
 
 @dataclass(frozen=True)
@@ -115,6 +118,7 @@ CHOICES = {
     ("sync", "mode"): ("nearest", "accumulate"),
     ("engine", "precision"): ("int8", "fp32"),
     ("log", "compression"): ("lz4", "zstd", "none"),
+    ("log", "profile"): ("foxglove", "ros2"),
 }
 # accepted ranges, inclusive (NaN and inf are outside every one); OFF_OR: 0 also accepted
 RANGES = {

@@ -89,10 +89,11 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
 
 
 def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "int8",
-                 iters: int | None = None, deadline_ms: float | None = None) -> int:
+                 iters: int | None = None, deadline_ms: float | None = None,
+                 profile: str = "foxglove") -> int:
     from edge.capture.sim import SimSource
     from edge.daemon import Pipeline, format_latency, run, summarise
-    from edge.mcap_log import McapLogger
+    from edge.mcap_log import open_logger
     from edge.runtime.engine import Engine
 
     out.mkdir(parents=True, exist_ok=True)
@@ -104,7 +105,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
           + (f", deadline {deadline_ms:g} ms" if deadline_ms else ""))
     matcher = make_sgbm()
     sgbm_rows, picture = [], []
-    with McapLogger(out / "demo.mcap") as logger:
+    with open_logger(out / "demo.mcap", profile) as logger:
         pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
 
         def on_output(frame, output) -> None:

@@ -43,6 +43,7 @@ RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "confidence", "diagno
 # lz4 nothing for 3.5 ms (measured on 640x400 disparities); lz4 is the default
 COMPRESSIONS = ("lz4", "zstd", "none")
 CAMERA_FRAME = "camera_left"
+RIGHT_FRAME = "camera_right"
 LIDAR_FRAME = "lidar"
 
 
@@ -107,6 +108,21 @@ def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
 MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
 
 
+PROFILES = ("foxglove", "ros2")
+
+
+def open_logger(path, profile: str = "foxglove", **kwargs) -> McapLogger:
+    """McapLogger (foxglove profile: protobuf Foxglove schemas) or, for "ros2", Ros2Logger
+    (ROS 2 messages in CDR, for `ros2 bag play`); the same interface."""
+    if profile == "ros2":
+        from edge.ros2_log import Ros2Logger
+
+        return Ros2Logger(path, **kwargs)
+    if profile != "foxglove":
+        raise ValueError(f"profile: expected one of {PROFILES}, got {profile!r}")
+    return McapLogger(path, **kwargs)
+
+
 class McapLogger:
     """Log frames, scans and results to rotating MCAP files (a context manager).
 
@@ -165,9 +181,6 @@ class McapLogger:
         return self.path.with_name(f"{self.path.stem}_{index + 1:04d}{self.path.suffix}")
 
     def _open(self, stamp_ns: int | None) -> None:
-        import foxglove
-        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
-
         # rotating files never overwrite: a restarted daemon continues at the next free index
         # instead of replacing the file its predecessor was cut off in
         path = self._file_path(self._next_index)
@@ -175,15 +188,21 @@ class McapLogger:
             self._next_index += 1
             path = self._file_path(self._next_index)
         self._next_index += 1
+        self._writer = self._start_writer(path)
+        self.files.append(path)
+        self._file_start_ns = stamp_ns
+        self._calibration_logged = False
+
+    def _start_writer(self, path: Path):
+        import foxglove
+        from foxglove.mcap import MCAPCompression, MCAPWriteOptions
+
         compression = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4,
                        "none": None}[self.compression]
         options = MCAPWriteOptions(chunk_size=self.chunk_size, compression=compression,
                                    compression_threads=0)
-        self._writer = foxglove.open_mcap(path, allow_overwrite=True, context=self.context,
-                                          writer_options=options)
-        self.files.append(path)
-        self._file_start_ns = stamp_ns
-        self._calibration_logged = False
+        return foxglove.open_mcap(path, allow_overwrite=True, context=self.context,
+                                  writer_options=options)
 
     def _disk_full(self) -> bool:
         """True once logging has stopped for want of space (checked now)."""
@@ -258,15 +277,27 @@ class McapLogger:
                        stereo.baseline_m)
         self._calibration_logged = False
 
+    # -- messages (the profile: Ros2Logger builds ROS 2 messages instead) ----------------------
+    def _image(self, image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME):
+        return image_message(image, stamp_ns, frame_id)
+
+    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None):
+        return point_cloud_message(points, stamp_ns, frame_id, intensity)
+
+    def _disparity(self, result: DepthResult):
+        return image_message(result.disparity, result.stamp_ns)
+
+    def _depth(self, result: DepthResult):
+        return image_message(result.depth, result.stamp_ns)  # 0 where invalid
+
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:
         if self._disk_full():
             return
         self._maybe_rotate(frame.stamp_ns)
         left, right = ("left", "right") if frame.rectified else ("left_raw", "right_raw")
-        self._log(left, image_message(frame.left, frame.stamp_ns), frame.stamp_ns)
-        self._log(right, image_message(frame.right, frame.stamp_ns, "camera_right"),
-                  frame.stamp_ns)
+        self._log(left, self._image(frame.left, frame.stamp_ns), frame.stamp_ns)
+        self._log(right, self._image(frame.right, frame.stamp_ns, RIGHT_FRAME), frame.stamp_ns)
 
     def log_calibration(self, stamp_ns: int, size: tuple[int, int], focal_px: float,
                         principal_point: tuple[float, float], baseline_m: float) -> None:
@@ -278,7 +309,7 @@ class McapLogger:
         K = [focal_px, 0, cx, 0, focal_px, cy, 0, 0, 1]
         R = [1.0, 0, 0, 0, 1, 0, 0, 0, 1]
         for key, tx, frame_id in (("left_calibration", 0.0, CAMERA_FRAME),
-                                  ("right_calibration", -focal_px * baseline_m, "camera_right")):
+                                  ("right_calibration", -focal_px * baseline_m, RIGHT_FRAME)):
             P = [focal_px, 0, cx, tx, 0, focal_px, cy, 0, 0, 0, 1, 0]
             msg = CameraCalibration(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w,
                                     height=h, distortion_model="", D=[], K=K, R=R, P=P)
@@ -286,11 +317,11 @@ class McapLogger:
 
     def log_scan(self, scan: LidarScan) -> None:
         self._maybe_rotate(scan.stamp_ns)
-        self._log("lidar", point_cloud_message(scan.points, scan.stamp_ns, LIDAR_FRAME,
-                                               scan.intensity), scan.stamp_ns)
+        self._log("lidar", self._cloud(scan.points, scan.stamp_ns, LIDAR_FRAME, scan.intensity),
+                  scan.stamp_ns)
 
     def log_gt(self, stamp_ns: int, disparity: np.ndarray) -> None:
-        self._log("gt_disparity", image_message(disparity.astype(np.float32), stamp_ns),
+        self._log("gt_disparity", self._image(disparity.astype(np.float32), stamp_ns),
                   stamp_ns)
 
     def log_result(self, result: DepthResult, sparse: np.ndarray | None = None,
@@ -301,14 +332,14 @@ class McapLogger:
             return
         self._maybe_rotate(t)
         if sparse is not None:
-            self._log("sparse", image_message(sparse.astype(np.float32), t), t)
-        self._log("disparity", image_message(result.disparity, t), t)
-        self._log("depth", image_message(result.depth, t), t)
+            self._log("sparse", self._image(sparse.astype(np.float32), t), t)
+        self._log("disparity", self._disparity(result), t)
+        self._log("depth", self._depth(result), t)
         if result.confidence is not None:
-            self._log("confidence", image_message(result.confidence, t), t)
+            self._log("confidence", self._image(result.confidence, t), t)
         if "points" in self.enabled and focal_px is not None and principal_point is not None:
             pts = depth_to_points(result.depth, result.valid, focal_px, principal_point)
-            self._log("points", point_cloud_message(pts, t, CAMERA_FRAME), t)
+            self._log("points", self._cloud(pts, t, CAMERA_FRAME), t)
 
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)

@@ -1,54 +1,16 @@
-"""Writing ROS 2 bags (MCAP, CDR) in tests with mcap-ros2-support: the sensor_msgs
-definitions the replay reads, as ROS 2 ships them (message definition text)."""
+"""Writing ROS 2 bags (MCAP, CDR) in tests with mcap-ros2-support, as another tool writes
+them (the message definitions are the package's, `edge.ros2_msgs`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-SEP = "=" * 80 + "\n"
-HEADER = (SEP + "MSG: std_msgs/Header\nbuiltin_interfaces/Time stamp\nstring frame_id\n"
-          + SEP + "MSG: builtin_interfaces/Time\nint32 sec\nuint32 nanosec\n")
-MSGDEFS = {
-    "sensor_msgs/msg/Image": "std_msgs/Header header\nuint32 height\nuint32 width\n"
-    "string encoding\nuint8 is_bigendian\nuint32 step\nuint8[] data\n" + HEADER,
-    "sensor_msgs/msg/CompressedImage": "std_msgs/Header header\nstring format\nuint8[] data\n"
-    + HEADER,
-    "sensor_msgs/msg/PointCloud2": "std_msgs/Header header\nuint32 height\nuint32 width\n"
-    "sensor_msgs/PointField[] fields\nbool is_bigendian\nuint32 point_step\nuint32 row_step\n"
-    "uint8[] data\nbool is_dense\n" + HEADER + SEP + "MSG: sensor_msgs/PointField\n"
-    "string name\nuint32 offset\nuint8 datatype\nuint32 count\n",
-    "sensor_msgs/msg/LaserScan": "std_msgs/Header header\nfloat32 angle_min\n"
-    "float32 angle_max\nfloat32 angle_increment\nfloat32 time_increment\nfloat32 scan_time\n"
-    "float32 range_min\nfloat32 range_max\nfloat32[] ranges\nfloat32[] intensities\n"
-    + HEADER,
-    "sensor_msgs/msg/CameraInfo": "std_msgs/Header header\nuint32 height\nuint32 width\n"
-    "string distortion_model\nfloat64[] d\nfloat64[9] k\nfloat64[9] r\nfloat64[12] p\n"
-    "uint32 binning_x\nuint32 binning_y\nsensor_msgs/RegionOfInterest roi\n" + HEADER + SEP
-    + "MSG: sensor_msgs/RegionOfInterest\nuint32 x_offset\nuint32 y_offset\nuint32 height\n"
-    "uint32 width\nbool do_rectify\n",
-    "tf2_msgs/msg/TFMessage": "geometry_msgs/TransformStamped[] transforms\n" + SEP
-    + "MSG: geometry_msgs/TransformStamped\nstd_msgs/Header header\nstring child_frame_id\n"
-    "Transform transform\n" + HEADER + SEP + "MSG: geometry_msgs/Transform\n"
-    "Vector3 translation\nQuaternion rotation\n" + SEP + "MSG: geometry_msgs/Vector3\n"
-    "float64 x\nfloat64 y\nfloat64 z\n" + SEP + "MSG: geometry_msgs/Quaternion\n"
-    "float64 x\nfloat64 y\nfloat64 z\nfloat64 w\n",
-}
+from edge.ros2_msgs import MSGDEFS, transform  # noqa: F401 - re-exported for the tests
+from edge.ros2_msgs import header as _header
 
 
 def header(stamp_ns: int, frame_id: str = "camera") -> dict:
-    return {"stamp": {"sec": stamp_ns // 10**9, "nanosec": stamp_ns % 10**9},
-            "frame_id": frame_id}
-
-
-def transform(parent: str, child: str, T) -> dict:
-    """geometry_msgs/TransformStamped of the 4×4 T_parent_child."""
-    from scipy.spatial.transform import Rotation
-
-    x, y, z, w = Rotation.from_matrix(np.asarray(T)[:3, :3]).as_quat()
-    tx, ty, tz = (float(v) for v in np.asarray(T)[:3, 3])
-    return {"header": header(0, parent), "child_frame_id": child,
-            "transform": {"translation": {"x": tx, "y": ty, "z": tz},
-                          "rotation": {"x": x, "y": y, "z": z, "w": w}}}
+    return _header(stamp_ns, frame_id)
 
 
 def write_bag(path, samples, tf: list[dict] | None = None) -> None:

@@ -52,6 +52,17 @@ class TopicMap:
     rectified: bool = True
 
     @classmethod
+    def ros2_profile(cls, prefix: str = "/") -> TopicMap:
+        """The topics our ros2 profile writes (`edge.ros2_log`)."""
+        from edge.ros2_log import ros2_topic
+
+        return cls(**{role: ros2_topic(key, prefix) for role, key in (
+            ("left", "left"), ("right", "right"), ("lidar", "lidar"),
+            ("left_info", "left_calibration"), ("right_info", "right_calibration"),
+            ("calibration", "calibration_file"), ("gt", "gt_disparity"),
+            ("tf_static", "tf_static"))})
+
+    @classmethod
     def from_dict(cls, data: dict) -> TopicMap:
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
@@ -184,6 +195,12 @@ def _camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
     return P[0], P[2], P[6], P[3], (int(msg.width), int(msg.height))
 
 
+def _toml_text(msg) -> str:
+    """The calibration TOML of /edge/calibration: JSON {"toml": ...} (foxglove profile) or
+    std_msgs/String (ros2 profile)."""
+    return str(msg["toml"]) if isinstance(msg, dict) else str(msg.data)
+
+
 def _frame_id(msg) -> str:
     header = getattr(msg, "header", None)
     return str(header.frame_id if header is not None else getattr(msg, "frame_id", ""))
@@ -224,7 +241,7 @@ class McapSource(Source):
         self.path = Path(path)
         if not self.path.is_file():
             raise ReplayError(f"{self.path}: no such file")
-        self.topics = topics or TopicMap()
+        self.topics = topics or self._default_topics()
         self.realtime = realtime
         self.pair_window_ns = pair_window_ns
         self.stats = ReplayStats()
@@ -236,6 +253,17 @@ class McapSource(Source):
         s = self.stats
         return dict(messages=s.messages, frames=s.frames, scans=s.scans,
                     truncated=s.truncated, errors=dict(s.errors))
+
+    def _default_topics(self) -> TopicMap:
+        """Ours, in whichever profile the file was written (its header says)."""
+        from mcap.reader import make_reader
+
+        try:
+            with open(self.path, "rb") as f:
+                profile = make_reader(f).get_header().profile
+        except Exception:  # noqa: BLE001 - not MCAP: said when it is read
+            profile = ""
+        return TopicMap.ros2_profile() if profile == "ros2" else TopicMap()
 
     def file_topics(self) -> set[str] | None:
         """Topics listed in the summary, or None for a file without one."""
@@ -285,7 +313,7 @@ class McapSource(Source):
                 try:
                     msg = self._decode(schema, channel, message, factories, decoders)
                     if channel.topic == t.calibration:
-                        found.toml = str(msg["toml"])
+                        found.toml = _toml_text(msg)
                         break  # ours is complete: nothing else is needed
                     if self._found(found, channel.topic, msg):
                         break
@@ -429,7 +457,7 @@ class McapSource(Source):
         t = self.topics
         log_time = int(message.log_time)
         if topic == t.calibration:
-            yield Calibration(log_time, toml=str(decoded["toml"]))
+            yield Calibration(log_time, toml=_toml_text(decoded))
         elif topic in (t.left_info, t.right_info):
             self._info["left" if topic == t.left_info else "right"] = _camera_info(decoded)
             if len(self._info) == 2:

@@ -1,0 +1,220 @@
+"""The ros2 output profile: the same recording as `McapLogger`, written as ROS 2 messages in
+CDR with mcap-ros2-support (MCAP profile `ros2`, schema encoding `ros2msg` with the full
+definitions of `edge.ros2_msgs`), so `ros2 bag play` publishes it into a robot's graph and any
+ROS 2 tool reads it without our packages.
+
+Topics (`ROS2_TOPICS`, under a configurable prefix):
+    stereo/left/image_rect, stereo/right/image_rect   sensor_msgs/Image mono8
+    stereo/left/camera_info, stereo/right/camera_info sensor_msgs/CameraInfo, with each image
+    stereo/depth            sensor_msgs/Image 32FC1, metres, NaN where invalid (REP 118)
+    stereo/disparity        stereo_msgs/DisparityImage (f, T = baseline, disparity range)
+    stereo/confidence       sensor_msgs/Image 32FC1 0-1 (models with the refinement stage)
+    stereo/sparse_disparity sensor_msgs/Image 32FC1 (the LiDAR projected, 0 = none)
+    stereo/points           sensor_msgs/PointCloud2 x y z intensity (depth back-projected)
+    lidar/points            sensor_msgs/PointCloud2 x y z intensity, as received
+    /tf_static              tf2_msgs/TFMessage: parent → camera_left → camera_right, lidar
+    /diagnostics            diagnostic_msgs/DiagnosticArray (the foxglove profile's counters)
+    edge/calibration        std_msgs/String: the calibration file's TOML (first in each file)
+    sim/gt_disparity        sensor_msgs/Image 32FC1 (synthetic recordings only)
+Rotation, the free-space check and never-overwrite naming are McapLogger's.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from edge.mcap_log import CAMERA_FRAME, LIDAR_FRAME, RIGHT_FRAME, McapLogger
+from edge.ros2_msgs import MSGDEFS, header, transform
+from edge.types import DepthResult, StereoFrame
+
+ROS2_TOPICS = dict(
+    left="stereo/left/image_rect", right="stereo/right/image_rect",
+    left_raw="stereo/left/image_raw", right_raw="stereo/right/image_raw",
+    left_calibration="stereo/left/camera_info", right_calibration="stereo/right/camera_info",
+    lidar="lidar/points", sparse="stereo/sparse_disparity", disparity="stereo/disparity",
+    depth="stereo/depth", points="stereo/points", confidence="stereo/confidence",
+    diagnostics="/diagnostics", calibration_file="edge/calibration",
+    gt_disparity="sim/gt_disparity", tf_static="/tf_static",
+)
+TYPES = dict(left_calibration="sensor_msgs/msg/CameraInfo",
+             right_calibration="sensor_msgs/msg/CameraInfo",
+             lidar="sensor_msgs/msg/PointCloud2", points="sensor_msgs/msg/PointCloud2",
+             disparity="stereo_msgs/msg/DisparityImage",
+             diagnostics="diagnostic_msgs/msg/DiagnosticArray",
+             calibration_file="std_msgs/msg/String", tf_static="tf2_msgs/msg/TFMessage")
+
+
+def ros2_topic(key: str, prefix: str = "/") -> str:
+    """The ros2 profile's topic for a role: under `prefix` unless it is absolute."""
+    name = ROS2_TOPICS[key]
+    return name if name.startswith("/") else prefix.rstrip("/") + "/" + name
+
+
+def image_msg(image: np.ndarray, stamp_ns: int, frame_id: str) -> dict:
+    h, w = image.shape
+    if image.dtype == np.uint8:
+        encoding, data = "mono8", image
+    else:
+        encoding, data = "32FC1", image.astype("<f4", copy=False)
+    return {"header": header(stamp_ns, frame_id), "height": h, "width": w,
+            "encoding": encoding, "is_bigendian": 0, "step": data.itemsize * w,
+            "data": np.ascontiguousarray(data).tobytes()}
+
+
+def cloud_msg(points: np.ndarray, stamp_ns: int, frame_id: str,
+              intensity: np.ndarray | None = None) -> dict:
+    n = len(points)
+    packed = np.zeros((n, 4), "<f4")
+    packed[:, :3] = points
+    if intensity is not None:
+        packed[:, 3] = intensity
+    fields = [{"name": name, "offset": 4 * i, "datatype": 7, "count": 1}  # 7 = FLOAT32
+              for i, name in enumerate(("x", "y", "z", "intensity"))]
+    return {"header": header(stamp_ns, frame_id), "height": 1, "width": n, "fields": fields,
+            "is_bigendian": False, "point_step": 16, "row_step": 16 * n,
+            "data": packed.tobytes(), "is_dense": True}
+
+
+def camera_info_msg(stamp_ns: int, frame_id: str, size, focal_px: float,
+                    principal_point, tx: float) -> dict:
+    """A rectified camera (ROS convention: the right one's P[3] = -f·B)."""
+    (w, h), (cx, cy), f = size, principal_point, float(focal_px)
+    return {"header": header(stamp_ns, frame_id), "height": int(h), "width": int(w),
+            "distortion_model": "plumb_bob", "d": [0.0] * 5,
+            "k": [f, 0, cx, 0, f, cy, 0, 0, 1], "r": [1.0, 0, 0, 0, 1, 0, 0, 0, 1],
+            "p": [f, 0, cx, tx, 0, f, cy, 0, 0, 0, 1, 0], "binning_x": 0, "binning_y": 0,
+            "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0,
+                    "do_rectify": False}}
+
+
+class Ros2Logger(McapLogger):
+    """McapLogger's interface, writing the ros2 profile. `prefix`: the topics' namespace;
+    `parent_frame` and `T_parent_camera` (4×4) put camera_left under a robot frame in
+    /tf_static (default: camera_left is the root)."""
+
+    def __init__(self, path, *args, prefix: str = "/", parent_frame: str = "",
+                 T_parent_camera=None, **kwargs) -> None:
+        if kwargs.get("live"):
+            raise ValueError("the live view speaks the foxglove profile only")
+        self.prefix, self.parent_frame = prefix, parent_frame
+        self.T_parent_camera = np.eye(4) if T_parent_camera is None else np.asarray(
+            T_parent_camera, float)
+        self.lidar_T: np.ndarray | None = None
+        self._file = None
+        super().__init__(path, *args, **kwargs)
+
+    # -- files -------------------------------------------------------------------------------
+    def _start_writer(self, path: Path):
+        from mcap.writer import CompressionType
+        from mcap_ros2.writer import Writer
+
+        self._file = open(path, "wb")  # noqa: SIM115 - closed in _close_writer
+        compression = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
+                       "none": CompressionType.NONE}[self.compression]
+        self._schemas: dict[str, object] = {}
+        return Writer(self._file, chunk_size=self.chunk_size, compression=compression)
+
+    def _close_writer(self) -> None:
+        if self._writer is None:
+            return
+        writer, self._writer = self._writer, None
+        try:
+            writer.finish()
+            self._file.close()
+        except (OSError, RuntimeError) as exc:
+            from edge.mcap_log import log
+
+            log.error("closing %s: %s (it replays up to its last complete chunk)",
+                      self.files[-1], exc)
+
+    def _write(self, key: str, message: dict, stamp_ns: int) -> None:
+        datatype = TYPES.get(key, "sensor_msgs/msg/Image")
+        if datatype not in self._schemas:
+            self._schemas[datatype] = self._writer.register_msgdef(datatype, MSGDEFS[datatype])
+        self._writer.write_message(ros2_topic(key, self.prefix), self._schemas[datatype],
+                                   message, log_time=int(stamp_ns), publish_time=int(stamp_ns))
+        self.messages += 1
+
+    def _log(self, key: str, message, stamp_ns: int) -> None:
+        if self._writer is None or (key not in self.enabled and key != "tf_static"):
+            return
+        if not self._calibration_logged:  # first in every file, so each replays on its own
+            self._calibration_logged = True
+            if self.calibration_toml is not None:
+                self._log("calibration_file", {"data": self.calibration_toml}, stamp_ns)
+            if self.camera is not None:
+                self._log("tf_static", {"transforms": self._transforms(stamp_ns)}, stamp_ns)
+        self._write(key, message, stamp_ns)
+
+    def set_calibration(self, stereo, lidar=None) -> None:
+        super().set_calibration(stereo, lidar)
+        self.lidar_T = None if lidar is None else np.asarray(lidar.T_cam_lidar, float)
+
+    def _transforms(self, stamp_ns: int) -> list[dict]:
+        """parent → camera_left → camera_right (rectified: B along camera_left's x axis)
+        and → lidar (T_cam_lidar)."""
+        _, _, _, baseline = self.camera
+        right = np.eye(4)
+        right[0, 3] = baseline
+        out = [transform(CAMERA_FRAME, RIGHT_FRAME, right, stamp_ns)]
+        if self.lidar_T is not None:
+            out.append(transform(CAMERA_FRAME, LIDAR_FRAME, self.lidar_T, stamp_ns))
+        if self.parent_frame:
+            out.append(transform(self.parent_frame, CAMERA_FRAME, self.T_parent_camera,
+                                 stamp_ns))
+        return out
+
+    # -- messages ------------------------------------------------------------------------------
+    def _image(self, image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME) -> dict:
+        return image_msg(image, stamp_ns, frame_id)
+
+    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None) -> dict:
+        return cloud_msg(points, stamp_ns, frame_id, intensity)
+
+    def _depth(self, result: DepthResult) -> dict:
+        depth = np.where(result.valid, result.depth, np.nan).astype(np.float32)  # REP 118
+        return image_msg(depth, result.stamp_ns, CAMERA_FRAME)
+
+    def _disparity(self, result: DepthResult) -> dict:
+        f = baseline = 0.0
+        if self.camera is not None:
+            _, f, _, baseline = self.camera
+        t, disparity = result.stamp_ns, result.disparity.astype(np.float32)
+        finite = disparity[np.isfinite(disparity)]
+        h, w = disparity.shape
+        return {"header": header(t, CAMERA_FRAME), "image": image_msg(disparity, t,
+                                                                       CAMERA_FRAME),
+                "f": float(f), "t": float(baseline),
+                "valid_window": {"x_offset": 0, "y_offset": 0, "height": h, "width": w,
+                                 "do_rectify": False},
+                "min_disparity": float(finite.min()) if finite.size else 0.0,
+                "max_disparity": float(finite.max()) if finite.size else 0.0,
+                "delta_d": 1.0 / 64}  # the network's output is continuous; nominal
+
+    # -- what gets logged --------------------------------------------------------------------
+    def log_frame(self, frame: StereoFrame) -> None:
+        """The pair, then each camera's info stamped like it (ROS tools pair them)."""
+        super().log_frame(frame)
+        if self.camera is None or self._writer is None:
+            return
+        t = frame.stamp_ns
+        size, f, pp, baseline = self.camera
+        self._log("left_calibration", camera_info_msg(t, CAMERA_FRAME, size, f, pp, 0.0), t)
+        self._log("right_calibration", camera_info_msg(t, RIGHT_FRAME, size, f, pp,
+                                                       -f * baseline), t)
+
+    def log_calibration(self, *args, **kwargs) -> None:
+        pass  # camera infos go with every image (log_frame)
+
+    def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
+        flat = {k: json.dumps(v, default=float) for k, v in values.items()}
+        errors = sum((values.get("errors") or {}).values())
+        status = {"level": 1 if errors else 0, "name": "edge-depth",  # WARN / OK
+                  "message": f"{values.get('frames', 0)} frames, {errors} errors",
+                  "hardware_id": "", "values": [{"key": k, "value": v}
+                                                for k, v in flat.items()]}
+        self._log("diagnostics", {"header": header(stamp_ns, ""), "status": [status]},
+                  stamp_ns)
