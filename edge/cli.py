@@ -73,6 +73,18 @@ def load_topic_map(path: Path) -> dict:
     return data["topics"]
 
 
+def parse_host_port(text: str) -> tuple[str, int]:
+    """'8765', ':8765' or 'HOST:8765' -> (host, port); the host defaults to 127.0.0.1."""
+    host, _, port = text.rpartition(":")
+    try:
+        number = int(port)
+    except ValueError:
+        number = -1
+    if not 0 <= number <= 65535:
+        raise argparse.ArgumentTypeError(f"expected [HOST:]PORT, got {text!r}")
+    return host or "127.0.0.1", number
+
+
 PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas) or ros2 (ROS 2 "
                 "messages in CDR, for ros2 bag play)")
 
@@ -139,8 +151,10 @@ def build_parser() -> argparse.ArgumentParser:
     run = sub.add_parser("run", help="the on-robot depth daemon")
     run.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
     run.add_argument("--out", type=Path, default=None, help="override log.out")
-    run.add_argument("--live", action="store_true",
-                     help="also serve a Foxglove WebSocket on 127.0.0.1:8765")
+    run.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
+                     type=parse_host_port, metavar="[HOST:]PORT",
+                     help="also serve a Foxglove WebSocket (default 127.0.0.1:8765; "
+                          "0.0.0.0:8765 to reach it from another machine)")
     run.add_argument("--max-frames", type=_positive_int, default=None,
                      help="stop after this many frames (dry runs)")
     run.add_argument("--profile", choices=("foxglove", "ros2"), default=None,

@@ -197,8 +197,8 @@ def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
     return options
 
 
-def run_command(config_path, out=None, live: bool = False, max_frames: int | None = None,
-                profile: str | None = None) -> int:
+def run_command(config_path, out=None, live: tuple[str, int] | None = None,
+                max_frames: int | None = None, profile: str | None = None) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
     from edge.config import load_robot_config
     from edge.mcap_log import RESULT_TOPICS, TOPICS
@@ -216,14 +216,17 @@ def run_command(config_path, out=None, live: bool = False, max_frames: int | Non
     started = time.monotonic()
     try:
         options = logger_options(lg, profile)
-        with open_logger(out or lg.out, topics=topics, live=live, **options) as logger:
+        if live is not None:
+            options.update(live=True, live_host=live[0], live_port=live[1])
+        with open_logger(out or lg.out, topics=topics, **options) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
                                 SyncConfig(config.sync.mode, config.sync.window_ms,
                                            max_wait_ms=config.sync.max_wait_ms),
                                 log_raw=lg.raw)
             print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model},"
                   f" {e.precision} engine, logging to {logger.files[0]}"
-                  + (" (live on ws://127.0.0.1:8765)" if live else ""), flush=True)
+                  + (f" (live on ws://{live[0]}:{logger.server.port})" if live else ""),
+                  flush=True)
             stats = run(source, pipeline, stop, threaded=True, queue_size=lg.queue,
                         max_frames=max_frames)
     finally:

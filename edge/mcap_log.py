@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import logging
 import shutil
+import threading
 from pathlib import Path
 
 import numpy as np
@@ -34,10 +35,12 @@ TOPICS = dict(
     lidar="/lidar/points", sparse="/depth/sparse_disparity", disparity="/depth/disparity",
     depth="/depth/image", points="/depth/points", confidence="/depth/confidence",
     diagnostics="/diagnostics",
-    calibration_file="/edge/calibration", gt_disparity="/sim/gt_disparity",
+    calibration_file="/edge/calibration", gt_disparity="/sim/gt_disparity", transforms="/tf",
 )
 RAW_TOPICS = ("left", "right", "left_raw", "right_raw", "left_calibration",
-              "right_calibration", "lidar", "calibration_file", "gt_disparity")
+              "right_calibration", "lidar", "calibration_file", "gt_disparity", "transforms")
+# written once per file, and sent again to each live-view client that subscribes later
+LATCHED = ("calibration_file", "left_calibration", "right_calibration", "transforms")
 RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "confidence", "diagnostics")
 # float images barely compress: zstd saved 13 % of a result frame's 3 MB for 9 ms of CPU,
 # lz4 nothing for 3.5 ms (measured on 640x400 disparities); lz4 is the default
@@ -109,6 +112,30 @@ MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed whil
 
 
 PROFILES = ("foxglove", "ros2")
+# the JSON channels' schemas (JSON Schema), so viewers can type their fields
+JSON_SCHEMAS = {
+    "calibration_file": {"title": "edge.Calibration", "type": "object",
+                         "properties": {"toml": {"type": "string",
+                                                 "description": "the calibration file"}},
+                         "required": ["toml"]},
+    "diagnostics": {"title": "edge.Diagnostics", "type": "object", "properties": {
+        "frames": {"type": "integer"}, "scans": {"type": "integer"},
+        "drops": {"type": "integer"}, "errors": {"type": "object"},
+        "lidar_sync": {"type": "object"}, "sources": {"type": "object"},
+        "latency_ms": {"type": "object"}, "iterations": {"type": "array",
+                                                         "items": {"type": "integer"}}}},
+}
+
+
+def _late_joiner_listener(logger: McapLogger):
+    """A live-view ServerListener that sends the latched topics again to each subscriber."""
+    import foxglove
+
+    class LateJoiners(foxglove.ServerListener):
+        def on_subscribe(self, client, channel) -> None:
+            logger.resend_latched(channel.topic)
+
+    return LateJoiners()
 
 
 def open_logger(path, profile: str = "foxglove", **kwargs) -> McapLogger:
@@ -134,13 +161,15 @@ class McapLogger:
     `topics`: which keys of TOPICS to write (default all); `rotate_bytes` / `rotate_s`: start
     a new file after this many bytes (as counted on disk) or seconds of log time;
     `compression`: chunk compression, one of COMPRESSIONS; `live`: also serve the channels on
-    a Foxglove WebSocket server on localhost."""
+    a Foxglove WebSocket server (foxglove.sdk.v1 / foxglove.websocket.v1 subprotocols:
+    Foxglove, Lichtblick) at live_host:live_port; a client that subscribes after the start
+    is sent the calibration and the transforms (LATCHED) when it subscribes."""
 
     def __init__(self, path: str | Path, topics: tuple[str, ...] | None = None,
                  rotate_bytes: int | None = None, rotate_s: float | None = None,
                  calibration_toml: str | None = None, chunk_size: int = 1 << 20,
                  compression: str = "lz4", live: bool = False, live_port: int = 8765,
-                 min_free_bytes: int = MIN_FREE_BYTES) -> None:
+                 min_free_bytes: int = MIN_FREE_BYTES, live_host: str = "127.0.0.1") -> None:
         import foxglove
 
         self.path = Path(path)
@@ -152,6 +181,9 @@ class McapLogger:
         self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
         self.calibration_toml = calibration_toml
         self.camera: tuple | None = None  # (size, focal_px, principal_point, baseline_m)
+        self.lidar_T: np.ndarray | None = None  # T_cam_lidar, for the transforms
+        self._latest: dict[str, tuple] = {}  # LATCHED key -> (message, stamp_ns)
+        self._latest_lock = threading.Lock()
         self.chunk_size = chunk_size
         if compression not in COMPRESSIONS:
             raise ValueError(f"compression: expected one of {COMPRESSIONS}, got {compression!r}")
@@ -167,8 +199,9 @@ class McapLogger:
         self.min_free_bytes = min_free_bytes
         self.stopped: str | None = None  # why logging stopped early (the disk filling up)
         if live:
-            self.server = foxglove.start_server(context=self.context, host="127.0.0.1",
-                                                port=live_port, name="edge-depth")
+            self.server = foxglove.start_server(context=self.context, host=live_host,
+                                                port=live_port, name="edge-depth",
+                                                server_listener=_late_joiner_listener(self))
         self._open(None)
 
     # -- files -------------------------------------------------------------------------------
@@ -239,15 +272,19 @@ class McapLogger:
             from foxglove import Channel
             from foxglove.channels import (
                 CameraCalibrationChannel,
+                FrameTransformsChannel,
                 PointCloudChannel,
                 RawImageChannel,
             )
 
             topic = TOPICS[key]
             if key in ("diagnostics", "calibration_file"):
-                channel = Channel(topic, message_encoding="json", context=self.context)
+                channel = Channel(topic, message_encoding="json", context=self.context,
+                                  schema=JSON_SCHEMAS[key])
             elif key in ("lidar", "points"):
                 channel = PointCloudChannel(topic, context=self.context)
+            elif key == "transforms":
+                channel = FrameTransformsChannel(topic, context=self.context)
             elif key.endswith("calibration"):
                 channel = CameraCalibrationChannel(topic, context=self.context)
             else:
@@ -264,8 +301,42 @@ class McapLogger:
                 self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
             if self.camera is not None:
                 self.log_calibration(stamp_ns, *self.camera)
+                self._log("transforms", self._transforms(stamp_ns), stamp_ns)
+        if key in LATCHED:
+            with self._latest_lock:
+                self._latest[key] = (message, int(stamp_ns))
         self._channel(key).log(message, log_time=int(stamp_ns))
         self.messages += 1
+
+    def resend_latched(self, topic: str) -> None:
+        """Send the latest calibration / transforms on `topic` again (a live-view client
+        just subscribed to it; the file gets the copy too, which replays the same)."""
+        for key in LATCHED:
+            with self._latest_lock:
+                latest = self._latest.get(key) if TOPICS[key] == topic else None
+            if latest is not None:
+                self._channel(key).log(latest[0], log_time=latest[1])
+
+    def _transforms(self, stamp_ns: int):
+        """foxglove FrameTransforms: camera_left → camera_right (B along x, rectified) and
+        camera_left → lidar (T_cam_lidar)."""
+        from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
+        from scipy.spatial.transform import Rotation
+
+        right = np.eye(4)
+        right[0, 3] = self.camera[3]
+        pairs = [(RIGHT_FRAME, right)]
+        if self.lidar_T is not None:
+            pairs.append((LIDAR_FRAME, self.lidar_T))
+        out = []
+        for child, T in pairs:
+            x, y, z, w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
+            out.append(FrameTransform(
+                timestamp=_stamp(stamp_ns), parent_frame_id=CAMERA_FRAME,
+                child_frame_id=child, translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]),
+                                                          z=float(T[2, 3])),
+                rotation=Quaternion(x=x, y=y, z=z, w=w)))
+        return FrameTransforms(transforms=out)
 
     def set_calibration(self, stereo, lidar=None) -> None:
         """The calibration logged at the start of every file from now on (and again now): the
@@ -275,6 +346,7 @@ class McapLogger:
         self.calibration_toml = dumps_calibration(stereo, lidar)
         self.camera = (stereo.image_size, stereo.focal_px, stereo.principal_point,
                        stereo.baseline_m)
+        self.lidar_T = None if lidar is None else np.asarray(lidar.T_cam_lidar, float)
         self._calibration_logged = False
 
     # -- messages (the profile: Ros2Logger builds ROS 2 messages instead) ----------------------

@@ -102,7 +102,6 @@ class Ros2Logger(McapLogger):
         self.prefix, self.parent_frame = prefix, parent_frame
         self.T_parent_camera = np.eye(4) if T_parent_camera is None else np.asarray(
             T_parent_camera, float)
-        self.lidar_T: np.ndarray | None = None
         self._file = None
         super().__init__(path, *args, **kwargs)
 
@@ -148,10 +147,6 @@ class Ros2Logger(McapLogger):
             if self.camera is not None:
                 self._log("tf_static", {"transforms": self._transforms(stamp_ns)}, stamp_ns)
         self._write(key, message, stamp_ns)
-
-    def set_calibration(self, stereo, lidar=None) -> None:
-        super().set_calibration(stereo, lidar)
-        self.lidar_T = None if lidar is None else np.asarray(lidar.T_cam_lidar, float)
 
     def _transforms(self, stamp_ns: int) -> list[dict]:
         """parent → camera_left → camera_right (rectified: B along camera_left's x axis)
