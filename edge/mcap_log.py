@@ -360,7 +360,8 @@ class McapLogger:
         return image_message(result.disparity, result.stamp_ns)
 
     def _depth(self, result: DepthResult):
-        return image_message(result.depth, result.stamp_ns)  # 0 where invalid
+        depth = np.where(result.valid, result.depth, np.nan).astype(np.float32)  # REP 118
+        return self._image(depth, result.stamp_ns)
 
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:
@@ -384,7 +385,8 @@ class McapLogger:
                                   ("right_calibration", -focal_px * baseline_m, RIGHT_FRAME)):
             P = [focal_px, 0, cx, tx, 0, focal_px, cy, 0, 0, 0, 1, 0]
             msg = CameraCalibration(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w,
-                                    height=h, distortion_model="", D=[], K=K, R=R, P=P)
+                                    height=h, distortion_model="plumb_bob", D=[0.0] * 5, K=K,
+                                    R=R, P=P)
             self._log(key, msg, stamp_ns)
 
     def log_scan(self, scan: LidarScan) -> None:

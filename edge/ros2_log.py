@@ -169,10 +169,6 @@ class Ros2Logger(McapLogger):
     def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None) -> dict:
         return cloud_msg(points, stamp_ns, frame_id, intensity)
 
-    def _depth(self, result: DepthResult) -> dict:
-        depth = np.where(result.valid, result.depth, np.nan).astype(np.float32)  # REP 118
-        return image_msg(depth, result.stamp_ns, CAMERA_FRAME)
-
     def _disparity(self, result: DepthResult) -> dict:
         f = baseline = 0.0
         if self.camera is not None:

@@ -136,3 +136,23 @@ def test_an_unmapped_or_missing_lidar_topic_is_said_and_left_equal_right_refused
     assert "the mapped LiDAR topic /velodyne_points is not in the recording" in caplog.text
     with pytest.raises(ReplayError, match="left and right are the same topic"):
         TopicMap.from_dict(dict(TOPICS, right=TOPICS["left"]))
+
+
+def test_a_ros2_bag_directory_replays_its_files_in_the_metadata_order(samples, tmp_path):
+    from edge.types import StereoFrame
+
+    bag = tmp_path / "robot_bag"
+    bag.mkdir()
+    write_bag(bag / "robot_bag_1.mcap", samples[1:], tf=tf_tree(samples[0].T_cam_lidar))
+    write_bag(bag / "robot_bag_0.mcap", samples[:1], tf=tf_tree(samples[0].T_cam_lidar))
+    (bag / "metadata.yaml").write_text(
+        "rosbag2_bagfile_information:\n  version: 5\n  storage_identifier: mcap\n"
+        "  relative_file_paths:\n    - robot_bag_0.mcap\n    - robot_bag_1.mcap\n")
+    frames = [e for e in McapSource(bag, TopicMap(**TOPICS)) if isinstance(e, StereoFrame)]
+    assert len(frames) == 2
+    np.testing.assert_array_equal(frames[0].left, samples[0].left)  # file 0 first
+    np.testing.assert_array_equal(frames[1].left, samples[1].left)
+    empty = tmp_path / "empty_dir"
+    empty.mkdir()
+    with pytest.raises(ReplayError, match="without .mcap files"):
+        McapSource(empty)

@@ -60,13 +60,12 @@ def test_every_ros2_topic_decodes_and_agrees_with_the_foxglove_file(both, record
         assert image.encoding == "mono8"
         np.testing.assert_array_equal(np.frombuffer(image.data, np.uint8).reshape(
             image.height, image.width), frame.left)
-    # depth: NaN where the foxglove file has 0 (REP 118), the same metres elsewhere
+    # depth: the same metres as the foxglove file's, NaN where invalid (REP 118)
     fox_depth = foxglove_images(both["foxglove"], "/depth/image")
     assert len(fox_depth) == len(msgs["/stereo/depth"]) == 3
     for image, reference in zip(msgs["/stereo/depth"], fox_depth, strict=True):
         depth = np.frombuffer(image.data, "<f4").reshape(image.height, image.width)
-        assert np.array_equal(np.isnan(depth), reference == 0)
-        np.testing.assert_array_equal(depth[reference > 0], reference[reference > 0])
+        np.testing.assert_array_equal(depth, reference)  # NaN where invalid in both
     # camera infos: the calibration's rectified intrinsics, the right P carrying -f·B
     left, right = msgs["/stereo/left/camera_info"][0], msgs["/stereo/right/camera_info"][0]
     f = stereo.focal_px
@@ -124,15 +123,19 @@ def test_demo_writes_the_ros2_profile(tmp_path, capsys):
         <= set(msgs)
 
 
-def test_invalid_depth_is_nan_in_the_ros2_profile(tmp_path):
+@pytest.mark.parametrize("profile", ["ros2", "foxglove"])
+def test_invalid_depth_is_nan_in_both_profiles(tmp_path, profile):
     from edge.mcap_log import open_logger
     from edge.types import DepthResult
 
     disparity = np.full((8, 16), 10.0, np.float32)
     disparity[0] = 0.1  # below the 0.5 px minimum: invalid
     depth = np.where(disparity >= 0.5, 4.5 / disparity, 0).astype(np.float32)
-    with open_logger(tmp_path / "r.mcap", "ros2") as logger:
+    with open_logger(tmp_path / "r.mcap", profile) as logger:
         logger.log_result(DepthResult(1, disparity, depth, disparity >= 0.5, 1))
-    image = ros2_messages(tmp_path / "r.mcap")["/stereo/depth"][0]
-    got = np.frombuffer(image.data, "<f4").reshape(8, 16)
+    if profile == "ros2":
+        image = ros2_messages(tmp_path / "r.mcap")["/stereo/depth"][0]
+        got = np.frombuffer(image.data, "<f4").reshape(8, 16)
+    else:
+        (got,) = foxglove_images(tmp_path / "r.mcap", "/depth/image")
     assert np.isnan(got[0]).all() and np.allclose(got[1:], 0.45)

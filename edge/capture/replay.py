@@ -232,15 +232,37 @@ def _static_transforms(msg) -> list[tuple[str, str, np.ndarray]]:
     return out
 
 
+def bag_files(path: Path) -> list[Path]:
+    """The MCAP files to replay: `path` itself, or a ROS 2 bag directory's, in the order its
+    metadata.yaml lists them (else by name)."""
+    if path.is_file():
+        return [path]
+    if not path.is_dir():
+        raise ReplayError(f"{path}: no such file or bag directory")
+    files = sorted(path.glob("*.mcap"))
+    metadata = path / "metadata.yaml"
+    if metadata.is_file():
+        import yaml
+
+        try:
+            info = yaml.safe_load(metadata.read_text())["rosbag2_bagfile_information"]
+            listed = [path / name for name in info.get("relative_file_paths", [])]
+        except (yaml.YAMLError, KeyError, TypeError) as exc:
+            raise ReplayError(f"{metadata}: not a rosbag2 metadata file ({exc})") from None
+        files = [f for f in listed if f.suffix == ".mcap" and f.is_file()] or files
+    if not files:
+        raise ReplayError(f"{path}: a directory without .mcap files")
+    return files
+
+
 # -- the source ------------------------------------------------------------------------------
 class McapSource(Source):
     """Iterate events of a recording. `realtime=True` paces them by their log times."""
 
     def __init__(self, path: str | Path, topics: TopicMap | None = None,
                  realtime: bool = False, pair_window_ns: int = 5_000_000) -> None:
-        self.path = Path(path)
-        if not self.path.is_file():
-            raise ReplayError(f"{self.path}: no such file")
+        self.paths = bag_files(Path(path))  # a file, or a ROS 2 bag directory's files
+        self.path = self.paths[0]
         self.topics = topics or self._default_topics()
         self.realtime = realtime
         self.pair_window_ns = pair_window_ns
@@ -274,15 +296,19 @@ class McapSource(Source):
         """{topic: schema name} from the summary, or None for a file without one."""
         from mcap.reader import make_reader
 
-        with open(self.path, "rb") as f:
-            try:
-                summary = make_reader(f).get_summary()
-            except Exception:  # noqa: BLE001 - no or broken summary: a cut-off file
+        out: dict[str, str] = {}
+        for path in self.paths:
+            with open(path, "rb") as f:
+                try:
+                    summary = make_reader(f).get_summary()
+                except Exception:  # noqa: BLE001 - no or broken summary: a cut-off file
+                    return None
+            if summary is None:
                 return None
-        if summary is None:
-            return None
-        return {c.topic: (summary.schemas[c.schema_id].name if c.schema_id in summary.schemas
-                          else "") for c in summary.channels.values()}
+            out.update({c.topic: (summary.schemas[c.schema_id].name
+                                  if c.schema_id in summary.schemas else "")
+                        for c in summary.channels.values()})
+        return out
 
     def unmapped_lidar_topics(self) -> list[str]:
         """Point-cloud or laser-scan topics in the file that are not the mapped LiDAR."""
@@ -349,22 +375,27 @@ class McapSource(Source):
     def _file_messages(self):
         """(schema, channel, message) past damaged chunks (`edge.capture.mcap_tolerant`):
         each is counted, named and warned about as it is found; a cut-off end is too."""
+
+        for path in self.paths:
+            yield from self._one_file(path)
+
+    def _one_file(self, path: Path):
         from edge.capture.mcap_tolerant import ReadReport, iter_messages
 
         report, seen = ReadReport(), 0
         first_time = last_time = None
         try:
-            for item in iter_messages(self.path, report):
+            for item in iter_messages(path, report):
                 for d in report.damage[seen:]:
-                    self._damaged(d)
+                    self._damaged(d, path)
                 seen = len(report.damage)
                 first_time = item[2].log_time if first_time is None else first_time
                 last_time = item[2].log_time
                 yield item
         except ValueError as exc:  # not MCAP at all
-            raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
+            raise ReplayError(f"{path}: not a readable MCAP file ({exc})") from None
         for d in report.damage[seen:]:
-            self._damaged(d)
+            self._damaged(d, path)
         if report.unknown_channel:
             self.stats.errors["message on a channel no intact record declares"] += \
                 report.unknown_channel
@@ -374,15 +405,15 @@ class McapSource(Source):
             span = 0.0 if first_time is None else (last_time - first_time) / 1e9
             log.warning("%s is cut off at byte %d: replayed the %d messages of its complete "
                         "chunks, %.2f s of recording; the rest of its %.1f MB is unreadable",
-                        self.path, report.truncated_at, self.stats.messages, span,
-                        self.path.stat().st_size / 1e6)
+                        path, report.truncated_at, self.stats.messages, span,
+                        path.stat().st_size / 1e6)
 
-    def _damaged(self, damage) -> None:
+    def _damaged(self, damage, path: Path) -> None:
         lost = "?" if damage.messages_lost is None else damage.messages_lost
         self.stats.errors[f"damaged data at byte {damage.offset} ({damage.reason}, "
                           f"{lost} messages lost)"] += 1
         log.warning("%s: damaged data at byte %d (%s): skipped, reading on at the next "
-                    "intact chunk", self.path, damage.offset, damage.reason)
+                    "intact chunk", path, damage.offset, damage.reason)
 
     def _pace(self, log_time: int) -> None:
         """realtime: sleep until the message's log time; a jump of over a minute (a clock
@@ -432,7 +463,7 @@ class McapSource(Source):
         if self._stop.is_set():
             return
         if not self.stats.truncated:
-            self.stats.bytes_read = self.path.stat().st_size
+            self.stats.bytes_read = sum(p.stat().st_size for p in self.paths)
         if self.stats.frames == 0 and t.left not in self.seen_topics:
             raise ReplayError(f"{self.path}: no messages on {t.left} (left); the file has: "
                               f"{', '.join(sorted(self.seen_topics)) or 'no messages'}")
