@@ -189,7 +189,7 @@ class _FramesOnly:
 def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
     """open_logger's profile, rotation and compression from the config's [log] (0 = never
     rotate); `profile` overrides log.profile."""
-    options = dict(profile=profile or lg.profile,
+    options = dict(profile=profile or lg.profile, overwrite=False,  # never a recording
                    rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
                    rotate_s=lg.rotate_s or None, compression=lg.compression)
     if options["profile"] == "ros2":

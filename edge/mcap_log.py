@@ -169,7 +169,8 @@ class McapLogger:
                  rotate_bytes: int | None = None, rotate_s: float | None = None,
                  calibration_toml: str | None = None, chunk_size: int = 1 << 20,
                  compression: str = "lz4", live: bool = False, live_port: int = 8765,
-                 min_free_bytes: int = MIN_FREE_BYTES, live_host: str = "127.0.0.1") -> None:
+                 min_free_bytes: int = MIN_FREE_BYTES, live_host: str = "127.0.0.1",
+                 overwrite: bool = True) -> None:
         import foxglove
 
         self.path = Path(path)
@@ -179,6 +180,7 @@ class McapLogger:
         if unknown:
             raise ValueError(f"unknown topics {sorted(unknown)}; choose from {sorted(TOPICS)}")
         self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
+        self.overwrite = overwrite  # False (the daemon): an existing file gets a new name
         self.calibration_toml = calibration_toml
         self.camera: tuple | None = None  # (size, focal_px, principal_point, baseline_m)
         self.lidar_T: np.ndarray | None = None  # T_cam_lidar, for the transforms
@@ -209,15 +211,17 @@ class McapLogger:
         return self.rotate_bytes is not None or self.rotate_s is not None
 
     def _file_path(self, index: int) -> Path:
-        if not self._is_rotating():
-            return self.path
+        if not self._is_rotating():  # one file: NAME.mcap, then NAME_0001.mcap if taken
+            if self.overwrite or index == 0:
+                return self.path
+            return self.path.with_name(f"{self.path.stem}_{index:04d}{self.path.suffix}")
         return self.path.with_name(f"{self.path.stem}_{index + 1:04d}{self.path.suffix}")
 
     def _open(self, stamp_ns: int | None) -> None:
         # rotating files never overwrite: a restarted daemon continues at the next free index
         # instead of replacing the file its predecessor was cut off in
         path = self._file_path(self._next_index)
-        while self._is_rotating() and path.exists():
+        while (self._is_rotating() or not self.overwrite) and path.exists():
             self._next_index += 1
             path = self._file_path(self._next_index)
         self._next_index += 1

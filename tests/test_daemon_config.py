@@ -351,3 +351,13 @@ def test_a_live_client_joining_after_the_third_frame_gets_calibration_and_transf
         conn.close()
     assert json.loads(got["/edge/calibration"])["toml"] == logger.calibration_toml
     assert b"camera_right" in got["/tf"] and b"lidar" in got["/tf"]  # the two transforms
+
+
+def test_a_run_never_overwrites_an_existing_recording(tmp_path, capsys):
+    out = tmp_path / "depth.mcap"
+    out.write_bytes(b"an earlier run's recording")
+    cfg = write(tmp_path, SIM.format(out=out))  # rotate_mb = 0: one file
+    assert main(["run", "--config", str(cfg), "--max-frames", "1"]) == 0
+    assert out.read_bytes() == b"an earlier run's recording"
+    assert (tmp_path / "depth_0001.mcap").stat().st_size > 1000
+    assert "depth_0001.mcap" in capsys.readouterr().out

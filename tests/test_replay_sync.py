@@ -194,3 +194,25 @@ def test_two_hundred_dropped_frames_leave_nothing_behind(engine):
     assert stats.drops >= 200 and stats.frames + stats.drops == 400
     assert len(runner.gts) <= 2 and len(runner.frames) == 0
     assert source.traced[1] - source.traced[0] < 4  # MB over the last 300 frames
+
+
+def test_duplicated_stamps_and_a_missing_partner_are_counted_not_silent(tmp_path, caplog):
+    from edge.capture.replay import McapSource
+    from edge.mcap_log import image_message
+
+    (scan, frame, _), = sim_events(1, 5.0)
+    path = tmp_path / "odd.mcap"
+    with McapLogger(path, topics=RAW_TOPICS) as logger:
+        logger.set_calibration(*SimSource(1).calibration)
+        t = frame.stamp_ns
+        for stamp in (t, t + 100_000_000, t + 100_000_000, t + 200_000_000):  # one repeated
+            logger.log_frame(StereoFrame(stamp, 0, frame.left, frame.right, rectified=True))
+        logger._log("left", image_message(frame.left, t + 300_000_000), t + 300_000_000)
+    source = McapSource(path)
+    frames = [e for e in source if isinstance(e, StereoFrame)]
+    assert len(frames) == 4
+    errors = source.stats.errors
+    assert errors["frame stamp not after the previous frame's (zero, duplicated or going "
+                  "back)"] == 1
+    assert errors["unpaired image"] == 1  # the lone left image the file ended on
+    assert caplog.text.count("is not after the previous one") == 1

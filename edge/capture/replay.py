@@ -270,6 +270,7 @@ class McapSource(Source):
         self.seen_topics: set[str] = set()
         super().__init__()
         self._info: dict[str, tuple] = {}
+        self._last_stamp: dict[str, int] = {}  # frame / scan: the previous one's stamp
 
     def counters(self) -> dict:
         s = self.stats
@@ -462,11 +463,27 @@ class McapSource(Source):
                 log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
         if self._stop.is_set():
             return
+        if pending:  # half pairs the file ended on
+            self.stats.errors["unpaired image"] += len(pending)
         if not self.stats.truncated:
             self.stats.bytes_read = sum(p.stat().st_size for p in self.paths)
         if self.stats.frames == 0 and t.left not in self.seen_topics:
             raise ReplayError(f"{self.path}: no messages on {t.left} (left); the file has: "
                               f"{', '.join(sorted(self.seen_topics)) or 'no messages'}")
+
+    def _check_order(self, kind: str, stamp_ns: int) -> None:
+        """Stamps that do not increase (all 0, duplicated, a clock going back) pair frames
+        with the wrong scans: counted, and said once per kind."""
+        last = self._last_stamp.get(kind)
+        self._last_stamp[kind] = stamp_ns
+        if last is None or stamp_ns > last:
+            return
+        key = _order_note(kind)
+        if not self.stats.errors[key]:
+            log.warning("%s: a %s stamp (%d ns) is not after the previous one (%d ns): the "
+                        "recording's stamps are zero, duplicated or go back, so frames may "
+                        "pair with the wrong scans", self.path, kind, stamp_ns, last)
+        self.stats.errors[key] += 1
 
     @staticmethod
     def _decode(schema, channel, message, factories, decoders):
@@ -503,6 +520,7 @@ class McapSource(Source):
         elif topic == t.lidar:
             pts, inten = decode_points(decoded)
             self.stats.scans += 1
+            self._check_order("scan", _header_stamp(decoded, log_time))
             yield LidarScan(_header_stamp(decoded, log_time), pts, inten)
         else:  # left or right image
             stamp = _header_stamp(decoded, log_time)
@@ -519,6 +537,7 @@ class McapSource(Source):
                 pair = pending.pop(match)
                 pair[side] = image
                 self.stats.frames += 1
+                self._check_order("frame", min(match, stamp))
                 yield StereoFrame(min(match, stamp), self.stats.frames - 1, pair["left"],
                                   pair["right"], rectified=t.rectified)
             # a half pair older than a second will not be completed
@@ -562,6 +581,10 @@ def recording_calibration(source: McapSource):
             origin += (f"; {t.tf_static} has no chain from the LiDAR's frame "
                        f"{found.lidar_frame!r} to the camera's {left['frame_id']!r}")
     return stereo, lidar, origin
+
+
+def _order_note(kind: str) -> str:
+    return f"{kind} stamp not after the previous {kind}'s (zero, duplicated or going back)"
 
 
 def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
