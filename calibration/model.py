@@ -158,6 +158,12 @@ class Rectifier:
         return tuple(cv2.remap(img, m[0], m[1], cv2.INTER_LINEAR)  # type: ignore[return-value]
                      for img, m in zip((left, right), self.maps, strict=True))
 
+    def pair(self, frame) -> tuple[np.ndarray, np.ndarray]:
+        """A StereoFrame's rectified pair: as it is if it says it is rectified already."""
+        if frame.rectified:
+            return frame.left, frame.right
+        return self.rectify(frame.left, frame.right)
+
 
 @dataclass(frozen=True)
 class LidarExtrinsics:

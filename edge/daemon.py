@@ -172,8 +172,7 @@ class Pipeline:
         if not self._size_fits(frame):
             return None
         try:
-            left, right = ((frame.left, frame.right) if frame.rectified
-                           else self.rectifier.rectify(frame.left, frame.right))
+            left, right = self.rectifier.pair(frame)
         except Exception as exc:  # noqa: BLE001 - OpenCV errors are not one type
             self.stats.count_error("rectify", exc)
             return None

@@ -605,8 +605,7 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
         elif isinstance(event, StereoFrame):
             if pending is not None:
                 yield (*pending, None)
-            left, right = ((event.left, event.right) if event.rectified
-                           else rectifier.rectify(event.left, event.right))
+            left, right = rectifier.pair(event)
             pending = (event, left, right, sync.points_for(event.stamp_ns))
         elif isinstance(event, GroundTruth) and pending is not None \
                 and event.stamp_ns == pending[0].stamp_ns:
