@@ -203,7 +203,7 @@ class Pipeline:
                                                   rectified=True))
                 if gt is not None:
                     self.logger.log_gt(frame.stamp_ns, gt)
-            self.logger.log_result(result, sparse, self.focal_px, self.principal_point)
+            self.logger.log_result(result, sparse, self.focal_px, self.principal_point, left)
         t4 = time.perf_counter()
         timings = dict(result.timings_ms, rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000,
                        log=(t4 - t3) * 1000, frame=(t4 - t0) * 1000, sync_wait=sync_wait_ms,

@@ -98,14 +98,19 @@ def point_cloud_message(points: np.ndarray, stamp_ns: int, frame_id: str,
 
 
 def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
-                    principal_point: tuple[float, float], stride: int = 4) -> np.ndarray:
-    """Back-project every `stride`-th valid depth pixel to (N, 3) float32 camera points."""
+                    principal_point: tuple[float, float], stride: int = 4,
+                    image: np.ndarray | None = None):
+    """Back-project every `stride`-th valid depth pixel to (N, 3) float32 camera points;
+    with `image` (the rectified left), also each point's intensity: (points, (N,))."""
     cx, cy = principal_point
     ys, xs = np.nonzero(valid[::stride, ::stride])
     ys, xs = ys * stride, xs * stride
     z = depth[ys, xs]
-    return np.stack([(xs - cx) * z / focal_px, (ys - cy) * z / focal_px, z], 1).astype(
+    points = np.stack([(xs - cx) * z / focal_px, (ys - cy) * z / focal_px, z], 1).astype(
         np.float32)
+    if image is None:
+        return points
+    return points, image[ys, xs].astype(np.float32)
 
 
 MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
@@ -404,7 +409,10 @@ class McapLogger:
 
     def log_result(self, result: DepthResult, sparse: np.ndarray | None = None,
                    focal_px: float | None = None,
-                   principal_point: tuple[float, float] | None = None) -> None:
+                   principal_point: tuple[float, float] | None = None,
+                   left: np.ndarray | None = None) -> None:
+        """The result's images and, with the camera's focal length and principal point, the
+        depth as a point cloud (each point's intensity from `left`, the rectified image)."""
         t = result.stamp_ns
         if self._disk_full():
             return
@@ -416,8 +424,10 @@ class McapLogger:
         if result.confidence is not None:
             self._log("confidence", self._image(result.confidence, t), t)
         if "points" in self.enabled and focal_px is not None and principal_point is not None:
-            pts = depth_to_points(result.depth, result.valid, focal_px, principal_point)
-            self._log("points", self._cloud(pts, t, CAMERA_FRAME), t)
+            pts, intensity = depth_to_points(result.depth, result.valid, focal_px,
+                                             principal_point, image=left if left is not None
+                                             else np.zeros(result.depth.shape, np.uint8))
+            self._log("points", self._cloud(pts, t, CAMERA_FRAME, intensity), t)
 
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)

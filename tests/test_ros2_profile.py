@@ -83,6 +83,11 @@ def test_every_ros2_topic_decodes_and_agrees_with_the_foxglove_file(both, record
     status = msgs["/diagnostics"][-1].status[0]
     values = {kv.key: json.loads(kv.value) for kv in status.values}
     assert values["frames"] == foxglove_json(both["foxglove"], "/diagnostics")[-1]["frames"]
+    # the depth cloud carries the left image's intensity at each back-projected pixel
+    cloud = np.frombuffer(msgs["/stereo/points"][0].data, "<f4").reshape(-1, 4)
+    u = np.rint(cloud[:, 0] * f / cloud[:, 2] + stereo.principal_point[0]).astype(int)
+    v = np.rint(cloud[:, 1] * f / cloud[:, 2] + stereo.principal_point[1]).astype(int)
+    np.testing.assert_array_equal(cloud[:, 3], fox[0].left[v, u])
     disparity = msgs["/stereo/disparity"][0]
     assert disparity.f == pytest.approx(f) and disparity.t == pytest.approx(stereo.baseline_m)
 
