@@ -192,8 +192,15 @@ def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
     options = dict(profile=profile or lg.profile, overwrite=False,  # never a recording
                    rotate_bytes=int(lg.rotate_mb * 1e6) if lg.rotate_mb else None,
                    rotate_s=lg.rotate_s or None, compression=lg.compression)
+    if lg.tf_parent_frame:
+        from scipy.spatial.transform import Rotation
+
+        T = np.eye(4)
+        T[:3, :3] = Rotation.from_euler("xyz", lg.tf_parent_xyz_rpy[3:], degrees=True).as_matrix()
+        T[:3, 3] = lg.tf_parent_xyz_rpy[:3]
+        options.update(parent_frame=lg.tf_parent_frame, T_parent_camera=T)
     if options["profile"] == "ros2":
-        options.update(prefix=lg.ros2_prefix, parent_frame=lg.ros2_parent_frame)
+        options.update(prefix=lg.ros2_prefix)
     return options
 
 

@@ -43,6 +43,7 @@ types are errors that name the file and the key.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
@@ -98,7 +99,8 @@ class LogConfig:
     queue: int = 2
     profile: str = "foxglove"  # or "ros2": ROS 2 messages, for ros2 bag play
     ros2_prefix: str = "/"     # the ros2 profile's topic namespace
-    ros2_parent_frame: str = ""  # the ros2 profile's /tf_static: camera_left under this
+    tf_parent_frame: str = ""  # the transforms: camera_left under this frame (e.g. base_link)
+    tf_parent_xyz_rpy: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # m, m, m, deg x3
 
 
 @dataclass(frozen=True)
@@ -134,6 +136,7 @@ RANGES = {
     ("log", "rotate_mb"): (1.0, 1e7),
     ("log", "rotate_s"): (1.0, 1e8),
     ("log", "queue"): (1, 1000),
+    ("log", "tf_parent_xyz_rpy"): (-1000.0, 1000.0),  # each: metres, or degrees
 }
 OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
 
@@ -157,6 +160,11 @@ def _convert(path: str, key: str, value, default):
     elif isinstance(default, float):
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         value = float(value) if ok else value
+    elif isinstance(default, tuple) and isinstance(default[0], float):  # finite numbers
+        ok = (isinstance(value, list) and len(value) == len(default)
+              and all(isinstance(v, (int, float)) and not isinstance(v, bool)
+                      and math.isfinite(v) for v in value))
+        value = tuple(float(v) for v in value) if ok else value
     elif isinstance(default, tuple):
         ok = (isinstance(value, list) and len(value) == len(default)
               and all(isinstance(v, int) and v > 0 for v in value))

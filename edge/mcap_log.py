@@ -175,7 +175,8 @@ class McapLogger:
                  calibration_toml: str | None = None, chunk_size: int = 1 << 20,
                  compression: str = "lz4", live: bool = False, live_port: int = 8765,
                  min_free_bytes: int = MIN_FREE_BYTES, live_host: str = "127.0.0.1",
-                 overwrite: bool = True) -> None:
+                 overwrite: bool = True, parent_frame: str = "",
+                 T_parent_camera=None) -> None:
         import foxglove
 
         self.path = Path(path)
@@ -186,6 +187,10 @@ class McapLogger:
             raise ValueError(f"unknown topics {sorted(unknown)}; choose from {sorted(TOPICS)}")
         self.rotate_bytes, self.rotate_s = rotate_bytes, rotate_s
         self.overwrite = overwrite  # False (the daemon): an existing file gets a new name
+        # the transforms' root: camera_left, or camera_left under this robot frame
+        self.parent_frame = parent_frame
+        self.T_parent_camera = np.eye(4) if T_parent_camera is None else np.asarray(
+            T_parent_camera, float)
         self.calibration_toml = calibration_toml
         self.camera: tuple | None = None  # (size, focal_px, principal_point, baseline_m)
         self.lidar_T: np.ndarray | None = None  # T_cam_lidar, for the transforms
@@ -326,24 +331,29 @@ class McapLogger:
             if latest is not None:
                 self._channel(key).log(latest[0], log_time=latest[1])
 
+    def frame_tree(self) -> list[tuple[str, str, np.ndarray]]:
+        """(parent, child, T_parent_child): camera_left → camera_right (B along x,
+        rectified), camera_left → lidar (T_cam_lidar), parent_frame → camera_left."""
+        right = np.eye(4)
+        right[0, 3] = self.camera[3]
+        tree = [(CAMERA_FRAME, RIGHT_FRAME, right)]
+        if self.lidar_T is not None:
+            tree.append((CAMERA_FRAME, LIDAR_FRAME, self.lidar_T))
+        if self.parent_frame:
+            tree.append((self.parent_frame, CAMERA_FRAME, self.T_parent_camera))
+        return tree
+
     def _transforms(self, stamp_ns: int):
-        """foxglove FrameTransforms: camera_left → camera_right (B along x, rectified) and
-        camera_left → lidar (T_cam_lidar)."""
+        """The frame tree as foxglove FrameTransforms."""
         from foxglove.messages import FrameTransform, FrameTransforms, Quaternion, Vector3
         from scipy.spatial.transform import Rotation
 
-        right = np.eye(4)
-        right[0, 3] = self.camera[3]
-        pairs = [(RIGHT_FRAME, right)]
-        if self.lidar_T is not None:
-            pairs.append((LIDAR_FRAME, self.lidar_T))
         out = []
-        for child, T in pairs:
+        for parent, child, T in self.frame_tree():
             x, y, z, w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
             out.append(FrameTransform(
-                timestamp=_stamp(stamp_ns), parent_frame_id=CAMERA_FRAME,
-                child_frame_id=child, translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]),
-                                                          z=float(T[2, 3])),
+                timestamp=_stamp(stamp_ns), parent_frame_id=parent, child_frame_id=child,
+                translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
                 rotation=Quaternion(x=x, y=y, z=z, w=w)))
         return FrameTransforms(transforms=out)
 

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.mcap_log import CAMERA_FRAME, LIDAR_FRAME, RIGHT_FRAME, McapLogger
+from edge.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
 from edge.ros2_msgs import MSGDEFS, header, transform
 from edge.types import DepthResult, StereoFrame
 
@@ -91,17 +91,14 @@ def camera_info_msg(stamp_ns: int, frame_id: str, size, focal_px: float,
 
 
 class Ros2Logger(McapLogger):
-    """McapLogger's interface, writing the ros2 profile. `prefix`: the topics' namespace;
-    `parent_frame` and `T_parent_camera` (4×4) put camera_left under a robot frame in
-    /tf_static (default: camera_left is the root)."""
+    """McapLogger's interface, writing the ros2 profile. `prefix`: the topics' namespace
+    (McapLogger's `parent_frame` and `T_parent_camera` put camera_left under a robot frame in
+    /tf_static)."""
 
-    def __init__(self, path, *args, prefix: str = "/", parent_frame: str = "",
-                 T_parent_camera=None, **kwargs) -> None:
+    def __init__(self, path, *args, prefix: str = "/", **kwargs) -> None:
         if kwargs.get("live"):
             raise ValueError("the live view speaks the foxglove profile only")
-        self.prefix, self.parent_frame = prefix, parent_frame
-        self.T_parent_camera = np.eye(4) if T_parent_camera is None else np.asarray(
-            T_parent_camera, float)
+        self.prefix = prefix
         self._file = None
         super().__init__(path, *args, **kwargs)
 
@@ -145,22 +142,12 @@ class Ros2Logger(McapLogger):
             if self.calibration_toml is not None:
                 self._log("calibration_file", {"data": self.calibration_toml}, stamp_ns)
             if self.camera is not None:
-                self._log("tf_static", {"transforms": self._transforms(stamp_ns)}, stamp_ns)
+                self._log("tf_static", self._transforms(stamp_ns), stamp_ns)
         self._write(key, message, stamp_ns)
 
-    def _transforms(self, stamp_ns: int) -> list[dict]:
-        """parent → camera_left → camera_right (rectified: B along camera_left's x axis)
-        and → lidar (T_cam_lidar)."""
-        _, _, _, baseline = self.camera
-        right = np.eye(4)
-        right[0, 3] = baseline
-        out = [transform(CAMERA_FRAME, RIGHT_FRAME, right, stamp_ns)]
-        if self.lidar_T is not None:
-            out.append(transform(CAMERA_FRAME, LIDAR_FRAME, self.lidar_T, stamp_ns))
-        if self.parent_frame:
-            out.append(transform(self.parent_frame, CAMERA_FRAME, self.T_parent_camera,
-                                 stamp_ns))
-        return out
+    def _transforms(self, stamp_ns: int) -> dict:
+        return {"transforms": [transform(parent, child, T, stamp_ns)
+                               for parent, child, T in self.frame_tree()]}
 
     # -- messages ------------------------------------------------------------------------------
     def _image(self, image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME) -> dict:

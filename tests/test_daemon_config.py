@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import socket
 
+import numpy as np
 import pytest
 
 from edge.capture.replay import McapSource
@@ -361,3 +362,29 @@ def test_a_run_never_overwrites_an_existing_recording(tmp_path, capsys):
     assert out.read_bytes() == b"an earlier run's recording"
     assert (tmp_path / "depth_0001.mcap").stat().st_size > 1000
     assert "depth_0001.mcap" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("profile", ["ros2", "foxglove"])
+def test_the_transform_tree_hangs_under_the_configured_parent(tmp_path, profile):
+    from mcap.reader import make_reader
+    from mcap_protobuf.decoder import DecoderFactory as Protobuf
+    from mcap_ros2.decoder import DecoderFactory as Ros2
+
+    out = tmp_path / "depth.mcap"
+    cfg = write(tmp_path, SIM.format(out=out) + 'profile = "' + profile + '"\n'
+                'tf_parent_frame = "base_link"\n'
+                'tf_parent_xyz_rpy = [0.1, 0.0, 0.3, 0.0, 0.0, 90.0]\n')
+    assert main(["run", "--config", str(cfg), "--max-frames", "1"]) == 0
+    topic = "/tf_static" if profile == "ros2" else "/tf"
+    with open(out, "rb") as f:
+        reader = make_reader(f, decoder_factories=[Ros2(), Protobuf()])
+        (msg,) = [m for _, _, _, m in reader.iter_decoded_messages(topics=[topic])]
+    edges = {(t.parent_frame_id if profile == "foxglove" else t.header.frame_id,
+              t.child_frame_id): t for t in msg.transforms}
+    assert set(edges) == {("camera_left", "camera_right"), ("camera_left", "lidar"),
+                          ("base_link", "camera_left")}
+    base = edges[("base_link", "camera_left")]
+    tr = base.translation if profile == "foxglove" else base.transform.translation
+    q = base.rotation if profile == "foxglove" else base.transform.rotation
+    assert (tr.x, tr.y, tr.z) == pytest.approx((0.1, 0.0, 0.3))
+    assert (q.z, q.w) == pytest.approx((np.sqrt(0.5), np.sqrt(0.5)))  # 90 deg about z
