@@ -97,7 +97,10 @@ class Ros2Logger(McapLogger):
 
     def __init__(self, path, *args, prefix: str = "/", **kwargs) -> None:
         if kwargs.get("live"):
-            raise ValueError("the live view speaks the foxglove profile only")
+            from edge.errors import ConfigError
+
+            raise ConfigError("--live", "the foxglove profile (the live view speaks only that)",
+                              "ros2")
         self.prefix = prefix
         self._file = None
         super().__init__(path, *args, **kwargs)

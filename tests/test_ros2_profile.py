@@ -144,3 +144,12 @@ def test_invalid_depth_is_nan_in_both_profiles(tmp_path, profile):
     else:
         (got,) = foxglove_images(tmp_path / "r.mcap", "/depth/image")
     assert np.isnan(got[0]).all() and np.allclose(got[1:], 0.45)
+
+
+def test_the_live_view_with_the_ros2_profile_is_one_clear_line(tmp_path, capsys):
+    from tests.test_daemon_config import SIM, write
+
+    cfg = write(tmp_path, SIM.format(out=tmp_path / "d.mcap") + 'profile = "ros2"\n')
+    assert main(["run", "--config", str(cfg), "--live", "0", "--max-frames", "1"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert "--live: expected the foxglove profile" in err and len(err.splitlines()) == 1
