@@ -333,7 +333,7 @@ class Runner:
 
                 stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
                 self.pipeline.set_calibration(stereo, lidar or self.pipeline.lidar)
-        except (EdgeError, CalibrationError, ValueError) as exc:
+        except (EdgeError, CalibrationError, ValueError, ArithmeticError) as exc:
             self.stats.count_error(type(exc).__name__, exc)
 
     def _keep_gt(self, gt: GroundTruth) -> None:

@@ -185,3 +185,41 @@ def test_replay_mutation_fuzz_ends_in_frames_or_one_clear_error(tmp_path):
             outcomes["error"] += 1
     assert outcomes["frames"] > 200  # most single-chunk damage leaves frames to replay
     assert time.monotonic() - started < 120
+
+
+def test_a_corrupt_log_time_past_2_to_the_32_seconds_is_counted_and_replay_goes_on(
+        recording, tmp_path):
+    """Issue 17: such a time used to end replay in an OverflowError."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    from edge.capture.replay import McapSource
+    from edge.mcap_log import TOPICS
+    from edge.types import LidarScan, StereoFrame
+
+    path = tmp_path / "bad_time.mcap"
+    with open(recording, "rb") as src, open(path, "wb") as dst:
+        writer = Writer(dst)
+        writer.start()
+        schemas, channels, bent = {}, {}, False
+        for schema, channel, message in make_reader(src).iter_messages():
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                            schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id])
+            log_time = message.log_time
+            if channel.topic == TOPICS["lidar"] and not bent:
+                log_time, bent = 2**33 * 10**9, True  # one scan's time corrupted
+            writer.add_message(channels[channel.id], log_time=log_time, data=message.data,
+                               publish_time=log_time)
+        writer.finish()
+    source = McapSource(path)
+    events = list(source)
+    assert sum(isinstance(e, StereoFrame) for e in events) == 3
+    assert sum(isinstance(e, LidarScan) for e in events) == 2  # 3 scans, one skipped
+    assert any("out of range" in k for k in source.stats.errors)
+    from edge.commands import replay_command
+
+    assert replay_command(path, tmp_path / "out.mcap", iters=1) == 0  # no OverflowError

@@ -117,11 +117,19 @@ class ReplayStats:
 
 
 # -- decoding ------------------------------------------------------------------------------
+MAX_STAMP_NS = 2**32 * 1_000_000_000  # year 2106: past it a stamp is corrupt, not a time
+
+
 def _header_stamp(msg, fallback: int) -> int:
+    """The ROS 2 header's stamp, else `fallback` (the log time); ValueError (the message is
+    counted and skipped) for one outside 0 … 2³² s, which no clock writes."""
     header = getattr(msg, "header", None)
+    stamp = fallback
     if header is not None:  # ROS 2
-        return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
-    return fallback
+        stamp = int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    if not 0 <= stamp < MAX_STAMP_NS:
+        raise ValueError(f"stamp {stamp} ns is out of range (corrupt)")
+    return stamp
 
 
 def decode_image(msg) -> np.ndarray:
@@ -520,8 +528,9 @@ class McapSource(Source):
         elif topic == t.lidar:
             pts, inten = decode_points(decoded)
             self.stats.scans += 1
-            self._check_order("scan", _header_stamp(decoded, log_time))
-            yield LidarScan(_header_stamp(decoded, log_time), pts, inten)
+            stamp = _header_stamp(decoded, log_time)
+            self._check_order("scan", stamp)
+            yield LidarScan(stamp, pts, inten)
         else:  # left or right image
             stamp = _header_stamp(decoded, log_time)
             image = decode_image(decoded)
