@@ -156,3 +156,13 @@ def test_a_ros2_bag_directory_replays_its_files_in_the_metadata_order(samples, t
     empty.mkdir()
     with pytest.raises(ReplayError, match="without .mcap files"):
         McapSource(empty)
+
+
+def test_header_stamps_that_are_all_zero_fall_back_to_arrival_order(samples, tmp_path,
+                                                                    caplog, capsys):
+    bag = tmp_path / "zero.mcap"
+    write_bag(bag, samples, tf=tf_tree(samples[0].T_cam_lidar), zero_stamps=True)
+    assert replay_command(bag, tmp_path / "out.mcap", iters=1, topics=TOPICS) == 0
+    assert "pairing by the messages' log times (arrival order)" in caplog.text
+    # the second frame on is stamped by its log time and finds its scan
+    assert "frames with LiDAR: 1 of 2" in capsys.readouterr().out

@@ -279,6 +279,7 @@ class McapSource(Source):
         super().__init__()
         self._info: dict[str, tuple] = {}
         self._last_stamp: dict[str, int] = {}  # frame / scan: the previous one's stamp
+        self.arrival_order = False  # stamps proved useless: log times instead
 
     def counters(self) -> dict:
         s = self.stats
@@ -479,9 +480,16 @@ class McapSource(Source):
             raise ReplayError(f"{self.path}: no messages on {t.left} (left); the file has: "
                               f"{', '.join(sorted(self.seen_topics)) or 'no messages'}")
 
+    def _stamp(self, msg, log_time: int) -> int:
+        """The message's header stamp — or, once those have proved not to increase, its log
+        time: the order it arrived in (`_check_order`)."""
+        stamp = _header_stamp(msg, log_time)
+        return log_time if self.arrival_order else stamp
+
     def _check_order(self, kind: str, stamp_ns: int) -> None:
-        """Stamps that do not increase (all 0, duplicated, a clock going back) pair frames
-        with the wrong scans: counted, and said once per kind."""
+        """Stamps that do not increase (all 0, duplicated, a clock going back) would pair
+        frames with the wrong scans: counted, said once, and from then on frames and scans
+        are stamped by their log times (arrival order), where those do increase."""
         last = self._last_stamp.get(kind)
         self._last_stamp[kind] = stamp_ns
         if last is None or stamp_ns > last:
@@ -489,9 +497,11 @@ class McapSource(Source):
         key = _order_note(kind)
         if not self.stats.errors[key]:
             log.warning("%s: a %s stamp (%d ns) is not after the previous one (%d ns): the "
-                        "recording's stamps are zero, duplicated or go back, so frames may "
-                        "pair with the wrong scans", self.path, kind, stamp_ns, last)
+                        "recording's stamps are zero, duplicated or go back; pairing by the "
+                        "messages' log times (arrival order) from here on", self.path, kind,
+                        stamp_ns, last)
         self.stats.errors[key] += 1
+        self.arrival_order = True
 
     @staticmethod
     def _decode(schema, channel, message, factories, decoders):
@@ -524,15 +534,15 @@ class McapSource(Source):
                                       baseline_m=-tx / f, size=size)
                 self._info.clear()
         elif topic == t.gt:
-            yield GroundTruth(_header_stamp(decoded, log_time), decode_image(decoded))
+            yield GroundTruth(self._stamp(decoded, log_time), decode_image(decoded))
         elif topic == t.lidar:
             pts, inten = decode_points(decoded)
             self.stats.scans += 1
-            stamp = _header_stamp(decoded, log_time)
+            stamp = self._stamp(decoded, log_time)
             self._check_order("scan", stamp)
             yield LidarScan(stamp, pts, inten)
         else:  # left or right image
-            stamp = _header_stamp(decoded, log_time)
+            stamp = self._stamp(decoded, log_time)
             image = decode_image(decoded)
             if image.dtype != np.uint8:
                 raise ValueError(f"{topic}: a camera image must be 8-bit, got {image.dtype}")
