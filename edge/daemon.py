@@ -28,13 +28,12 @@ import numpy as np
 from calibration.errors import CalibrationError
 from calibration.model import LidarExtrinsics, StereoCalibration
 from calibration.projection import project_to_disparity
-from edge.capture.replay import Calibration, GroundTruth
 from edge.capture.sync import LidarSync, SyncConfig
 from edge.errors import EdgeError
 from edge.mcap_log import McapLogger
 from edge.metrics import disparity_metrics
 from edge.runtime.engine import Engine
-from edge.types import DepthResult, LidarScan, StereoFrame
+from edge.types import Calibration, DepthResult, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 

@@ -24,24 +24,11 @@ from pathlib import Path
 
 import numpy as np
 
+from edge.topics import LATCHED, RAW_TOPICS, RESULT_TOPICS, TOPICS  # noqa: F401 - re-exported
 from edge.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
-TOPICS = dict(
-    left="/stereo/left/image_rect", right="/stereo/right/image_rect",
-    left_raw="/stereo/left/image", right_raw="/stereo/right/image",
-    left_calibration="/stereo/left/calibration", right_calibration="/stereo/right/calibration",
-    lidar="/lidar/points", sparse="/depth/sparse_disparity", disparity="/depth/disparity",
-    depth="/depth/image", points="/depth/points", confidence="/depth/confidence",
-    diagnostics="/diagnostics",
-    calibration_file="/edge/calibration", gt_disparity="/sim/gt_disparity", transforms="/tf",
-)
-RAW_TOPICS = ("left", "right", "left_raw", "right_raw", "left_calibration",
-              "right_calibration", "lidar", "calibration_file", "gt_disparity", "transforms")
-# written once per file, and sent again to each live-view client that subscribes later
-LATCHED = ("calibration_file", "left_calibration", "right_calibration", "transforms")
-RESULT_TOPICS = ("sparse", "disparity", "depth", "points", "confidence", "diagnostics")
 # float images barely compress: zstd saved 13 % of a result frame's 3 MB for 9 ms of CPU,
 # lz4 nothing for 3.5 ms (measured on 640x400 disparities); lz4 is the default
 COMPRESSIONS = ("lz4", "zstd", "none")

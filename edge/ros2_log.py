@@ -28,29 +28,15 @@ import numpy as np
 
 from edge.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
 from edge.ros2_msgs import MSGDEFS, header, transform
+from edge.topics import ros2_topic
 from edge.types import DepthResult, StereoFrame
 
-ROS2_TOPICS = dict(
-    left="stereo/left/image_rect", right="stereo/right/image_rect",
-    left_raw="stereo/left/image_raw", right_raw="stereo/right/image_raw",
-    left_calibration="stereo/left/camera_info", right_calibration="stereo/right/camera_info",
-    lidar="lidar/points", sparse="stereo/sparse_disparity", disparity="stereo/disparity",
-    depth="stereo/depth", points="stereo/points", confidence="stereo/confidence",
-    diagnostics="/diagnostics", calibration_file="edge/calibration",
-    gt_disparity="sim/gt_disparity", tf_static="/tf_static",
-)
 TYPES = dict(left_calibration="sensor_msgs/msg/CameraInfo",
              right_calibration="sensor_msgs/msg/CameraInfo",
              lidar="sensor_msgs/msg/PointCloud2", points="sensor_msgs/msg/PointCloud2",
              disparity="stereo_msgs/msg/DisparityImage",
              diagnostics="diagnostic_msgs/msg/DiagnosticArray",
              calibration_file="std_msgs/msg/String", tf_static="tf2_msgs/msg/TFMessage")
-
-
-def ros2_topic(key: str, prefix: str = "/") -> str:
-    """The ros2 profile's topic for a role: under `prefix` unless it is absolute."""
-    name = ROS2_TOPICS[key]
-    return name if name.startswith("/") else prefix.rstrip("/") + "/" + name
 
 
 def image_msg(image: np.ndarray, stamp_ns: int, frame_id: str) -> dict:

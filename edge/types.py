@@ -152,3 +152,23 @@ class DepthResult:
         ):
             raise InvalidDataError("DepthResult.confidence", f"{shape} float32",
                                    getattr(self.confidence, "shape", self.confidence))
+
+
+# -- events a recording carries besides frames and scans (edge.capture.replay) -------------
+@dataclass(frozen=True)
+class Calibration:
+    """Calibration found in the recording: the TOML text of ours, or (f, cx, cy, B, size)
+    from rectified CameraInfo / CameraCalibration pairs."""
+
+    stamp_ns: int
+    toml: str | None = None
+    focal_px: float | None = None
+    principal_point: tuple[float, float] | None = None
+    baseline_m: float | None = None
+    size: tuple[int, int] | None = None
+
+
+@dataclass(frozen=True)
+class GroundTruth:
+    stamp_ns: int
+    disparity: np.ndarray

@@ -25,8 +25,8 @@ import numpy as np
 
 from edge.capture import Source
 from edge.errors import EdgeError
-from edge.mcap_log import TOPICS
-from edge.types import LidarScan, StereoFrame
+from edge.topics import TOPICS
+from edge.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +54,7 @@ class TopicMap:
     @classmethod
     def ros2_profile(cls, prefix: str = "/") -> TopicMap:
         """The topics our ros2 profile writes (`edge.ros2_log`)."""
-        from edge.ros2_log import ros2_topic
+        from edge.topics import ros2_topic
 
         return cls(**{role: ros2_topic(key, prefix) for role, key in (
             ("left", "left"), ("right", "right"), ("lidar", "lidar"),
@@ -73,25 +73,6 @@ class TopicMap:
             raise ReplayError(f"topic map: left and right are the same topic {topics.left!r}: "
                               "no frame could pair; map the right camera's own topic")
         return topics
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """Calibration found in the recording: the TOML text of ours, or (f, cx, cy, B, size)
-    from rectified CameraInfo / CameraCalibration pairs."""
-
-    stamp_ns: int
-    toml: str | None = None
-    focal_px: float | None = None
-    principal_point: tuple[float, float] | None = None
-    baseline_m: float | None = None
-    size: tuple[int, int] | None = None
-
-
-@dataclass(frozen=True)
-class GroundTruth:
-    stamp_ns: int
-    disparity: np.ndarray
 
 
 @dataclass

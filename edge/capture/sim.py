@@ -8,9 +8,9 @@ from __future__ import annotations
 
 from calibration.model import LidarExtrinsics, StereoCalibration
 from edge.capture import Source
-from edge.capture.replay import GroundTruth
 from edge.sim import RigConfig, make_sample
 from edge.sim.lidar import default_T_cam_lidar
+from edge.types import GroundTruth
 
 
 class SimSource(Source):
