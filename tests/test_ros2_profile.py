@@ -95,7 +95,7 @@ def test_every_ros2_topic_decodes_and_agrees_with_the_foxglove_file(both, record
 def foxglove_images(path, topic: str) -> list[np.ndarray]:
     from mcap_protobuf.decoder import DecoderFactory
 
-    from edge.capture.replay import decode_image
+    from edge.capture.decode import decode_image
 
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])

@@ -229,43 +229,66 @@ def test_ld06_over_a_pty_survives_an_unplug_and_stops_on_close(tmp_path):
                                np.arange(1000, 1120, 10) / 1000, atol=1e-6)
 
 
-def test_rplidar_over_a_pty_answers_health_and_streams_nodes():
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    stop = threading.Event()
-    requests = bytearray()
+class FakeRPLidar:
+    """An RPLIDAR on a pseudo-terminal (a context manager): answers the health query and,
+    once asked to scan, streams the nodes `node(i)` returns (None: nothing more)."""
 
-    def device() -> None:
+    def __init__(self, node) -> None:
+        self.node = node
+        self.requests = bytearray()
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.port = os.ttyname(self.slave)
+        self.stop = threading.Event()
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
         import select
 
         streaming, i = False, 0
-        while not stop.is_set():
-            if select.select([master], [], [], 0.0005)[0]:
-                requests.extend(os.read(master, 64))
-                if requests.endswith(rplidar.request(rplidar.CMD_GET_HEALTH)):
-                    os.write(master, bytes([0xA5, 0x5A, 3, 0, 0, 0, 6, 0, 0, 0]))
-                if requests.endswith(rplidar.request(rplidar.CMD_SCAN)) and not streaming:
-                    os.write(master, rplidar.SCAN_DESCRIPTOR)
+        while not self.stop.is_set():
+            if select.select([self.master], [], [], 0.0005)[0]:
+                self.requests.extend(os.read(self.master, 64))
+                if self.requests.endswith(rplidar.request(rplidar.CMD_GET_HEALTH)):
+                    os.write(self.master, bytes([0xA5, 0x5A, 3, 0, 0, 0, 6, 0, 0, 0]))
+                if self.requests.endswith(rplidar.request(rplidar.CMD_SCAN)) and not streaming:
+                    os.write(self.master, rplidar.SCAN_DESCRIPTOR)
                     streaming = True
-            if streaming:
-                angle = i % 360
-                os.write(master, rplidar.encode_node(angle == 0, 15, float(angle),
-                                                     500.0 + angle))
+            node = self.node(i) if streaming else None
+            if node is not None:
+                os.write(self.master, node)
                 i += 1
 
-    thread = threading.Thread(target=device, daemon=True)
-    thread.start()
-    source = SerialLidarSource(os.ttyname(slave), "rplidar-a2")
+    def __enter__(self) -> FakeRPLidar:
+        self.thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        time.sleep(0.1)  # let the device thread read the stop requests
+        self.stop.set()
+        self.thread.join()
+        os.close(self.master)
+        os.close(self.slave)
+
+
+def scans_from(port: str, count: int) -> tuple[SerialLidarSource, list]:
+    source = SerialLidarSource(port, "rplidar-a2")
     scans = []
     for scan in source:
         scans.append(scan)
-        if len(scans) == 2:
+        if len(scans) == count:
             source.close()
-    time.sleep(0.1)  # let the device thread read the stop requests
-    stop.set()
-    thread.join()
-    os.close(master)
-    os.close(slave)
+    return source, scans
+
+
+def test_rplidar_over_a_pty_answers_health_and_streams_nodes():
+    def node(i: int) -> bytes:
+        angle = i % 360
+        return rplidar.encode_node(angle == 0, 15, float(angle), 500.0 + angle)
+
+    with FakeRPLidar(node) as device:
+        _, scans = scans_from(device.port, 2)
+    requests = device.requests
     assert b"\xa5\x52" in requests and rplidar.set_pwm_request() in requests
     assert requests.rfind(rplidar.request(rplidar.CMD_STOP)) > requests.find(b"\xa5\x20")
     assert requests.endswith(rplidar.set_pwm_request(0))
@@ -288,37 +311,12 @@ def test_a_revolution_that_never_wraps_is_cut_at_the_point_limit():
 
 def test_rplidar_without_start_flags_is_cut_and_counted(monkeypatch):
     monkeypatch.setattr(ld06, "MAX_REVOLUTION_POINTS", 50)
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    stop = threading.Event()
 
-    def device() -> None:
-        import select
+    def node(i: int) -> bytes | None:  # never a start flag
+        return rplidar.encode_node(False, 15, float(i % 360), 800.0) if i < 400 else None
 
-        streaming, i = False, 0
-        requests = bytearray()
-        while not stop.is_set():
-            if select.select([master], [], [], 0.0005)[0]:
-                requests.extend(os.read(master, 64))
-                if requests.endswith(rplidar.request(rplidar.CMD_SCAN)) and not streaming:
-                    os.write(master, rplidar.SCAN_DESCRIPTOR)
-                    streaming = True
-            if streaming and i < 400:  # never a start flag
-                os.write(master, rplidar.encode_node(False, 15, float(i % 360), 800.0))
-                i += 1
-
-    thread = threading.Thread(target=device, daemon=True)
-    thread.start()
-    source = SerialLidarSource(os.ttyname(slave), "rplidar-a2")
-    scans = []
-    for scan in source:
-        scans.append(scan)
-        if len(scans) == 3:
-            source.close()
-    stop.set()
-    thread.join()
-    os.close(master)
-    os.close(slave)
+    with FakeRPLidar(node) as device:
+        source, scans = scans_from(device.port, 3)
     assert len(scans) >= 3 and all(len(s) == 50 for s in scans)  # closing ends the batch
     assert source.counters()["errors"]["revolution cut (no start flag)"] >= len(scans)
 

@@ -1,0 +1,133 @@
+"""Decoding one message of a recording, whichever tool wrote it: images (RawImage,
+sensor_msgs Image and CompressedImage), point clouds (PointCloud, PointCloud2, LaserScan),
+camera infos, static transforms, the calibration TOML, and the stamps (`edge.capture.replay`
+reads files with these)."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+
+MAX_STAMP_NS = 2**32 * 1_000_000_000  # year 2106: past it a stamp is corrupt, not a time
+
+
+def header_stamp(msg, fallback: int) -> int:
+    """The ROS 2 header's stamp, else `fallback` (the log time); ValueError (the message is
+    counted and skipped) for one outside 0 … 2³² s, which no clock writes."""
+    header = getattr(msg, "header", None)
+    stamp = fallback
+    if header is not None:  # ROS 2
+        stamp = int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+    if not 0 <= stamp < MAX_STAMP_NS:
+        raise ValueError(f"stamp {stamp} ns is out of range (corrupt)")
+    return stamp
+
+
+def decode_image(msg) -> np.ndarray:
+    """RawImage / sensor_msgs Image (mono8, rgb8, bgr8, rgba8, bgra8, 32FC1) or a compressed
+    image -> uint8 grey (H, W), or float32 (H, W) for 32FC1."""
+    if hasattr(msg, "format"):  # CompressedImage, both schemas
+        image = cv2.imdecode(np.frombuffer(bytes(msg.data), np.uint8), cv2.IMREAD_GRAYSCALE)
+        if image is None:
+            raise ValueError("compressed image does not decode")
+        return image
+    h, w, step, enc = int(msg.height), int(msg.width), int(msg.step), msg.encoding.lower()
+    data = np.frombuffer(bytes(msg.data), np.uint8)
+    channels = {"mono8": 1, "8uc1": 1, "rgb8": 3, "bgr8": 3, "rgba8": 4, "bgra8": 4,
+                "32fc1": 4}.get(enc)
+    if channels is None:
+        raise ValueError(f"image encoding {msg.encoding!r} not supported")
+    if step < w * channels or data.size < step * h:
+        raise ValueError(f"image data {data.size} bytes is short for {w}x{h} {enc}")
+    rows = data[: step * h].reshape(h, step)[:, : w * channels]
+    if enc == "32fc1":
+        big = bool(getattr(msg, "is_bigendian", False))
+        return rows.copy().view(">f4" if big else "<f4").astype(np.float32).reshape(h, w)
+    if channels == 1:
+        return np.ascontiguousarray(rows)
+    pixels = rows.reshape(h, w, channels)[..., :3]
+    code = cv2.COLOR_RGB2GRAY if enc.startswith("rgb") else cv2.COLOR_BGR2GRAY
+    return cv2.cvtColor(np.ascontiguousarray(pixels), code)
+
+
+# datatype codes: sensor_msgs/PointField and foxglove NumericType agree on 7 = float32 and
+# 8 = float64 and disagree on the integer codes, which are not used for coordinates here
+_FLOAT_TYPES = {7: "f4", 8: "f8"}
+
+
+def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
+    """PointCloud / PointCloud2 / LaserScan -> (N, 3) float32 metres, (N,) intensity or None;
+    non-finite points dropped."""
+    if hasattr(msg, "ranges"):  # LaserScan
+        ranges = np.asarray(msg.ranges, np.float32)
+        angles = msg.angle_min + msg.angle_increment * np.arange(len(ranges), dtype=np.float32)
+        keep = np.isfinite(ranges) & (ranges >= msg.range_min) & (ranges <= msg.range_max)
+        pts = np.stack([ranges * np.cos(angles), ranges * np.sin(angles),
+                        np.zeros_like(ranges)], 1)[keep]
+        inten = np.asarray(msg.intensities, np.float32)
+        return pts.astype(np.float32), (inten[keep] if inten.size == ranges.size else None)
+    stride = int(getattr(msg, "point_stride", 0) or getattr(msg, "point_step", 0))
+    big = bool(getattr(msg, "is_bigendian", False))
+    data = bytes(msg.data)
+    if stride <= 0 or len(data) % stride:
+        raise ValueError(f"point data of {len(data)} bytes is not a multiple of {stride}")
+    n = len(data) // stride
+    raw = np.frombuffer(data, np.uint8).reshape(n, stride)
+    columns = {}
+    for f in msg.fields:
+        code = int(getattr(f, "datatype", None) or getattr(f, "type", 0))
+        if f.name in ("x", "y", "z", "intensity") and code in _FLOAT_TYPES:
+            t = np.dtype(_FLOAT_TYPES[code]).newbyteorder(">" if big else "<")
+            off = int(f.offset)
+            columns[f.name] = raw[:, off:off + t.itemsize].copy().view(t)[:, 0].astype(
+                np.float32)
+    if not {"x", "y", "z"} <= set(columns):
+        raise ValueError("point cloud lacks float x, y, z fields")
+    pts = np.stack([columns["x"], columns["y"], columns["z"]], 1)
+    keep = np.isfinite(pts).all(1)
+    inten = columns.get("intensity")
+    return pts[keep], (inten[keep] if inten is not None else None)
+
+
+def camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
+    P = [float(v) for v in (getattr(msg, "p", None) or getattr(msg, "P", None))]
+    return P[0], P[2], P[6], P[3], (int(msg.width), int(msg.height))
+
+
+def toml_text(msg) -> str:
+    """The calibration TOML of /edge/calibration: JSON {"toml": ...} (foxglove profile) or
+    std_msgs/String (ros2 profile)."""
+    return str(msg["toml"]) if isinstance(msg, dict) else str(msg.data)
+
+
+def frame_id(msg) -> str:
+    header = getattr(msg, "header", None)
+    return str(header.frame_id if header is not None else getattr(msg, "frame_id", ""))
+
+
+def camera_info_dict(msg) -> dict:
+    """sensor_msgs/CameraInfo (k d r p) or foxglove CameraCalibration (K D R P) → dict(K, D,
+    R, P, size, frame_id) as `calibration.ros.stereo_from_camera_infos` takes it."""
+    def field_(name: str) -> np.ndarray:
+        value = getattr(msg, name.lower(), None)
+        if value is None or len(value) == 0:
+            value = getattr(msg, name, None) or []
+        return np.asarray([float(v) for v in value], np.float64)
+
+    D = field_("D")
+    return dict(K=field_("K").reshape(3, 3), D=D if D.size else np.zeros(5),
+                R=field_("R").reshape(3, 3), P=field_("P").reshape(3, 4),
+                size=(int(msg.width), int(msg.height)), frame_id=frame_id(msg))
+
+
+def static_transforms(msg) -> list[tuple[str, str, np.ndarray]]:
+    from calibration.ros import transform_matrix
+
+    out = []
+    for t in msg.transforms:
+        tr, q = t.transform.translation, t.transform.rotation
+        out.append((str(t.header.frame_id), str(t.child_frame_id),
+                    transform_matrix((tr.x, tr.y, tr.z), (q.x, q.y, q.z, q.w))))
+    return out
+
+
