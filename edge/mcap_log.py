@@ -293,21 +293,32 @@ class McapLogger:
             self._channels[key] = channel
         return self._channels[key]
 
+    def _logs(self, key: str) -> bool:
+        """Whether `key` is written to this logger's files."""
+        return key in self.enabled
+
     def _log(self, key: str, message, stamp_ns: int) -> None:
-        if key not in self.enabled or self._writer is None:
+        if not self._logs(key) or self._writer is None:
             return
         if not self._calibration_logged:  # first in every file, so each replays on its own
             self._calibration_logged = True
-            if self.calibration_toml is not None:
-                self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
-            if self.camera is not None:
-                self.log_calibration(stamp_ns, *self.camera)
-                self._log("transforms", self._transforms(stamp_ns), stamp_ns)
+            self._log_file_start(stamp_ns)
+        self._write(key, message, stamp_ns)
+        self.messages += 1
+
+    def _log_file_start(self, stamp_ns: int) -> None:
+        """What opens every file: the calibration's TOML, both cameras and the transforms."""
+        if self.calibration_toml is not None:
+            self._log("calibration_file", {"toml": self.calibration_toml}, stamp_ns)
+        if self.camera is not None:
+            self.log_calibration(stamp_ns, *self.camera)
+            self._log("transforms", self._transforms(stamp_ns), stamp_ns)
+
+    def _write(self, key: str, message, stamp_ns: int) -> None:
         if key in LATCHED:
             with self._latest_lock:
                 self._latest[key] = (message, int(stamp_ns))
         self._channel(key).log(message, log_time=int(stamp_ns))
-        self.messages += 1
 
     def resend_latched(self, topic: str) -> None:
         """Send the latest calibration / transforms on `topic` again (a live-view client
@@ -434,10 +445,14 @@ class McapLogger:
             return
         writer, self._writer = self._writer, None
         try:
-            writer.close()
+            self._finish(writer)
         except (OSError, RuntimeError) as exc:  # no room for the summary: the chunks stay
             log.error("closing %s: %s (it replays up to its last complete chunk)",
                       self.files[-1], exc)
+
+    def _finish(self, writer) -> None:
+        """Write the file's summary and close it."""
+        writer.close()
 
     def close(self) -> None:
         self._close_writer()

@@ -102,18 +102,11 @@ class Ros2Logger(McapLogger):
         self._schemas: dict[str, object] = {}
         return Writer(self._file, chunk_size=self.chunk_size, compression=compression)
 
-    def _close_writer(self) -> None:
-        if self._writer is None:
-            return
-        writer, self._writer = self._writer, None
+    def _finish(self, writer) -> None:
         try:
             writer.finish()
+        finally:
             self._file.close()
-        except (OSError, RuntimeError) as exc:
-            from edge.mcap_log import log
-
-            log.error("closing %s: %s (it replays up to its last complete chunk)",
-                      self.files[-1], exc)
 
     def _write(self, key: str, message: dict, stamp_ns: int) -> None:
         datatype = TYPES.get(key, "sensor_msgs/msg/Image")
@@ -121,18 +114,16 @@ class Ros2Logger(McapLogger):
             self._schemas[datatype] = self._writer.register_msgdef(datatype, MSGDEFS[datatype])
         self._writer.write_message(ros2_topic(key, self.prefix), self._schemas[datatype],
                                    message, log_time=int(stamp_ns), publish_time=int(stamp_ns))
-        self.messages += 1
 
-    def _log(self, key: str, message, stamp_ns: int) -> None:
-        if self._writer is None or (key not in self.enabled and key != "tf_static"):
-            return
-        if not self._calibration_logged:  # first in every file, so each replays on its own
-            self._calibration_logged = True
-            if self.calibration_toml is not None:
-                self._log("calibration_file", {"data": self.calibration_toml}, stamp_ns)
-            if self.camera is not None:
-                self._log("tf_static", self._transforms(stamp_ns), stamp_ns)
-        self._write(key, message, stamp_ns)
+    def _logs(self, key: str) -> bool:
+        return key in self.enabled or key == "tf_static"  # /tf_static goes in every file
+
+    def _log_file_start(self, stamp_ns: int) -> None:
+        """The TOML as std_msgs/String and /tf_static (camera infos go with every image)."""
+        if self.calibration_toml is not None:
+            self._log("calibration_file", {"data": self.calibration_toml}, stamp_ns)
+        if self.camera is not None:
+            self._log("tf_static", self._transforms(stamp_ns), stamp_ns)
 
     def _transforms(self, stamp_ns: int) -> dict:
         return {"transforms": [transform(parent, child, T, stamp_ns)
