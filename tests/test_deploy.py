@@ -191,7 +191,8 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert json.loads(out.read_text())["net"]["density"] > 99
 
 
-def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
+@pytest.mark.parametrize("version", [2, 3])
+def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, version):
     from mcap.reader import make_reader
 
     from edge.mcap_log import McapLogger
@@ -201,7 +202,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
 
     torch.manual_seed(0)
     ckpt = torch.load(CHECKPOINT, weights_only=False)
-    config = ModelConfig.from_dict({**ckpt["config"], "refine": 2})
+    config = ModelConfig.from_dict({**ckpt["config"], "refine": version})
     net = SparseStereoNet(config)
     net.load_state_dict({k: v for k, v in ckpt["model"].items()
                          if not k.startswith("refine.")}, strict=False)

@@ -249,7 +249,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=3)
+        ModelConfig(refine=4)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
@@ -296,3 +296,73 @@ def test_refinement_v2_trunk_gets_a_tenth_of_the_confidence_gradient(monkeypatch
 
     torch.testing.assert_close(trunk_grad(0.1), 0.1 * trunk_grad(1.0))
     assert float(trunk_grad(0.0).abs().max()) == 0.0
+
+
+def test_matching_cost_reads_the_right_features_at_each_candidate():
+    from edge.model.refine import matching_cost
+
+    torch.manual_seed(2)
+    f_left, f_right = torch.randn(1, 3, 4, 10), torch.randn(1, 3, 4, 10)
+    candidates = torch.rand(1, 2, 4, 10) * 6
+    expected = torch.zeros(1, 2, 4, 10)
+    for k in range(2):
+        for y in range(4):
+            for x in range(10):
+                j = min(max(round(x - float(candidates[0, k, y, x])), 0), 9)
+                expected[0, k, y, x] = (f_left[0, :, y, x] - f_right[0, :, y, j]).abs().mean()
+    torch.testing.assert_close(matching_cost(f_left, f_right, candidates), expected)
+
+
+def _two_plane_cell_edge():
+    """A left image whose right half (x ≥ 44, inside the 1/8 cell 40..47) is at 10 px and
+    the rest at 2 px, its right view made by shifting each part, and the 1/8 disparity
+    that says 2 up to cell 5 and 10 from cell 5 on (the edge cell is wrong on its left)."""
+    g = torch.Generator().manual_seed(3)
+    texture = torch.rand(1, 1, 32, 112, generator=g) * 255
+    left = texture[..., 16:96].clone()
+    right = torch.empty_like(left)
+    gt = torch.full_like(left, 2.0)
+    gt[..., 44:] = 10.0
+    for x in range(80):
+        d = int(gt[0, 0, 0, x])
+        # the right view sees left pixel x at x - d: fill it from the texture by disparity
+        right[..., max(x - d, 0)] = left[..., x]
+    low = torch.full((1, 1, 4, 10), 2.0 / 8)
+    low[..., 5:] = 10.0 / 8
+    return left, right, gt, low
+
+
+def test_guided_selection_starts_as_the_convex_upsampling_and_learns_the_edge():
+    """Version 3 is the convex upsampling when its score is zero, is moved by the LiDAR, and
+    with a few steps of training picks each pixel's candidate by how it matches."""
+    from edge.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    stage = GuidedSelection(8)
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)  # uniform convex weights: blurred edges
+    with torch.no_grad():
+        torch.nn.init.zeros_(stage.score[-1].weight)
+        refined, logit = stage(left, right, low, mask)
+    torch.testing.assert_close(refined, convex_upsample(low, mask, 8))
+    assert logit.shape == left.shape and float(logit.abs().max()) == 0.0
+    sparse = torch.zeros_like(left)
+    valid = torch.zeros_like(left)
+    sparse[..., ::4, ::2], valid[..., ::4, ::2] = gt[..., ::4, ::2], 1.0
+    torch.nn.init.normal_(stage.score[-1].weight, std=0.5)
+    with torch.no_grad():
+        seen = stage(left, right, low, mask, sparse, valid)[0]
+        blind = stage(left, right, low, mask)[0]
+    assert float((seen - blind).abs().max()) > 0  # the LiDAR reaches the choice
+    opt = torch.optim.Adam(stage.parameters(), lr=1e-2)
+    inner = (slice(None), slice(None), slice(4, 28), slice(12, 76))  # away from borders
+    errors = []
+    for _ in range(60):
+        refined = stage(left, right, low, mask)[0]
+        loss = (refined - gt)[inner].abs().mean()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        errors.append(float(loss.detach()))
+    convex_error = float((convex_upsample(low, mask, 8) - gt)[inner].abs().mean())
+    assert errors[-1] < 0.5 * convex_error  # the images decide the edge, not the 1/8 grid

@@ -30,7 +30,8 @@ STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
-REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"]}
+REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
+                 3: ["left", "right", "sparse", "valid"]}
 OPSET = 17
 
 

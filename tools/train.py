@@ -61,7 +61,7 @@ def parse_args(argv):
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
-    p.add_argument("--refine", type=int, nargs="?", const=2, default=0, choices=(0, 1, 2),
+    p.add_argument("--refine", type=int, nargs="?", const=2, default=0, choices=(0, 1, 2, 3),
                    help="add the half-resolution refinement + confidence stage: version 2 "
                         "(images and LiDAR, the default with a bare --refine) or 1 (images)")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,

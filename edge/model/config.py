@@ -16,7 +16,8 @@ class ModelConfig:
     backbone's residual block at 1/2 resolution (the encoder's most expensive layer; False
     goes from the stem straight to 1/4); refine: the half-resolution image-guided refinement
     with its confidence output (`edge.model.refine`): 0 none, 1 the images only (stage 4),
-    2 the images and the LiDAR, with separate residual and confidence heads."""
+    2 the images and the LiDAR, with separate residual and confidence heads, 3 a choice
+    among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -36,8 +37,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
-        if self.refine not in (0, 1, 2):
-            raise ConfigError("refine", "0, 1 or 2", self.refine)
+        if self.refine not in (0, 1, 2, 3):
+            raise ConfigError("refine", "0, 1, 2 or 3", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if len(self.widths) != 3 or min(self.widths) < 1:

@@ -21,7 +21,7 @@ from edge.model.corr import (
 )
 from edge.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge.model.extractor import Encoders
-from edge.model.refine import Refinement
+from edge.model.refine import GuidedSelection, Refinement
 from edge.model.update import UpdateBlock
 
 
@@ -59,7 +59,11 @@ class SparseStereoNet(nn.Module):
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels)
-        self.refine = Refinement(cfg.refine) if cfg.refine else None
+        self.refine = None
+        if cfg.refine == 3:
+            self.refine = GuidedSelection(cfg.downsample)
+        elif cfg.refine:
+            self.refine = Refinement(cfg.refine)
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
                valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
@@ -102,11 +106,13 @@ class SparseStereoNet(nn.Module):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
         (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
         `valid` (full resolution) reach the refinement only if the model uses the LiDAR."""
+        if not self.config.use_sparse:
+            sparse = valid = None
+        if self.config.refine == 3:  # chooses among the convex upsampling's candidates
+            return self.refine(left, right, disparity, mask, sparse, valid)
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:
             return full, None
-        if not self.config.use_sparse:
-            sparse = valid = None
         return self.refine(left, right, full, sparse, valid)
 
     def forward(self, left, right, sparse, valid, iters: int | None = None,
