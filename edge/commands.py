@@ -29,7 +29,8 @@ log = logging.getLogger(__name__)
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0,
-                   profile: str = "foxglove") -> int:
+                   profile: str = "foxglove", runtime: str = "auto",
+                   bf16: bool | None = None) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
     from edge.capture.replay import McapSource, TopicMap
@@ -41,7 +42,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     source.check_topics()
     stereo, lidar = replay_calibration(source, calib)
     engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
-                    scale=scale or None)
+                    scale=scale or None, runtime=runtime, bf16=bf16)
+    log.info("engine: %s", engine.describe())
     stop = StopFlag()
     stop.install()
 
@@ -215,7 +217,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     source, stereo, lidar = open_sources(config, max_frames)
     e = config.engine
     engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
-                    scale=e.scale or None)
+                    scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()
@@ -231,7 +233,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                                            max_wait_ms=config.sync.max_wait_ms),
                                 log_raw=lg.raw)
             print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model},"
-                  f" {e.precision} engine, logging to {logger.files[0]}"
+                  f" {engine.describe()} engine, logging to {logger.files[0]}"
                   + (f" (live on ws://{live[0]}:{logger.server.port})" if live else ""),
                   flush=True)
             stats = run(source, pipeline, stop, threaded=True, queue_size=lg.queue,

@@ -28,6 +28,10 @@
     threads = 2
     iters = 4
     deadline_ms = 0.0           # 0 = no deadline
+    runtime = "auto"            # "onnxruntime" | "openvino" | "auto": OpenVINO on x86-64
+                                # when installed (pip install 'edge-depth[openvino]')
+    bf16 = "auto"               # OpenVINO: the encoder in bf16 | "on" | "off"; auto = where
+                                # the CPU has it natively (AVX512-BF16, AMX)
 
     [log]
     out = "logs/depth.mcap"
@@ -87,6 +91,12 @@ class EngineConfig:
     threads: int = 2
     iters: int = 4
     deadline_ms: float = 0.0
+    runtime: str = "auto"
+    bf16: str = "auto"
+
+    @property
+    def bf16_choice(self) -> bool | None:
+        return {"auto": None, "on": True, "off": False}[self.bf16]
 
 
 @dataclass(frozen=True)
@@ -119,6 +129,8 @@ CHOICES = {
     ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
     ("sync", "mode"): ("nearest", "accumulate"),
     ("engine", "precision"): ("int8", "fp32"),
+    ("engine", "runtime"): ("auto", "onnxruntime", "openvino"),
+    ("engine", "bf16"): ("auto", "on", "off"),
     ("log", "compression"): ("lz4", "zstd", "none"),
     ("log", "profile"): ("foxglove", "ros2"),
 }

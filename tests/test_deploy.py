@@ -142,14 +142,15 @@ class FakeClock:
 
 
 class TimedSession:
-    """Wraps an ONNX Runtime session; each run advances the fake clock by `ms`."""
+    """Wraps an engine session; each run advances the fake clock by `ms`."""
 
     def __init__(self, session, clock: FakeClock, ms: float) -> None:
         self.session, self.clock, self.ms = session, clock, ms
+        self.input_names, self.output_names = session.input_names, session.output_names
 
-    def run(self, outputs, feeds):
+    def run(self, feeds):
         self.clock.now += self.ms / 1000
-        return self.session.run(outputs, feeds)
+        return self.session.run(feeds)
 
 
 @pytest.mark.parametrize("deadline, expected", [(None, 6), (1e6, 6), (0.0, 1), (37.0, 2),

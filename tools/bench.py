@@ -1,7 +1,8 @@
 """Benchmark the pipeline's stages, the engine and OpenCV SGBM on the same pairs, in one run.
 
     python tools/bench.py [--scenes 4] [--repeat 3] [--iters 1,2,4,8] [--threads 2]
-        [--bundle DIR] [--json OUT] [--markdown OUT]
+        [--bundle DIR] [--runtime auto|onnxruntime|openvino] [--bf16 auto|on|off] [--runs 3]
+        [--json OUT] [--markdown OUT]
 
 At the bundle's input size (640x400 for the shipped one), on test-split scenes of the rig:
 rectify (two remaps, maps computed once), project + occlusion filter (64-beam scans), the
@@ -10,12 +11,20 @@ and int8, SGBM (3-way, 64 disparities, grey), logging one frame's results to MCA
 daemon frame (rectify -> log, int8 at the bundle's default iterations), and the peak RSS of an
 `edge-depth replay` subprocess. Methods alternate in blocks, each with an untimed first call
 (thread pools and caches favour whatever ran last); medians and p95 in milliseconds.
+
+A single run decides nothing on a shared machine (the same-run int8/SGBM ratio moved from
+1.8x to 2.9x between runs here): `--runs N` repeats the whole measurement and reports the
+median of the per-run ratios with their range, and every run says how much of the CPU other
+processes took while it ran (from /proc/stat against this process's own CPU time) and how
+far SGBM's own time spread; a run where others took over 10 % is flagged busy, and the
+summary says the ratio should not be trusted.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -63,8 +72,82 @@ def replay_peak_rss_mb(frames: int, size: tuple[int, int], bundle: Path) -> floa
     return int(line.split()[1]) / 1024
 
 
+BUSY_SHARE = 0.10  # other processes' share of the CPU above which a run is flagged busy
+
+
+def _cpu_jiffies() -> tuple[float, float] | None:
+    """(busy, total) seconds of all CPUs since boot from /proc/stat; None off Linux."""
+    try:
+        fields = Path("/proc/stat").read_text().splitlines()[0].split()[1:]
+    except OSError:
+        return None
+    values = [float(v) for v in fields[:8]]
+    tick = os.sysconf("SC_CLK_TCK")
+    idle = values[3] + values[4]  # idle + iowait
+    return (sum(values) - idle) / tick, sum(values) / tick
+
+
+class CpuShare:
+    """How much of the machine's CPU time other processes used while the block ran."""
+
+    def __enter__(self):
+        self._jiffies, self._own = _cpu_jiffies(), os.times()
+        self._wall = time.perf_counter()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        end, own = _cpu_jiffies(), os.times()
+        self.wall_s = time.perf_counter() - self._wall
+        self.others = None
+        if self._jiffies is not None and end is not None:
+            busy = end[0] - self._jiffies[0]
+            total = end[1] - self._jiffies[1]
+            mine = (own.user - self._own.user) + (own.system - self._own.system)
+            self.others = max(0.0, busy - mine) / total if total > 0 else None
+
+
+RUNTIME_SPECS = {"onnxruntime": ("onnxruntime", False), "openvino": ("openvino", False),
+                 "openvino+bf16": ("openvino", True)}
+
+
+def compare_runtimes(specs: list[str], scenes: int, rounds: int, threads: int, bundle: Path,
+                     precision: str = "int8") -> dict:
+    """The engine (4 iterations) on each runtime and SGBM, interleaved call by call on the
+    same pairs (round-robin, so a busy spell hits every contender alike): median ms of each,
+    and each engine's median over SGBM's."""
+    meta = load_bundle_meta(bundle)
+    w, h = meta["size"]
+    rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
+    samples = [make_sample(TEST_SEED0 + i, rig, "beams16") for i in range(scenes)]
+    inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
+    matcher = make_sgbm()
+    contenders = {"sgbm": lambda left, right, sparse: sgbm_disparity(left, right, matcher)}
+    for spec in specs:
+        if spec not in RUNTIME_SPECS:
+            raise SystemExit(f"--runtimes: {spec!r} is not one of {', '.join(RUNTIME_SPECS)}")
+        runtime, bf16 = RUNTIME_SPECS[spec]
+        engine = Engine(bundle, precision, threads, meta, runtime=runtime, bf16=bf16)
+        contenders[spec] = (lambda e: lambda left, right, sparse:
+                            e.infer(left, right, sparse, iters=4))(engine)
+    times: dict[str, list[float]] = {k: [] for k in contenders}
+    for fn in contenders.values():  # untimed: first-call allocation
+        fn(*inputs[0])
+    with CpuShare() as share:
+        for r in range(rounds):
+            for name, fn in contenders.items():
+                args = inputs[r % len(inputs)]
+                start = time.perf_counter()
+                fn(*args)
+                times[name].append((time.perf_counter() - start) * 1000)
+    med = {k: float(np.median(v)) for k, v in times.items()}
+    return dict(precision=precision, rounds=rounds, median_ms=med,
+                vs_sgbm={k: med[k] / med["sgbm"] for k in specs},
+                others_cpu_share=share.others,
+                busy=share.others is not None and share.others > BUSY_SHARE)
+
+
 def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle: Path,
-          rss_frames: int = 5) -> dict:
+          rss_frames: int = 5, runtime: str = "auto", bf16: bool | None = None) -> dict:
     from edge.capture.sim import SimSource
     from edge.daemon import Pipeline
     from edge.mcap_log import McapLogger
@@ -82,7 +165,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
     pairs = [(s.left, s.right) for s in samples]
     matcher = make_sgbm()
-    engines = {p: Engine(bundle, p, threads, meta) for p in ("fp32", "int8")}
+    engines = {p: Engine(bundle, p, threads, meta, runtime=runtime, bf16=bf16)
+               for p in ("fp32", "int8")}
     default_iters = int(meta.get("default_iters", 4))
 
     # stage timings inside the engine come from its own per-stage clock
@@ -120,9 +204,11 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
         for iters in iters_list:
             methods[f"engine_{precision}_{iters}"] = (engine_run(precision, iters), inputs)
     times: dict[str, list[float]] = {k: [] for k in methods}
-    for _ in range(repeat):  # blocks
-        for name, (fn, args_list) in methods.items():
-            _timed(fn, args_list, times[name])
+    load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
+    with CpuShare() as share:
+        for _ in range(repeat):  # blocks
+            for name, (fn, args_list) in methods.items():
+                _timed(fn, args_list, times[name])
     logger.close()
     tmp.cleanup()
 
@@ -137,9 +223,14 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     engine_ms = {p: {str(i): out[f"engine_{p}_{i}"]["median_ms"] for i in iters_list}
                  for p in ("fp32", "int8")}
     key = str(default_iters)
+    sgbm_spread = float(np.percentile(times["sgbm"], 90) / np.percentile(times["sgbm"], 10))
     summary = dict(size=[w, h], scenes=scenes, threads=threads, bundle=str(bundle),
+                   runtime=engines["int8"].runtime, bf16_encoder=engines["int8"].bf16,
                    points_64_beams=int(np.median([len(s.scan) for s in dense])),
-                   sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out)
+                   sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
+                   machine=dict(others_cpu_share=share.others, load_avg_1min=load_before,
+                                sgbm_p90_over_p10=sgbm_spread,
+                                busy=share.others is not None and share.others > BUSY_SHARE))
     if key in engine_ms["int8"]:
         summary["ratios"] = dict(
             int8_vs_sgbm=engine_ms["int8"][key] / sgbm_ms,
@@ -155,7 +246,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
 def markdown(summary: dict) -> str:
     w, h = summary["size"]
     st = summary["stages"]
-    lines = [f"| stage ({w}x{h}, {summary['threads']} threads) | median ms | p95 ms |",
+    lines = [f"| stage ({w}x{h}, {summary['threads']} threads, {summary['runtime']}"
+             f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}) | median ms | p95 ms |",
              "|---|---|---|"]
     names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm"]
     names += sorted(k for k in st if k.startswith("engine_"))
@@ -172,7 +264,28 @@ def markdown(summary: dict) -> str:
         lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
     lines.append(f"(project_filter: 64-beam scans, {summary['points_64_beams']} points; "
                  f"{summary['scenes']} test scenes)")
+    lines.append(machine_line(summary["machine"]))
+    if "runs" in summary:
+        ratios = [r["int8_vs_sgbm"] for r in summary["runs"]]
+        busy = [i + 1 for i, r in enumerate(summary["runs"]) if r["busy"]]
+        lines.append("")
+        lines.append(f"{len(ratios)} runs: int8 engine / SGBM per run "
+                     f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
+                     f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
+                     f"{max(ratios):.2f}x)")
+        if busy:
+            lines.append(f"**busy machine in run(s) {busy}: other processes took over "
+                         f"{BUSY_SHARE:.0%} of the CPU; do not trust this ratio, rerun on a "
+                         "quiet machine**")
     return "\n".join(lines)
+
+
+def machine_line(m: dict) -> str:
+    others = "n/a" if m["others_cpu_share"] is None else f"{m['others_cpu_share']:.0%}"
+    load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.2f}"
+    flag = " — BUSY" if m["busy"] else ""
+    return (f"machine: other processes {others} of the CPU during the run, load average "
+            f"{load} before it, SGBM p90/p10 {m['sgbm_p90_over_p10']:.2f}{flag}")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -182,6 +295,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default="1,2,4,8")
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--bundle", type=Path, default=DEFAULT_BUNDLE)
+    p.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"), default="auto")
+    p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
+                   help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
+    p.add_argument("--runtimes", default=None,
+                   help="instead of the stage table: the int8 engine on each of these "
+                        "runtimes and SGBM, interleaved call by call, e.g. "
+                        "onnxruntime,openvino,openvino+bf16")
+    p.add_argument("--rounds", type=int, default=30, help="--runtimes: calls of each")
+    p.add_argument("--runs", type=int, default=1,
+                   help="repeat the whole measurement; report the median per-run ratio")
     p.add_argument("--rss-frames", type=int, default=5,
                    help="frames of the replay RSS measurement (0: skip it)")
     p.add_argument("--json", type=Path, default=None)
@@ -191,8 +314,38 @@ def main(argv: list[str] | None = None) -> int:
         iters_list = [int(v) for v in args.iters.split(",")]
     except ValueError:
         p.error(f"--iters: expected integers like 1,2,4,8, got {args.iters!r}")
-    summary = bench(args.scenes, args.repeat, iters_list, args.threads, args.bundle,
-                    args.rss_frames)
+    if args.runs < 1:
+        p.error("--runs: at least 1")
+    if args.runtimes:
+        specs = [v.strip() for v in args.runtimes.split(",") if v.strip()]
+        result = compare_runtimes(specs, args.scenes, args.rounds, args.threads, args.bundle)
+        lines = ["| contender | median ms | / SGBM |", "|---|---|---|"]
+        for name, ms in result["median_ms"].items():
+            ratio = result["vs_sgbm"].get(name)
+            lines.append(f"| {name} | {ms:.1f} | {'' if ratio is None else f'{ratio:.2f}x'} |")
+        others = result["others_cpu_share"]
+        lines.append(f"({result['rounds']} interleaved calls each; other processes "
+                     f"{'n/a' if others is None else f'{others:.0%}'} of the CPU"
+                     f"{' — BUSY: do not trust' if result['busy'] else ''})")
+        print("\n".join(lines))
+        if args.json:
+            args.json.write_text(json.dumps(result, indent=2))
+        return 0
+    bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
+    runs = []
+    for i in range(args.runs):
+        summary = bench(args.scenes, args.repeat, iters_list, args.threads, args.bundle,
+                        args.rss_frames if i == args.runs - 1 else 0, args.runtime, bf16)
+        if args.runs > 1:
+            print(f"run {i + 1}/{args.runs}: int8 / SGBM "
+                  f"{summary.get('ratios', {}).get('int8_vs_sgbm', float('nan')):.2f}x; "
+                  + machine_line(summary["machine"]), flush=True)
+        runs.append(summary)
+    if args.runs > 1 and all("ratios" in r for r in runs):
+        summary["runs"] = [dict(int8_vs_sgbm=r["ratios"]["int8_vs_sgbm"], sgbm_ms=r["sgbm_ms"],
+                                engine_int8_ms=r["ratios"]["int8_vs_sgbm"] * r["sgbm_ms"],
+                                **r["machine"]) for r in runs]
+        summary["ratio_median"] = float(np.median([r["int8_vs_sgbm"] for r in summary["runs"]]))
     table = markdown(summary)
     print(table)
     if args.json:

@@ -84,25 +84,30 @@ class TorchNet:
 
 
 class BundleNet:
-    """An exported bundle run by the robot-side engine (ONNX Runtime)."""
+    """An exported bundle run by the robot-side engine (ONNX Runtime or OpenVINO)."""
 
-    def __init__(self, path: Path, precision: str = "int8") -> None:
+    def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
+                 bf16: bool | None = None) -> None:
         from edge.runtime.engine import Engine
 
-        self.engine = Engine(path, precision=precision, threads=2)
+        self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
         return result.disparity, result.confidence
 
 
-def load_net(model: Path, precision: str = "int8"):
-    return BundleNet(model, precision) if model.is_dir() else TorchNet(model)
+def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
+             bf16: bool | None = None):
+    return BundleNet(model, precision, runtime, bf16) if model.is_dir() else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
-             model: Path | None, precision: str = "int8") -> dict[str, dict[str, float]]:
-    net = load_net(model, precision) if {"net", "net-nolidar"} & set(methods) else None
+             model: Path | None, precision: str = "int8", runtime: str = "auto",
+             bf16: bool | None = None) -> dict[str, dict[str, float]]:
+    net = None
+    if {"net", "net-nolidar"} & set(methods):
+        net = load_net(model, precision, runtime, bf16)
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -180,6 +185,11 @@ def main(argv: list[str] | None = None) -> int:
                         "bundle)")
     p.add_argument("--precision", choices=("int8", "fp32"), default="int8",
                    help="for a bundle")
+    p.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"), default="auto",
+                   help="for a bundle: the engine's runtime")
+    p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
+                   help="for a bundle on OpenVINO: the encoder in bf16 (auto: where the CPU "
+                        "has it)")
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--no-lidar", action="store_true",
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
@@ -202,7 +212,9 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    summary = evaluate(folders, methods, iters_list, args.model, args.precision)
+    bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
+    summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
+                       bf16)
     print(markdown_table(summary))
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))

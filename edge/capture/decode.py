@@ -5,10 +5,38 @@ reads files with these)."""
 
 from __future__ import annotations
 
+import json
+
 import cv2
 import numpy as np
 
 MAX_STAMP_NS = 2**32 * 1_000_000_000  # year 2106: past it a stamp is corrupt, not a time
+
+
+def message_decoders() -> list:
+    """The decoder factories of the encodings recordings use (protobuf: foxglove; cdr: ROS 2)."""
+    from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
+    from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
+
+    return [ProtobufDecoder(), Ros2Decoder()]
+
+
+def decode_message(schema, channel, message, factories: list, decoders: dict):
+    """One MCAP message decoded (JSON, or by the first factory with a decoder for its channel,
+    cached per channel id in `decoders`); ValueError when none has one."""
+    if channel.message_encoding == "json":
+        return json.loads(message.data)
+    if channel.id not in decoders:
+        decoder = None
+        for factory in factories:
+            decoder = factory.decoder_for(channel.message_encoding, schema)
+            if decoder is not None:
+                break
+        if decoder is None:
+            raise ValueError(f"no decoder for {channel.message_encoding} "
+                             f"{schema.name if schema else ''}")
+        decoders[channel.id] = decoder
+    return decoders[channel.id](message.data)
 
 
 def header_stamp(msg, fallback: int) -> int:

@@ -13,7 +13,6 @@ topics.
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from collections import Counter
@@ -27,9 +26,11 @@ from edge.capture.decode import (
     camera_info,
     camera_info_dict,
     decode_image,
+    decode_message,
     decode_points,
     frame_id,
     header_stamp,
+    message_decoders,
     static_transforms,
     toml_text,
 )
@@ -197,14 +198,11 @@ class McapSource(Source):
     def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
         """Read the recording's first messages for its calibration: /edge/calibration (ours,
         logged first), the mapped camera infos, /tf_static and the LiDAR's frame id."""
-        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
-        from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
-
         from edge.capture.mcap_tolerant import ReadReport, iter_messages
 
         t, found = self.topics, RecordingCalibration()
         wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
-        factories, decoders = [ProtobufDecoder(), Ros2Decoder()], {}
+        factories, decoders = message_decoders(), {}
         try:
             messages = iter_messages(self.path, ReadReport())
             for count, (schema, channel, message) in enumerate(messages):
@@ -213,7 +211,7 @@ class McapSource(Source):
                 if channel.topic not in wanted:
                     continue
                 try:
-                    msg = self._decode(schema, channel, message, factories, decoders)
+                    msg = decode_message(schema, channel, message, factories, decoders)
                     if channel.topic == t.calibration:
                         found.toml = toml_text(msg)
                         break  # ours is complete: nothing else is needed
@@ -305,16 +303,13 @@ class McapSource(Source):
             self._stop.wait(lag)
 
     def __iter__(self):
-        from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoder
-        from mcap_ros2.decoder import DecoderFactory as Ros2Decoder
-
         self.check_topics()
         t = self.topics
         wanted = {t.left, t.right, t.lidar, t.left_info, t.right_info, t.calibration, t.gt}
         wanted.discard("")
         pending: dict[int, dict[str, np.ndarray]] = {}
         self._pace_origin = None
-        factories = [ProtobufDecoder(), Ros2Decoder()]
+        factories = message_decoders()
         decoders: dict[int, object] = {}
         for schema, channel, message in self._file_messages():
             if self._stop.is_set():
@@ -325,7 +320,7 @@ class McapSource(Source):
             if topic not in wanted:
                 continue
             try:
-                decoded = self._decode(schema, channel, message, factories, decoders)
+                decoded = decode_message(schema, channel, message, factories, decoders)
             except Exception as exc:  # noqa: BLE001 - a message that does not decode
                 self.stats.errors[f"{topic}: decode {type(exc).__name__}"] += 1
                 continue
@@ -368,22 +363,6 @@ class McapSource(Source):
                         stamp_ns, last)
         self.stats.errors[key] += 1
         self.arrival_order = True
-
-    @staticmethod
-    def _decode(schema, channel, message, factories, decoders):
-        if channel.message_encoding == "json":
-            return json.loads(message.data)
-        if channel.id not in decoders:
-            decoder = None
-            for factory in factories:
-                decoder = factory.decoder_for(channel.message_encoding, schema)
-                if decoder is not None:
-                    break
-            if decoder is None:
-                raise ValueError(f"no decoder for {channel.message_encoding} "
-                                 f"{schema.name if schema else ''}")
-            decoders[channel.id] = decoder
-        return decoders[channel.id](message.data)
 
     def _handle(self, topic, message, decoded, pending):
         t = self.topics

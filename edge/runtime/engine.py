@@ -1,4 +1,5 @@
-"""The budgeted inference engine: an exported bundle run with ONNX Runtime, no torch.
+"""The budgeted inference engine: an exported bundle run with ONNX Runtime or OpenVINO, no
+torch (`edge.runtime.backends`).
 
 The encoder runs once per frame, the update step up to `iters` times, the convex upsampling
 once after the last step (with a bundle that has the refinement stage, it also returns the
@@ -16,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from edge.errors import ConfigError, InvalidDataError
+from edge.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
 from edge.runtime.fit import FitPlan
 from edge.types import DepthResult
 
@@ -44,13 +46,17 @@ class Engine:
 
     Any camera size runs: images that are not the bundle's size are scaled by `scale` (None
     or 0: the largest factor ≤ 1 that fits) and padded to it, and the outputs come back at the
-    camera's size (`edge.runtime.fit`)."""
+    camera's size (`edge.runtime.fit`). `runtime`: "auto" | "onnxruntime" | "openvino";
+    `bf16` (OpenVINO only): run the graphs in `BF16_GRAPHS` in bf16; None = where the CPU
+    has it natively."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
-                 threads: int = 2, meta: dict | None = None, scale: float | None = None
-                 ) -> None:
-        import onnxruntime as ort
-
+                 threads: int = 2, meta: dict | None = None, scale: float | None = None,
+                 runtime: str = "auto", bf16: bool | None = None) -> None:
+        self.runtime = resolve_runtime(runtime)
+        if bf16 is None:
+            bf16 = self.runtime == "openvino" and cpu_has_bf16()
+        self.bf16 = bool(bf16) and self.runtime == "openvino"
         self.bundle = Path(bundle)
         self.meta = meta or load_bundle_meta(self.bundle)
         files = self.meta["precisions"].get(precision)
@@ -61,31 +67,22 @@ class Engine:
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
-        opts = ort.SessionOptions()
-        opts.intra_op_num_threads = int(threads)
-        opts.inter_op_num_threads = 1
-        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
-        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        # three sessions take turns: a pool spinning after its call would steal the cores
-        # from the next one (DESIGN.md)
-        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
-        providers = ["CPUExecutionProvider"]
         self.sessions = {}
         for part, name in files.items():
             try:
-                self.sessions[part] = ort.InferenceSession(str(self.bundle / name), opts,
-                                                           providers=providers)
-            except Exception as exc:  # noqa: BLE001 - ONNX Runtime's errors have no base
+                self.sessions[part] = open_session(self.bundle / name, self.runtime, threads,
+                                                   self.bf16 and part in BF16_GRAPHS)
+            except Exception as exc:  # noqa: BLE001 - the runtimes' errors have no base
                 first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else ""
                 raise ConfigError("bundle", f"a loadable ONNX graph at {self.bundle / name} "
                                   "(re-export with tools/export.py)",
                                   f"{type(exc).__name__}: {first}") from None
-        self._enc_outputs = [o.name for o in self.sessions["encoder"].get_outputs()]
+        self._enc_outputs = self.sessions["encoder"].output_names
         upsample = self.sessions["upsample"]
-        # a refining upsample graph also takes the images (and, version 2, the LiDAR)
-        self._upsample_extra = [i.name for i in upsample.get_inputs()
-                                if i.name in ("left", "right", "sparse", "valid")]
-        self.has_confidence = len(upsample.get_outputs()) > 1
+        # a refining upsample graph also takes the images (and, versions 2-3, the LiDAR)
+        self._upsample_extra = [n for n in upsample.input_names
+                                if n in ("left", "right", "sparse", "valid")]
+        self.has_confidence = len(upsample.output_names) > 1
         shape = (1, 1, self.height, self.width)
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
                                                                  "valid")}
@@ -104,6 +101,10 @@ class Engine:
         and plans, and would otherwise land on the first real frame's latency."""
         blank = np.zeros((self.height, self.width), np.uint8)
         self.infer(blank, blank, np.zeros((self.height, self.width), np.float32), iters=iters)
+
+    def describe(self) -> str:
+        """'int8 on openvino (bf16 encoder)': what runs, for the first log line."""
+        return f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
 
     @property
     def size(self) -> tuple[int, int]:
@@ -145,7 +146,7 @@ class Engine:
 
         timings: dict[str, float] = {}
         t = time.perf_counter()
-        outputs = self.sessions["encoder"].run(None, feed("encoder", buf))
+        outputs = self.sessions["encoder"].run(feed("encoder", buf))
         enc = dict(zip(self._enc_outputs, outputs, strict=True))
         timings["encoder"] = (time.perf_counter() - t) * 1000
         state = {k: v for k, v in enc.items() if k not in ("disparity", "hidden")}
@@ -160,14 +161,14 @@ class Engine:
                     break
             t = time.perf_counter()
             feeds = dict(state, disparity=disparity, hidden=hidden)
-            disparity, hidden = step.run(None, feed("step", feeds))
+            disparity, hidden = step.run(feed("step", feeds))
             step_ms.append((time.perf_counter() - t) * 1000)
         timings["steps"] = float(sum(step_ms))
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
         feeds = dict(disparity=disparity, hidden=hidden)
         feeds.update({k: buf[k] for k in self._upsample_extra})
-        full, *rest = self.sessions["upsample"].run(None, feed("upsample", feeds))
+        full, *rest = self.sessions["upsample"].run(feed("upsample", feeds))
         up_ms = (time.perf_counter() - t) * 1000
         timings["upsample"] = up_ms
         self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \

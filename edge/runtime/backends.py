@@ -1,0 +1,108 @@
+"""The runtimes an exported graph runs on: ONNX Runtime (everywhere) and OpenVINO (x86).
+
+Both read the same ONNX files, the int8 QDQ graphs included. A session here is anything with
+`input_names`, `output_names` and `run(feeds) -> list of arrays`, so the engine does not care
+which runtime it holds. `resolve_runtime("auto")` picks OpenVINO on x86-64 when it is
+installed and ONNX Runtime elsewhere (ARM robots); the measurements behind that are in the
+README's speed table (`tools/bench.py --runtime`).
+
+OpenVINO's CPU plugin would run float graphs in bf16 on a CPU with AVX512-BF16 or AMX by
+default; that breaks index arithmetic (a column index of 319 rounds to 320 in bf16's 8-bit
+mantissa, and GatherElements then fails or reads the wrong column), so every graph is
+compiled with an explicit precision: f32 unless the caller asks for bf16 on a graph known
+to tolerate it (`BF16_GRAPHS`: the encoder, whose outputs agree within the int8 budget).
+"""
+
+from __future__ import annotations
+
+import platform
+from pathlib import Path
+
+import numpy as np
+
+from edge.errors import ConfigError
+
+RUNTIMES = ("auto", "onnxruntime", "openvino")
+BF16_GRAPHS = ("encoder",)  # parts whose bf16 run was measured to agree (README)
+
+
+def openvino_available() -> bool:
+    try:
+        import openvino  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def cpu_has_bf16() -> bool:
+    """Whether OpenVINO's CPU plugin reports native bf16 (AVX512-BF16 or AMX)."""
+    if not openvino_available():
+        return False
+    import openvino as ov
+
+    try:
+        return "BF16" in ov.Core().get_property("CPU", "OPTIMIZATION_CAPABILITIES")
+    except Exception:  # noqa: BLE001 - a plugin that cannot answer has no bf16 for us
+        return False
+
+
+def resolve_runtime(runtime: str) -> str:
+    """"auto" → "openvino" on x86-64 with OpenVINO installed, else "onnxruntime"; an explicit
+    "openvino" without the package is a ConfigError naming the install."""
+    if runtime not in RUNTIMES:
+        raise ConfigError("engine.runtime", " | ".join(RUNTIMES), runtime)
+    machine = platform.machine().lower()
+    if runtime == "auto":
+        x86 = machine in ("x86_64", "amd64")
+        return "openvino" if x86 and openvino_available() else "onnxruntime"
+    if runtime == "openvino" and not openvino_available():
+        raise ConfigError("engine.runtime", "an installed OpenVINO (pip install openvino) or "
+                          "runtime = \"onnxruntime\"", runtime)
+    return runtime
+
+
+class OrtSession:
+    def __init__(self, path: Path, threads: int) -> None:
+        import onnxruntime as ort
+
+        opts = ort.SessionOptions()
+        opts.intra_op_num_threads = int(threads)
+        opts.inter_op_num_threads = 1
+        opts.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        opts.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        # three sessions take turns: a pool spinning after its call would steal the cores
+        # from the next one (DESIGN.md)
+        opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        self._session = ort.InferenceSession(str(path), opts,
+                                             providers=["CPUExecutionProvider"])
+        self.input_names = [i.name for i in self._session.get_inputs()]
+        self.output_names = [o.name for o in self._session.get_outputs()]
+
+    def run(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        return self._session.run(None, feeds)
+
+
+class OpenVinoSession:
+    def __init__(self, path: Path, threads: int, bf16: bool = False) -> None:
+        import openvino as ov
+
+        config = {"INFERENCE_NUM_THREADS": int(threads), "PERFORMANCE_HINT": "LATENCY",
+                  "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32"}
+        compiled = ov.Core().compile_model(str(path), "CPU", config)
+        self._request = compiled.create_infer_request()
+        self._outputs = list(compiled.outputs)
+        self.input_names = [i.get_any_name() for i in compiled.inputs]
+        self.output_names = [o.get_any_name() for o in self._outputs]
+        self.bf16 = bf16
+
+    def run(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        # copies in and out (the defaults): a step's outputs are the next step's inputs
+        results = self._request.infer({k: feeds[k] for k in self.input_names})
+        return [results[o] for o in self._outputs]
+
+
+def open_session(path: Path, runtime: str, threads: int, bf16: bool = False):
+    """`runtime` already resolved; `bf16` is honoured by OpenVINO only."""
+    if runtime == "openvino":
+        return OpenVinoSession(path, threads, bf16)
+    return OrtSession(path, threads)

@@ -1,0 +1,77 @@
+"""The engine's runtimes: how `auto` chooses, and OpenVINO agreeing with ONNX Runtime."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from edge.config import load_robot_config
+from edge.errors import ConfigError
+from edge.metrics import disparity_metrics
+from edge.runtime import backends
+from edge.runtime.engine import Engine
+from edge.sim import RigConfig, make_sample
+
+
+@pytest.mark.parametrize("machine, installed, expected", [
+    ("x86_64", True, "openvino"), ("AMD64", True, "openvino"), ("x86_64", False, "onnxruntime"),
+    ("aarch64", True, "onnxruntime"), ("armv7l", False, "onnxruntime")])
+def test_auto_takes_openvino_on_x86_when_installed_and_onnxruntime_elsewhere(
+        monkeypatch, machine, installed, expected):
+    monkeypatch.setattr(backends.platform, "machine", lambda: machine)
+    monkeypatch.setattr(backends, "openvino_available", lambda: installed)
+    assert backends.resolve_runtime("auto") == expected
+    assert backends.resolve_runtime("onnxruntime") == "onnxruntime"
+
+
+def test_an_unknown_or_missing_runtime_is_one_clear_error(monkeypatch):
+    with pytest.raises(ConfigError, match="tensorrt"):
+        backends.resolve_runtime("tensorrt")
+    monkeypatch.setattr(backends, "openvino_available", lambda: False)
+    with pytest.raises(ConfigError, match="pip install openvino"):
+        backends.resolve_runtime("openvino")
+
+
+def test_the_robot_config_takes_runtime_and_bf16(tmp_path):
+    path = tmp_path / "robot.toml"
+    path.write_text('[camera]\nsource = "sim"\n[lidar]\nmodel = "sim"\n'
+                    '[engine]\nruntime = "onnxruntime"\nbf16 = "off"\n')
+    engine = load_robot_config(path).engine
+    assert (engine.runtime, engine.bf16_choice) == ("onnxruntime", False)
+    path.write_text('[camera]\nsource = "sim"\n[lidar]\nmodel = "sim"\n'
+                    '[engine]\nruntime = "tensorrt"\n')
+    with pytest.raises(ConfigError, match="runtime"):
+        load_robot_config(path)
+
+
+def _scene(seed: int = 1_000_002):
+    sample = make_sample(seed, RigConfig(width=640, height=400), "beams16")
+    sparse, valid = sample.sparse_disparity("left")
+    return sample, (sparse * valid).astype(np.float32)
+
+
+def test_onnxruntime_engine_describes_itself_and_never_uses_bf16():
+    engine = Engine(precision="int8", threads=1, runtime="onnxruntime", bf16=True)
+    assert engine.runtime == "onnxruntime" and not engine.bf16
+    assert engine.describe() == "int8 on onnxruntime"
+
+
+@pytest.mark.skipif(not backends.openvino_available(), reason="OpenVINO not installed")
+def test_openvino_runs_the_same_bundle_as_onnxruntime():
+    """fp32 agrees to numerical noise; the int8 step (QDQ read by OpenVINO) within the int8
+    budget; the bf16 encoder keeps the accuracy against ground truth."""
+    sample, sparse = _scene()
+    args = (sample.left, sample.right, sparse)
+    ort32 = Engine(precision="fp32", threads=2, runtime="onnxruntime").infer(*args).disparity
+    ov32 = Engine(precision="fp32", threads=2, runtime="openvino", bf16=False)
+    assert ov32.describe() == "fp32 on openvino"
+    assert float(np.abs(ov32.infer(*args).disparity - ort32).max()) < 0.05
+    ort8 = Engine(precision="int8", threads=2, runtime="onnxruntime").infer(*args).disparity
+    ov8 = Engine(precision="int8", threads=2, runtime="openvino", bf16=False).infer(*args)
+    assert float(np.abs(ov8.disparity - ort8).mean()) < 0.1
+    gt = sample.disp_left
+    base = disparity_metrics(ort8, gt)["epe"]
+    bf16 = Engine(precision="int8", threads=2, runtime="openvino", bf16=True)
+    assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder)"
+    epe = disparity_metrics(bf16.infer(*args).disparity, gt)["epe"]
+    assert epe < 1.05 * base + 0.02
