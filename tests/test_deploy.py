@@ -51,7 +51,9 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
-    got = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=4)
+    # the export's fidelity, on the runtime the export check uses (OpenVINO: test_backends)
+    got = Engine(bundle, "fp32", threads=1, runtime="onnxruntime").infer(left, right, sparse,
+                                                                          iters=4)
     assert got.iterations == 4
     assert float(np.abs(got.disparity - ref).max()) < 0.01
     # the engine's iteration count is a runtime choice: 1 step differs from 4
@@ -218,7 +220,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
-    engine = Engine(tmp_path / "bundle", "fp32", threads=1)
+    engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
     assert engine.has_confidence
     result = engine.infer(left, right, sparse, iters=2)
     np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)

@@ -190,7 +190,7 @@ def check_export(net, bundle: Path, meta: dict, size: tuple[int, int]) -> dict:
     inputs = reference_inputs(size)
     with torch.no_grad():
         ref = net(*(torch.from_numpy(inputs[k]) for k in ENCODER_INPUTS), 4)[-1][0, 0].numpy()
-    engine = Engine(bundle, precision="fp32", threads=2, meta=meta)
+    engine = Engine(bundle, precision="fp32", threads=2, meta=meta, runtime="onnxruntime")
     got = engine.infer(inputs["left"][0, 0], inputs["right"][0, 0], inputs["sparse"][0, 0],
                        iters=4).disparity
     diff = np.abs(got - ref)

@@ -35,6 +35,7 @@ from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
 
 CALIB_SEED0 = 500_000  # synthetic calibration frames come from the training seeds
 PARTS = ("encoder", "step", "upsample")
+RUNTIME = "onnxruntime"  # the quantizer is ONNX Runtime's: its choices are measured on it
 
 
 def calibration_frames(spec: str, size: tuple[int, int]):
@@ -125,7 +126,7 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
                     eval_dir: Path | None = None, threads: int = 2,
                     node_search: bool = True) -> dict:
     meta = load_bundle_meta(bundle)
-    fp32 = Engine(bundle, "fp32", threads, meta)
+    fp32 = Engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
     frames = list(calibration_frames(calib, fp32.size))
     if not frames:
         raise SystemExit(f"--calib {calib}: no frames")
@@ -138,7 +139,7 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
         dst = bundle / files[part].replace(".onnx", ".int8.onnx")
         quantize_graph(bundle / files[part], dst, record[part])
         trial = dict(meta, precisions={"trial": dict(files, **{part: dst.name})})
-        trial_engine = Engine(bundle, "trial", threads, trial)
+        trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
         alone = mean_abs_difference(trial_engine, fp32, frames, iters)
         ms_fp32, ms_trial = median_ms([fp32, trial_engine], frames[:4], iters)
         graphs[part] = dict(int8=alone <= max_graph_px and ms_trial < 0.9 * ms_fp32,
@@ -150,13 +151,13 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
             shifts = {}
             for node in conv_nodes(src):
                 quantize_graph(src, dst, record[part], [node])
-                shifts[node] = mean_abs_difference(Engine(bundle, "trial", threads, trial),
-                                                   fp32, frames, iters)
+                trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+                shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
             keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
             graphs[part]["shift_with_node_float"] = shifts
             if keep_float:
                 quantize_graph(src, dst, record[part], keep_float)
-                trial_engine = Engine(bundle, "trial", threads, trial)
+                trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
                 graphs[part]["float_nodes"] = keep_float
                 graphs[part]["mean_abs_px_with_float_nodes"] = mean_abs_difference(
                     trial_engine, fp32, frames, iters)
@@ -167,7 +168,7 @@ def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: 
     meta["precisions"]["int8"] = {
         part: files[part].replace(".onnx", ".int8.onnx") if graphs[part]["int8"] else files[part]
         for part in PARTS}
-    int8 = Engine(bundle, "int8", threads, meta)
+    int8 = Engine(bundle, "int8", threads, meta, runtime=RUNTIME)
     meta["quantization"] = dict(
         format="QDQ", activations="QUInt8", weights="QInt8 per-channel",
         op_types=["Conv"],
