@@ -137,7 +137,13 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
         padded = np.pad(wide, pad)
         pw = w + 2 * pad
         flat = (ys + pad) * pw + (xs + pad)
-        reach = gain * (float(wide.max()) - d) + cfg.slack_px  # no k beyond this can hit
+        # no k beyond a point's reach can hit: the nearest point its search can meet lies
+        # within the box the search segment spans (a dilation by it; cheaper than the
+        # image-wide maximum, which kept every point searching to max_search_px)
+        span = (2 * int(np.ceil(cfg.max_search_px * abs(direction[0]))) + 1,
+                2 * int(np.ceil(cfg.max_search_px * abs(direction[1]))) + 1)
+        nearby = cv2.dilate(wide, cv2.getStructuringElement(cv2.MORPH_RECT, span))
+        reach = gain * (nearby[ys, xs] - d) + cfg.slack_px
         for sign in signs:
             idx = np.nonzero(~occluded & (reach >= cfg.step_px))[0]
             p_flat, p_d, p_thr, p_reach = flat[idx], d[idx], threshold[idx], reach[idx]
