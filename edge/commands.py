@@ -17,13 +17,15 @@ import numpy as np
 
 from edge.capture.sync import SyncConfig
 from edge.config import LogConfig
-from edge.daemon import Pipeline, StopFlag, format_latency, lidar_summary, run, summarise
+from edge.daemon import Pipeline, format_latency, lidar_summary, summarise
 from edge.errors import ConfigError
 from edge.mcap_log import open_logger
+from edge.runner import StopFlag, run
 from edge.runtime.engine import Engine
 from edge.types import LidarScan
 
 log = logging.getLogger(__name__)
+SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
 
 
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
@@ -156,7 +158,7 @@ def open_sources(config, max_frames: int | None = None):
     if cam.source == "sim":
         w, h = cam.size
         sim = SimSource(max_frames or 10**9, 1_000_000, RigConfig(width=w, height=h),
-                        period_ms=1000.0 / cam.fps, realtime=True)
+                        period_ms=1000.0 / cam.fps, realtime=True, distinct=SIM_SCENES)
         if stereo is None:
             stereo, lidar = sim.calibration
         if lid.model == "none":
@@ -237,7 +239,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                   + (f" (live on ws://{live[0]}:{logger.server.port})" if live else ""),
                   flush=True)
             stats = run(source, pipeline, stop, threaded=True, queue_size=lg.queue,
-                        max_frames=max_frames)
+                        max_frames=max_frames, pipelined=e.pipelined)
     finally:
         stop.restore()
     elapsed = time.monotonic() - started
@@ -246,6 +248,10 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
           f"dropped, errors {dict(stats.errors) or 'none'}")
     print(lidar_summary(pipeline))
     if lat:
+        fps = stats.throughput()
+        print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s"
+              f"{' (pipelined)' if e.pipelined else ''}; latency (prepared to logged) "
+              f"median {lat['frame']['median']:.0f} ms, p95 {lat['frame']['p95']:.0f} ms")
         print("latency median / p95 ms: " + format_latency(lat))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
     if stats.fatal:

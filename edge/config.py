@@ -32,6 +32,9 @@
                                 # when installed (pip install 'edge-depth[openvino]')
     bf16 = "auto"               # OpenVINO: the encoder in bf16 | "on" | "off"; auto = where
                                 # the CPU has it natively (AVX512-BF16, AMX)
+    pipelined = false           # live: rectify/project, engine and logging overlap in
+                                # threads; for robots with more cores than engine threads
+                                # (on 2 cores with a 2-thread engine it gained nothing: README)
 
     [log]
     out = "logs/depth.mcap"
@@ -93,6 +96,7 @@ class EngineConfig:
     deadline_ms: float = 0.0
     runtime: str = "auto"
     bf16: str = "auto"
+    pipelined: bool = False
 
     @property
     def bf16_choice(self) -> bool | None:

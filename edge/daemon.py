@@ -1,23 +1,18 @@
-"""The depth pipeline and the loop that runs it over a source: the on-robot daemon, replay and
-the demo all use this.
+"""The depth pipeline, one frame at a time: the on-robot daemon, replay and the demo all use
+this (the loop that feeds it from a source is `edge.runner`).
 
 frame ──► rectify ──► project the synced LiDAR ──► engine ──► MCAP (and live view)
 
 Bad input is counted by kind and skipped, never raised out of the loop: a frame of the wrong
-size, a frame that fails to rectify, a scan with no finite points. A live source runs in its
-own thread into a bounded queue that drops the oldest frame when inference falls behind.
-Frames wait, boundedly, for the LiDAR scans that cover them (`edge.capture.sync`): up to
-`sync.max_wait_ms` of host time live, of stream time in replay.
-SIGINT and SIGTERM stop the source, finish the frame in hand and close the MCAP file.
-The commands that wire this up (`run`, `record`, `replay`) are in edge.commands.
+size, a frame that fails to rectify, a scan with no finite points. `on_frame` is the three
+stages `prepare` (rectify, sync, project), `infer` and `finish` (log, count, score) in a row;
+the live runner overlaps them in threads. The commands that wire this up (`run`, `record`,
+`replay`) are in edge.commands.
 """
 
 from __future__ import annotations
 
 import logging
-import os
-import signal
-import socket
 import threading
 import time
 from collections import Counter, deque
@@ -25,7 +20,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calibration.errors import CalibrationError
 from calibration.model import LidarExtrinsics, StereoCalibration
 from calibration.projection import project_to_disparity
 from edge.capture.sync import LidarSync, SyncConfig
@@ -33,7 +27,7 @@ from edge.errors import EdgeError
 from edge.mcap_log import McapLogger
 from edge.metrics import disparity_metrics
 from edge.runtime.engine import Engine
-from edge.types import Calibration, DepthResult, GroundTruth, LidarScan, StereoFrame
+from edge.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +46,20 @@ class FrameOutput:
     gt: np.ndarray | None = None
 
 
+@dataclass
+class Prepared:
+    """A frame between the pipeline's stages: rectified, its LiDAR projected."""
+
+    frame: StereoFrame
+    left: np.ndarray
+    right: np.ndarray
+    sparse: np.ndarray
+    gt: np.ndarray | None
+    t0: float  # perf_counter at the start of `prepare`
+    timings: dict
+    queued_ms: float = 0.0  # from prepared to the engine's start (pipelined: the hand-off)
+
+
 HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
 
 
@@ -67,8 +75,15 @@ class PipelineStats:
     timings: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     window: list[dict] = field(default_factory=list)
     metrics: list[dict] = field(default_factory=list)
+    done: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # monotonic s
     source_failed: bool = False
     fatal: str | None = None  # why the run stopped early (FatalInputError), if it did
+
+    def throughput(self) -> float | None:
+        """Frames per second between the first and last of the recent finished frames."""
+        if len(self.done) < 2 or self.done[-1] <= self.done[0]:
+            return None
+        return (len(self.done) - 1) / (self.done[-1] - self.done[0])
 
     def count_error(self, kind: str, detail: object) -> None:
         if self.errors[kind] == 0:
@@ -167,6 +182,16 @@ class Pipeline:
 
     def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None,
                  sync_wait_ms: float = 0.0) -> FrameOutput | None:
+        """The three stages in a row (replay, the demo, tests)."""
+        prepared = self.prepare(frame, gt, sync_wait_ms)
+        if prepared is None:
+            return None
+        return self.finish(prepared, self.infer(prepared))
+
+    def prepare(self, frame: StereoFrame, gt: np.ndarray | None = None,
+                sync_wait_ms: float = 0.0) -> Prepared | None:
+        """Stage 1: size check, rectification, the synced scans projected. None when the
+        frame is skipped (counted) or, recording, already logged."""
         t0 = time.perf_counter()
         if not self._size_fits(frame):
             return None
@@ -191,31 +216,47 @@ class Pipeline:
         else:
             sparse = np.zeros(left.shape, np.float32)
         t2 = time.perf_counter()
-        result = self.engine.infer(left, right, sparse, iters=self.iters,
-                                   deadline_ms=self.deadline_ms, focal_px=self.focal_px,
-                                   baseline_m=self.baseline_m, stamp_ns=frame.stamp_ns,
-                                   started=t0)
+        return Prepared(frame, left, right, sparse, gt, t0, dict(
+            rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms))
+
+    def infer(self, p: Prepared) -> DepthResult:
+        """Stage 2: the engine (its deadline counts from the start of `prepare`)."""
+        p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
+            - p.timings["project"]
+        return self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
+                                 deadline_ms=self.deadline_ms, focal_px=self.focal_px,
+                                 baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,
+                                 started=p.t0)
+
+    def finish(self, p: Prepared, result: DepthResult) -> FrameOutput:
+        """Stage 3: log, count, score against ground truth. `frame` in the timings is the
+        frame's latency from the start of `prepare` to logged."""
         t3 = time.perf_counter()
+        frame = p.frame
         if self.logger is not None:
             if self.log_raw:
-                self.logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, left, right,
+                self.logger.log_frame(StereoFrame(frame.stamp_ns, frame.seq, p.left, p.right,
                                                   rectified=True))
-                if gt is not None:
-                    self.logger.log_gt(frame.stamp_ns, gt)
-            self.logger.log_result(result, sparse, self.focal_px, self.principal_point, left)
+                if p.gt is not None:
+                    self.logger.log_gt(frame.stamp_ns, p.gt)
+            self.logger.log_result(result, p.sparse, self.focal_px, self.principal_point,
+                                   p.left)
         t4 = time.perf_counter()
-        timings = dict(result.timings_ms, rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000,
-                       log=(t4 - t3) * 1000, frame=(t4 - t0) * 1000, sync_wait=sync_wait_ms,
+        # engine_queue: from prepared to the engine's start (pipelined: the hand-off)
+        timings = dict(result.timings_ms, **p.timings, engine_queue=p.queued_ms,
+                       log=(t4 - t3) * 1000, frame=(t4 - p.t0) * 1000,
                        iterations=result.iterations)
-        self.stats.frames += 1
-        self.stats.timings.append(timings)
-        self.stats.window.append(timings)
         metrics = None
-        if gt is not None and gt.shape == result.disparity.shape:
-            metrics = disparity_metrics(result.disparity, gt)
-            self.stats.metrics.append(metrics)
-        return FrameOutput(result, sparse, left, metrics, gt)
-
+        if p.gt is not None and p.gt.shape == result.disparity.shape:
+            metrics = disparity_metrics(result.disparity, p.gt)
+        with self._lock:
+            self.stats.frames += 1
+            self.stats.done.append(time.monotonic())
+            self.stats.timings.append(timings)
+            self.stats.window.append(timings)
+            if metrics is not None:
+                self.stats.metrics.append(metrics)
+        return FrameOutput(result, p.sparse, p.left, metrics, p.gt)
 
 def lidar_summary(pipeline: Pipeline) -> str:
     """The closing line about the LiDAR: how many frames had it, or why none did."""
@@ -244,260 +285,3 @@ def format_latency(summary: dict[str, dict[str, float]]) -> str:
     """'encoder 9.1/10.2, steps ...': median / p95 ms of each stage of a `summarise`."""
     return ", ".join(f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in summary.items()
                      if k != "step_mean")
-
-
-class SystemdNotifier:
-    """sd_notify without libsystemd: datagrams to $NOTIFY_SOCKET when it is set."""
-
-    def __init__(self) -> None:
-        address = os.environ.get("NOTIFY_SOCKET")
-        self.address = None
-        if address:
-            self.address = "\0" + address[1:] if address.startswith("@") else address
-
-    def notify(self, state: str) -> None:
-        if self.address is None:
-            return
-        try:
-            with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
-                s.sendto(state.encode(), self.address)
-        except OSError as exc:
-            log.warning("systemd notify failed: %s", exc)
-
-
-class StopFlag:
-    """Set by SIGINT / SIGTERM (installed with `install`), or by hand."""
-
-    def __init__(self) -> None:
-        self.event = threading.Event()
-        self.on_stop: list = []
-
-    def set(self, *_args) -> None:
-        self.event.set()
-        for callback in self.on_stop:
-            callback()
-
-    def is_set(self) -> bool:
-        return self.event.is_set()
-
-    def install(self) -> None:
-        self._previous = {sig: signal.signal(sig, self.set)
-                          for sig in (signal.SIGINT, signal.SIGTERM)}
-
-    def restore(self) -> None:
-        for sig, handler in getattr(self, "_previous", {}).items():
-            signal.signal(sig, handler)
-
-
-class Runner:
-    """Feeds a source's events through the pipeline until it ends or `stop` is set:
-    source → (live: its own thread, then a queue of `queue_size` frames that drops the
-    oldest when full) → frames held until their scans are in → pipeline → on_output.
-
-    Replay (threaded=False) holds frames in stream time, live in host time. /diagnostics and
-    the systemd watchdog tick once a period, also while no frame comes."""
-
-    def __init__(self, source, pipeline: Pipeline, stop: StopFlag | None = None,
-                 threaded: bool = False, queue_size: int = 2, on_output=None,
-                 diagnostics_period_s: float = 1.0, max_frames: int | None = None) -> None:
-        self.source, self.pipeline = source, pipeline
-        self.stop = stop or StopFlag()
-        self.stop.on_stop.append(source.close)
-        self.threaded, self.queue_size = threaded, queue_size
-        self.on_output, self.max_frames = on_output, max_frames
-        self.period_s = diagnostics_period_s
-        self.notifier = SystemdNotifier()
-        self.stats = pipeline.stats
-        self.frames: deque[StereoFrame] = deque()  # live: the capture thread's queue
-        self.cond = threading.Condition()
-        self.finished = threading.Event()
-        self.waiting: deque[StereoFrame] = deque()  # replay: frames held in stream time
-        self.gts: dict[int, np.ndarray] = {}
-        self.last_diag = time.monotonic()
-        self.last_stamp: int | None = None
-        self.wait_ms = pipeline.sync.config.wait_ms
-
-    # -- events ------------------------------------------------------------------------------
-    def handle(self, event) -> None:
-        """Errors an event raises are counted by kind; the loop goes on."""
-        try:
-            if isinstance(event, LidarScan):
-                self.pipeline.on_scan(event)
-            elif isinstance(event, StereoFrame):
-                self._enqueue(event) if self.threaded else self.process(event)
-            elif isinstance(event, GroundTruth):
-                self._keep_gt(event)
-            elif isinstance(event, Calibration) and event.toml is not None:
-                from calibration.io import loads_calibration
-
-                stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
-                self.pipeline.set_calibration(stereo, lidar or self.pipeline.lidar)
-        except (EdgeError, CalibrationError, ValueError, ArithmeticError) as exc:
-            self.stats.count_error(type(exc).__name__, exc)
-
-    def _keep_gt(self, gt: GroundTruth) -> None:
-        """Ground truth follows its frame: live, it is kept only while that frame is queued
-        (a dropped frame's 1 MB of truth must not outlive it)."""
-        if not self.threaded:
-            self.gts[gt.stamp_ns] = gt.disparity
-            return
-        with self.cond:
-            if any(f.stamp_ns == gt.stamp_ns for f in self.frames):
-                self.gts[gt.stamp_ns] = gt.disparity
-
-    def _enqueue(self, frame: StereoFrame) -> None:
-        with self.cond:
-            if len(self.frames) >= self.queue_size:
-                dropped = self.frames.popleft()
-                self.gts.pop(dropped.stamp_ns, None)
-                self.stats.drops += 1
-            self.frames.append(frame)
-            self.cond.notify()
-
-    def process(self, frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
-        # ground truth follows its frame in our recordings: look for it once the frame is in
-        with self.cond:
-            gt = self.gts.pop(frame.stamp_ns, None)
-            for stamp in [s for s in self.gts if s < frame.stamp_ns]:  # dropped, skipped
-                del self.gts[stamp]
-        try:
-            out = self.pipeline.on_frame(frame, gt, sync_wait_ms)
-        except FatalInputError as exc:  # every frame would fail: stop, say why
-            self.stats.fatal = str(exc)
-            log.error("%s", exc)
-            self.stop.set()
-            out = None
-        except Exception as exc:  # noqa: BLE001 - one bad frame must not stop the daemon
-            self.stats.count_error(f"frame: {type(exc).__name__}", exc)
-            out = None
-        logger = self.pipeline.logger
-        if logger is not None and logger.stopped is not None and not self.stats.fatal:
-            self.stats.fatal = logger.stopped  # the disk is full: stop, exit non-zero
-            self.stop.set()
-        if out is not None and self.on_output is not None:
-            self.on_output(frame, out)
-        if self.max_frames is not None and self.stats.frames >= self.max_frames:
-            self.stop.set()
-        self.last_stamp = frame.stamp_ns
-        self.tick()
-
-    # -- health ------------------------------------------------------------------------------
-    def tick(self) -> None:
-        """Once a period: /diagnostics and the systemd watchdog (also while no frame comes:
-        a camera that is reconnecting must not get the daemon killed)."""
-        if time.monotonic() - self.last_diag >= self.period_s:
-            self.diagnostics()
-            self.notifier.notify("WATCHDOG=1")
-
-    def _source_counters(self) -> dict:
-        try:
-            return self.source.counters() if hasattr(self.source, "counters") else {}
-        except Exception as exc:  # noqa: BLE001 - a counter must never stop the daemon
-            return {"error": f"{type(exc).__name__}: {exc}"}
-
-    def diagnostics(self) -> None:
-        """Counters and the latency of the frames since the last report, on /diagnostics."""
-        stats, pipeline = self.stats, self.pipeline
-        window, stats.window = stats.window, []
-        self.last_diag = time.monotonic()
-        if pipeline.logger is not None and self.last_stamp is not None:
-            pipeline.logger.log_diagnostics(self.last_stamp, dict(
-                frames=stats.frames, scans=stats.scans, drops=stats.drops,
-                errors=dict(stats.errors), lidar_sync=pipeline.sync.counters(),
-                sources=self._source_counters(),
-                latency_ms=summarise(window) if window else {},
-                iterations=[t["iterations"] for t in window]))
-
-    # -- waiting for the LiDAR -----------------------------------------------------------------
-    def _wait_for_lidar(self, frame: StereoFrame) -> float:
-        """Live: hold a frame (host time, at most wait_ms) while a delivering LiDAR has not
-        yet sent the scans that cover it; returns the ms waited."""
-        pipeline, start = self.pipeline, time.monotonic()
-        while not pipeline.frame_ready(frame.stamp_ns) \
-                and pipeline.lidar_delivering(frame.stamp_ns) and not self.stop.is_set():
-            if time.monotonic() - start >= self.wait_ms / 1000:
-                pipeline.sync.waited_out += 1
-                break
-            time.sleep(0.002)
-        return (time.monotonic() - start) * 1000
-
-    def _flush(self, latest_ns: int | None, everything: bool = False) -> None:
-        """Replay: process held frames, oldest first, while each is ready, has waited
-        wait_ms of stream time (up to the newest frame's stamp) or the stream has ended."""
-        while self.waiting and not self.stop.is_set():
-            head = self.waiting[0]
-            ready = self.pipeline.frame_ready(head.stamp_ns)
-            timed_out = latest_ns is not None and latest_ns - head.stamp_ns > self.wait_ms * 1e6
-            if not (ready or timed_out or everything):
-                return
-            if not ready and self.pipeline.lidar is not None:
-                self.pipeline.sync.waited_out += 1
-            self.process(self.waiting.popleft())
-
-    # -- the two loops -------------------------------------------------------------------------
-    def _capture(self) -> None:
-        try:
-            for event in self.source:
-                if self.stop.is_set():
-                    break
-                self.handle(event)
-        except Exception as exc:  # noqa: BLE001 - reported, and the daemon exits non-zero
-            self.stats.count_error("source", f"{type(exc).__name__}: {exc}")
-            self.stats.source_failed = True
-        finally:
-            self.finished.set()
-            with self.cond:
-                self.cond.notify()
-
-    def _next_frame(self) -> StereoFrame | None:
-        with self.cond:
-            while not self.frames and not self.finished.is_set() and not self.stop.is_set():
-                self.cond.wait(0.1)
-                self.tick()
-            return self.frames.popleft() if self.frames else None
-
-    def _run_live(self) -> None:
-        thread = threading.Thread(target=self._capture, name="capture", daemon=True)
-        thread.start()
-        while not self.stop.is_set():
-            frame = self._next_frame()
-            if frame is None:
-                if self.finished.is_set():
-                    break
-                continue
-            self.process(frame, self._wait_for_lidar(frame))
-        thread.join(timeout=5)
-
-    def _run_replay(self) -> None:
-        # a frame is held at least until the next event that is not its ground truth (so
-        # the GT is in), then until its scans are in or it has waited out
-        latest: int | None = None
-        for event in self.source:
-            if isinstance(event, StereoFrame):
-                latest = event.stamp_ns if latest is None else max(latest, event.stamp_ns)
-                self._flush(latest)
-                self.waiting.append(event)
-            else:
-                self.handle(event)
-                if not isinstance(event, GroundTruth):
-                    self._flush(latest)
-            if self.stop.is_set():
-                break
-        self._flush(latest, everything=True)
-
-    def run(self) -> PipelineStats:
-        self.notifier.notify("READY=1")
-        self._run_live() if self.threaded else self._run_replay()
-        if self.stats.window:
-            self.diagnostics()  # the frames since the last report
-        self.notifier.notify("STOPPING=1")
-        return self.stats
-
-
-def run(source, pipeline: Pipeline, stop: StopFlag | None = None, threaded: bool = False,
-        queue_size: int = 2, on_output=None, diagnostics_period_s: float = 1.0,
-        max_frames: int | None = None) -> PipelineStats:
-    """`Runner(...).run()`: see Runner. on_output(frame, FrameOutput) is called for every
-    processed frame."""
-    return Runner(source, pipeline, stop, threaded, queue_size, on_output,
-                  diagnostics_period_s, max_frames).run()

@@ -92,8 +92,9 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
                  iters: int | None = None, deadline_ms: float | None = None,
                  profile: str = "foxglove") -> int:
     from edge.capture.sim import SimSource
-    from edge.daemon import Pipeline, format_latency, run, summarise
+    from edge.daemon import Pipeline, format_latency, summarise
     from edge.mcap_log import open_logger
+    from edge.runner import run
     from edge.runtime.engine import Engine
 
     out.mkdir(parents=True, exist_ok=True)

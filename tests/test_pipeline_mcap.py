@@ -19,8 +19,9 @@ from calibration.io import dumps_calibration
 from edge.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
 from edge.capture.sim import SimSource, write_sim_recording
 from edge.cli import main
-from edge.daemon import Pipeline, StopFlag, run
+from edge.daemon import Pipeline
 from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
+from edge.runner import StopFlag, run
 from edge.sim import RigConfig, make_sample
 from edge.types import LidarScan, StereoFrame
 
@@ -174,6 +175,54 @@ def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine):
                 on_output=lambda frame, out: seen.append(frame.seq))
     assert stats.drops > 0 and stats.frames + stats.drops == 8
     assert seen == sorted(seen) and seen[-1] == 7  # the newest frame is never dropped
+
+
+@pytest.mark.parametrize("pipelined", [False, True])
+def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined):
+    class Burst:
+        sample = make_sample(SEED)
+
+        def close(self) -> None:
+            pass
+
+        def __iter__(self):
+            for i in range(8):
+                yield self.sample.frame(1_000_000_000 + i * 1_000_000, i)
+
+    stereo, lidar = SimSource(1).calibration
+    seen = []
+    stats = run(Burst(), Pipeline(engine, stereo, lidar), threaded=True, queue_size=2,
+                on_output=lambda frame, out: seen.append(frame.seq), pipelined=pipelined)
+    assert stats.drops > 0 and stats.frames + stats.drops == 8
+    assert seen == sorted(seen) and seen[-1] == 7
+
+
+def test_the_pipelined_daemon_gives_the_sequential_results(tmp_path):
+    """The stages overlap in threads, the frames and their results do not change: a paced sim
+    camera, pipelined against sequential, frame by frame (on a busy machine a frame may
+    drop: the frames both kept are compared)."""
+    from edge.runtime.engine import Engine
+
+    engine = Engine(precision="int8", threads=2, runtime="onnxruntime")
+    outputs = {}
+    for pipelined in (False, True):
+        source = SimSource(5, SEED, period_ms=400.0, realtime=True, distinct=2)
+        seen = {}
+        with McapLogger(tmp_path / f"p{pipelined}.mcap") as logger:
+            stats = run(source, Pipeline(engine, *source.calibration, logger), threaded=True,
+                        pipelined=pipelined,
+                        on_output=lambda f, o, seen=seen: seen.update({f.seq: o.result}))
+        assert stats.frames + stats.drops == 5 and stats.frames >= 2, pipelined
+        assert all("engine_queue" in t for t in stats.timings)
+        assert stats.throughput() is not None
+        outputs[pipelined] = seen
+    common = sorted(set(outputs[False]) & set(outputs[True]))
+    assert common
+    for seq in common:
+        np.testing.assert_array_equal(outputs[True][seq].disparity,
+                                      outputs[False][seq].disparity)
+        # the cycled scenes repeat: frame seq is scene seq % 2, at its own stamp
+        assert outputs[True][seq].stamp_ns == 1_000_000_000 + seq * 400_000_000
 
 
 def test_logger_rotates_by_duration_and_every_file_is_complete(tmp_path):

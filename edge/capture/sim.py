@@ -10,14 +10,20 @@ from calibration.model import LidarExtrinsics, StereoCalibration
 from edge.capture import Source
 from edge.sim import RigConfig, make_sample
 from edge.sim.lidar import default_T_cam_lidar
-from edge.types import GroundTruth
+from edge.types import GroundTruth, LidarScan
 
 
 class SimSource(Source):
     def __init__(self, count: int, seed: int = 0, rig: RigConfig | None = None,
                  lidar: str = "beams16", period_ms: float = 100.0, lidar_lag_ms: float = 5.0,
-                 start_ns: int = 1_000_000_000, realtime: bool = False) -> None:
+                 start_ns: int = 1_000_000_000, realtime: bool = False,
+                 distinct: int | None = None) -> None:
+        """`distinct`: render only that many scenes and cycle through them (a live sim
+        camera must cost the host what a camera does, ~nothing: rendering one takes longer
+        than a frame period)."""
         self.count, self.seed, self.rig, self.lidar = count, seed, rig or RigConfig(), lidar
+        self.distinct = distinct
+        self._cache: dict[int, object] = {}
         self.period_ns, self.lag_ns = int(period_ms * 1e6), int(lidar_lag_ms * 1e6)
         self.start_ns = start_ns
         self.realtime = realtime
@@ -31,9 +37,19 @@ class SimSource(Source):
                                          r.cy)
         return stereo, LidarExtrinsics(default_T_cam_lidar())
 
+    def _sample(self, i: int):
+        if self.distinct is None:
+            return make_sample(self.seed + i, self.rig, self.lidar)
+        key = i % self.distinct
+        if key not in self._cache:
+            self._cache[key] = make_sample(self.seed + key, self.rig, self.lidar)
+        return self._cache[key]
+
     def __iter__(self):
         import time
 
+        for i in range(min(self.distinct or 0, self.count)):  # before the camera's clock
+            self._sample(i)
         t0 = time.monotonic()
         for i in range(self.count):
             if self.realtime:  # a frame every period_ms, like a camera
@@ -41,10 +57,9 @@ class SimSource(Source):
             if self._stop.is_set():
                 return
             stamp = self.start_ns + i * self.period_ns
-            sample = make_sample(self.seed + i, self.rig, self.lidar,
-                                 stamp_ns=stamp - self.lag_ns)
+            sample = self._sample(i)
             self.scans += 1
-            yield sample.scan
+            yield LidarScan(stamp - self.lag_ns, sample.scan.points, sample.scan.intensity)
             self.frames += 1
             yield sample.frame(stamp_ns=stamp, seq=i)
             yield GroundTruth(stamp, sample.disp_left)
