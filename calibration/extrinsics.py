@@ -16,13 +16,12 @@ degrees).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from calibration.errors import CalibrationError
 from calibration.model import StereoCalibration
-from edge.sampling import sample_bilinear
+from calibration.sampling import sample_bilinear
 
 
 @dataclass(frozen=True)
@@ -32,15 +31,6 @@ class ExtrinsicsFrame:
 
     stereo_disparity: np.ndarray
     points: np.ndarray
-
-
-def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> ExtrinsicsFrame:
-    """SGBM on the rectified pair plus the points."""
-    from edge.baselines import sgbm_disparity
-
-    disparity = sgbm_disparity(left, right)
-    disparity[disparity <= 0] = np.nan
-    return ExtrinsicsFrame(disparity, np.asarray(points, np.float64))
 
 
 def _subpixel(points: np.ndarray, calib: StereoCalibration, T: np.ndarray,
@@ -197,28 +187,6 @@ def pose_difference(T_a: np.ndarray, T_b: np.ndarray) -> tuple[float, float]:
     return float(angle), float(np.linalg.norm(T_a[:3, 3] - T_b[:3, 3]))
 
 
-def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
-                max_frames: int = 20, topics=None
-                ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
-    """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
-    nearest in time (images rectified with `stereo` unless the recording's already are)."""
-    from edge.capture.replay import synced_frames
-
-    frames = []
-    for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
-                                                       topics=topics):
-        if frame.size != tuple(stereo.image_size):
-            raise CalibrationError(f"image size {frame.size} differs from the "
-                                   f"calibration's {stereo.image_size}", path=str(path))
-        if len(points):
-            frames.append((left, right, points))
-            if len(frames) >= max_frames:
-                break
-    if not frames:
-        raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
-    return frames
-
-
 def overlay(left: np.ndarray, points: np.ndarray, calib: StereoCalibration, T: np.ndarray
             ) -> np.ndarray:
     """(H, W, 3) BGR: the rectified left image with the LiDAR points it sees coloured by
@@ -235,111 +203,3 @@ def overlay(left: np.ndarray, points: np.ndarray, calib: StereoCalibration, T: n
         scaled = np.clip((d - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
         image[valid] = cv2.applyColorMap(scaled[:, None], cv2.COLORMAP_JET)[:, 0]
     return image
-
-
-def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarray,
-                   after: np.ndarray | None) -> None:
-    """Before | after overlays of the frame with the most LiDAR points, labelled."""
-    import cv2
-
-    left, _, points = max(data, key=lambda d: len(d[2]))
-    panels = [("before", before)] + ([("refined", after)] if after is not None else [])
-    images = []
-    for label, T in panels:
-        image = overlay(left, points, calib, T)
-        cv2.putText(image, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
-        images.append(image)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    if not cv2.imwrite(str(path), np.hstack(images)):
-        raise CalibrationError("could not write the overlay image", path=str(path))
-    print(f"wrote {path}")
-
-
-# fewer frames than this refine unreliably on the rig (tools/extrinsics_study.py: 3 frames end
-# up to 0.25 degrees / 6.3 mm off, 6 frames within 0.14 degrees / 2.5 mm)
-MIN_REFINE_FRAMES = 6
-
-
-def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool, topics):
-    """(stereo, lidar or None, where it came from): --calib, else the recording's own."""
-    from calibration.io import load_calibration
-    from edge.capture.replay import McapSource, recording_calibration
-
-    if calib_path is not None:
-        return (*load_calibration(calib_path), f"--calib {calib_path}")
-    found = recording_calibration(McapSource(recording, topics)) if is_mcap else None
-    if found is None:
-        raise CalibrationError("--calib is needed: the recording carries no calibration "
-                               "(/edge/calibration, or a CameraInfo pair mapped with --topics)",
-                               path=str(recording))
-    return found
-
-
-def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
-                  refine: bool = False, overlay_path: Path | None = None,
-                  max_frames: int = 20, topics=None) -> int:
-    """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities,
-    optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image.
-    Without `calib_path`, a recording's own calibration is used (ours, or a ROS 2 bag's
-    CameraInfo pair and /tf_static; `topics` maps the bag's topics)."""
-    from calibration.io import save_calibration
-    from calibration.model import LidarExtrinsics
-    from edge.sim.folder import list_scene_folders, read_scene_folder
-
-    if max_frames < 1:
-        raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")
-    is_mcap = Path(recording).suffix == ".mcap"
-    stereo, lidar, origin = _initial_calibration(recording, calib_path, is_mcap, topics)
-    if lidar is None:
-        raise CalibrationError(f"{origin} has no LiDAR extrinsics: give an initial "
-                               "T_cam_lidar to refine (a [lidar] section in --calib)",
-                               key="lidar")
-    print(f"calibration: {origin}")
-    data = []  # (left, right, points)
-    if is_mcap:
-        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics)
-        folders = []
-    else:
-        folders = list_scene_folders(recording)
-        if not folders:
-            raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) and not "
-                                   "a .mcap recording", path=str(recording))
-    for folder in folders[:max_frames]:
-        scene = read_scene_folder(folder)
-        if scene.lidar is None:
-            print(f"skipping {folder}: no lidar.npy")
-            continue
-        if scene.left.shape[::-1] != stereo.image_size:
-            raise CalibrationError(f"image size {scene.left.shape[::-1]} differs from the "
-                                   f"calibration's {stereo.image_size}", path=str(folder))
-        data.append((scene.left, scene.right, scene.lidar))
-    frames = [make_frame(*d) for d in data]
-    before = disagreement(frames, stereo, lidar.T_cam_lidar)
-    print(f"{len(frames)} frames, {before['points']} LiDAR points on SGBM pixels")
-    print(f"before: |LiDAR - SGBM| disparity median {before['median_px']:.3f} px, "
-          f"p90 {before['p90_px']:.3f} px")
-    T = lidar.T_cam_lidar
-    if refine:
-        if len(data) < MIN_REFINE_FRAMES:
-            print(f"warning: {len(data)} frames; refinement wants {MIN_REFINE_FRAMES} or more "
-                  "with depth edges in view (on the rig 3 frames end up to 0.25 deg off)")
-
-        def progress(sigma: float, points: int, cost: float) -> None:
-            print(f"  blur {sigma:.0f} px, {points} points seen by both cameras: "
-                  f"mean |left - right| {cost:.3f} grey levels", flush=True)
-
-        T, result = refine_extrinsics(data, stereo, T, progress=progress)
-        angle, shift = pose_difference(T, lidar.T_cam_lidar)
-        after = disagreement(frames, stereo, T)
-        print(f"refined: mean |left - right| at the LiDAR points {result['cost_before']:.3f} -> "
-              f"{result['cost_after']:.3f} grey levels; moved {angle:.3f} deg, "
-              f"{shift * 1000:.1f} mm")
-        print(f"after: |LiDAR - SGBM| disparity median {after['median_px']:.3f} px, "
-              f"p90 {after['p90_px']:.3f} px")
-    if overlay_path is not None:
-        _write_overlay(Path(overlay_path), data, stereo, lidar.T_cam_lidar,
-                       T if refine else None)
-    if out is not None:
-        save_calibration(out, stereo, LidarExtrinsics(T, lidar.time_offset_ns))
-        print(f"wrote {out}" + ("" if refine else " (extrinsics unchanged)"))
-    return 0

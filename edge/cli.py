@@ -179,7 +179,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--max-share", type=_share, default=0.01,
                          help="the share of differing pixels allowed, e.g. 1%% or 0.01")
     compare.add_argument("--json", type=Path, default=None, help="also write the report")
-    from calibration.cli import add_parsers
+    from edge.calibrate import add_parsers
 
     add_parsers(sub)
     return parser
@@ -209,8 +209,8 @@ def main(argv: list[str] | None = None) -> int:
             from edge.sim.export import synth_command
 
             if args.mcap:
-                from edge.capture.sim import write_sim_recording
                 from edge.sim import RigConfig
+                from edge.sim_recording import write_sim_recording
 
                 w, h = args.size
                 n = write_sim_recording(args.mcap, args.count, args.seed,
@@ -228,7 +228,7 @@ def main(argv: list[str] | None = None) -> int:
                                       args.workers)
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
-            from calibration.cli import run
+            from edge.calibrate import run
 
             return run(args)
         if args.command == "demo":

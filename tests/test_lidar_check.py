@@ -5,9 +5,10 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calibration.extrinsics import disagreement, make_frame, pose_difference
+from calibration.extrinsics import disagreement, pose_difference
 from calibration.io import save_calibration
 from calibration.model import LidarExtrinsics
+from edge.calibrate import make_frame
 from edge.cli import main
 from edge.sim import RigConfig, make_sample
 from tools.extrinsics_study import perturbed

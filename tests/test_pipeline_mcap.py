@@ -17,12 +17,13 @@ from mcap.reader import make_reader
 
 from calibration.io import dumps_calibration
 from edge.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
-from edge.capture.sim import SimSource, write_sim_recording
+from edge.capture.sim import SimSource
 from edge.cli import main
 from edge.daemon import Pipeline
 from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
 from edge.runner import StopFlag, run
 from edge.sim import RigConfig, make_sample
+from edge.sim_recording import write_sim_recording
 from edge.types import LidarScan, StereoFrame
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -57,7 +57,7 @@ def _timed(fn, args_list, out: list[float]) -> None:
 
 def replay_peak_rss_mb(frames: int, size: tuple[int, int], bundle: Path) -> float:
     """Peak RSS (MB) of `edge-depth replay` over a synthetic recording, in a subprocess."""
-    from edge.capture.sim import write_sim_recording
+    from edge.sim_recording import write_sim_recording
 
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp) / "rec.mcap"

@@ -63,22 +63,3 @@ class SimSource(Source):
             self.frames += 1
             yield sample.frame(stamp_ns=stamp, seq=i)
             yield GroundTruth(stamp, sample.disp_left)
-
-
-def write_sim_recording(path, count: int, seed: int = 0, rig: RigConfig | None = None,
-                        lidar: str = "beams16", period_ms: float = 100.0) -> int:
-    """Record rig scenes as a robot would (raw topics, calibration) plus /sim/gt_disparity,
-    for replay tests and demos. Returns the number of messages."""
-    from edge.mcap_log import RAW_TOPICS, McapLogger
-
-    source = SimSource(count, seed, rig, lidar, period_ms)
-    with McapLogger(path, topics=RAW_TOPICS) as logger:
-        logger.set_calibration(*source.calibration)
-        for event in source:
-            if isinstance(event, GroundTruth):
-                logger.log_gt(event.stamp_ns, event.disparity)
-            elif hasattr(event, "points"):
-                logger.log_scan(event)
-            else:
-                logger.log_frame(event)
-        return logger.messages

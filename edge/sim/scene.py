@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from calibration.sampling import sample_bilinear
 from edge.errors import ConfigError
-from edge.sampling import sample_bilinear
 
 LEFT, RIGHT = "left", "right"
 

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge.sampling import sample_bilinear
+from calibration.sampling import sample_bilinear
 from edge.sim.photometry import CameraResponse, apply_camera
 from edge.sim.primitives import (
     Cylinder,

@@ -1,0 +1,274 @@
+"""`edge-depth calibrate ...`: the calibration tool's subcommands.
+
+The `calibration` package is the layer below (models, file formats, projection, the fits): it
+imports nothing of `edge`. What reads recordings or runs SGBM to calibrate lives here.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from calibration.errors import CalibrationError
+from calibration.extrinsics import (
+    ExtrinsicsFrame,
+    disagreement,
+    overlay,
+    pose_difference,
+    refine_extrinsics,
+)
+from calibration.model import StereoCalibration
+from edge.errors import EdgeError
+
+
+def add_parsers(sub) -> None:
+    cal = sub.add_parser("calibrate", help="stereo calibration, imports, LiDAR extrinsics")
+    csub = cal.add_subparsers(dest="calib_command", required=True, parser_class=type(cal))
+    st = csub.add_parser("stereo", help="calibrate a stereo pair from board views")
+    st.add_argument("--left", required=True, help="glob of left images, e.g. 'DIR/left*.png'")
+    st.add_argument("--right", required=True, help="glob of right images")
+    st.add_argument("--board", required=True, help="checkerboard:COLSxROWS (inner corners) or "
+                    "charuco:COLSxROWS (squares)")
+    st.add_argument("--square-m", type=float, required=True, help="square side, metres")
+    st.add_argument("--marker-m", type=float, default=None, help="ChArUco marker side, metres")
+    st.add_argument("--fit-k3", action="store_true", help="also fit radial k3")
+    st.add_argument("--out", required=True, type=Path, help="calibration file to write (TOML)")
+
+    oak = csub.add_parser("import-oak", help="convert an OAK's factory calibration")
+    oak.add_argument("--eeprom-json", type=Path, default=None,
+                     help="a CalibrationHandler JSON dump; default: read the connected device")
+    oak.add_argument("--size", default="640x400", help="output size WxH (intrinsics scaled)")
+    oak.add_argument("--out", required=True, type=Path)
+
+    ros = csub.add_parser("import-ros", help="convert ROS camera_info YAML (left and right)")
+    ros.add_argument("--left", required=True, type=Path)
+    ros.add_argument("--right", required=True, type=Path)
+    ros.add_argument("--out", required=True, type=Path)
+
+    exp = csub.add_parser("export-ros", help="write ROS camera_info YAML for both cameras")
+    exp.add_argument("--calib", required=True, type=Path)
+    exp.add_argument("--out-dir", required=True, type=Path)
+
+    lid = csub.add_parser("lidar", help="check (and --refine) T_cam_lidar against stereo")
+    lid.add_argument("--recording", required=True, type=Path,
+                     help="a .mcap recording, or scene folders (a folder of them) with "
+                          "lidar.npy")
+    lid.add_argument("--calib", type=Path, default=None,
+                     help="the calibration with the T_cam_lidar to check (default: the "
+                          "recording's own: /edge/calibration, or CameraInfo + /tf_static)")
+    lid.add_argument("--topics", type=Path, default=None,
+                     help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
+    lid.add_argument("--out", type=Path, default=None,
+                     help="write the calibration (with the refined T_cam_lidar if --refine)")
+    lid.add_argument("--refine", action="store_true",
+                     help="refine T_cam_lidar: make each LiDAR point land on the same "
+                          "surface in the left and right image (photometric)")
+    lid.add_argument("--overlay", type=Path, default=None, metavar="PNG",
+                     help="draw the LiDAR points over a left image (before | refined)")
+    lid.add_argument("--max-frames", type=int, default=20,
+                     help="frames taken from the recording (default 20)")
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.calib_command == "stereo":
+            return _stereo(args)
+        if args.calib_command == "import-oak":
+            return _import_oak(args)
+        if args.calib_command == "import-ros":
+            from calibration.io import save_calibration
+            from calibration.ros import load_camera_info_pair
+
+            stereo = load_camera_info_pair(args.left, args.right)
+            save_calibration(args.out, stereo)
+            print(f"wrote {args.out}: rectified focal {stereo.focal_px:.2f} px, baseline "
+                  f"{stereo.baseline_m * 1000:.2f} mm")
+            return 0
+        if args.calib_command == "export-ros":
+            from calibration.io import load_calibration
+            from calibration.ros import save_camera_info_pair
+
+            stereo, _ = load_calibration(args.calib)
+            paths = save_camera_info_pair(stereo, args.out_dir)
+            print("wrote " + ", ".join(str(p) for p in paths))
+            return 0
+        if args.calib_command == "lidar":
+            from edge.capture.replay import TopicMap
+            from edge.cli import load_topic_map
+
+            topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
+            return lidar_command(args.recording, args.calib, args.out, args.refine,
+                                 args.overlay, args.max_frames, topics)
+    except (CalibrationError, ValueError, EdgeError) as exc:
+        print(f"edge-depth calibrate {args.calib_command}: error: {exc}", file=sys.stderr)
+        return 1
+    return 2
+
+
+def _stereo(args: argparse.Namespace) -> int:
+    from calibration.io import save_calibration
+    from calibration.stereo import Board, calibrate_stereo, load_views
+
+    board = Board.parse(args.board, args.square_m, args.marker_m)
+    left, right, names = load_views(args.left, args.right)
+    calib, report = calibrate_stereo(left, right, board, names, fit_k3=args.fit_k3)
+    for line in report.lines():
+        print(line)
+    save_calibration(args.out, calib)
+    print(f"wrote {args.out}")
+    return 0
+
+
+def _import_oak(args: argparse.Namespace) -> int:
+    from calibration.io import save_calibration
+    from calibration.oak import stereo_from_oak
+    from edge.cli import parse_size
+
+    size = parse_size(args.size)
+    stereo = stereo_from_oak(args.eeprom_json, size)
+    save_calibration(args.out, stereo)
+    print(f"wrote {args.out}: rectified focal {stereo.focal_px:.2f} px, baseline "
+          f"{stereo.baseline_m * 1000:.2f} mm")
+    return 0
+
+
+def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> ExtrinsicsFrame:
+    """SGBM on the rectified pair plus the points."""
+    from edge.baselines import sgbm_disparity
+
+    disparity = sgbm_disparity(left, right)
+    disparity[disparity <= 0] = np.nan
+    return ExtrinsicsFrame(disparity, np.asarray(points, np.float64))
+
+
+def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
+                max_frames: int = 20, topics=None
+                ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
+    nearest in time (images rectified with `stereo` unless the recording's already are)."""
+    from edge.capture.replay import synced_frames
+
+    frames = []
+    for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
+                                                       topics=topics):
+        if frame.size != tuple(stereo.image_size):
+            raise CalibrationError(f"image size {frame.size} differs from the "
+                                   f"calibration's {stereo.image_size}", path=str(path))
+        if len(points):
+            frames.append((left, right, points))
+            if len(frames) >= max_frames:
+                break
+    if not frames:
+        raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
+    return frames
+
+
+def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarray,
+                   after: np.ndarray | None) -> None:
+    """Before | after overlays of the frame with the most LiDAR points, labelled."""
+    import cv2
+
+    left, _, points = max(data, key=lambda d: len(d[2]))
+    panels = [("before", before)] + ([("refined", after)] if after is not None else [])
+    images = []
+    for label, T in panels:
+        image = overlay(left, points, calib, T)
+        cv2.putText(image, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
+        images.append(image)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not cv2.imwrite(str(path), np.hstack(images)):
+        raise CalibrationError("could not write the overlay image", path=str(path))
+    print(f"wrote {path}")
+
+
+# fewer frames than this refine unreliably on the rig (tools/extrinsics_study.py: 3 frames end
+# up to 0.25 degrees / 6.3 mm off, 6 frames within 0.14 degrees / 2.5 mm)
+MIN_REFINE_FRAMES = 6
+
+
+def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool, topics):
+    """(stereo, lidar or None, where it came from): --calib, else the recording's own."""
+    from calibration.io import load_calibration
+    from edge.capture.replay import McapSource, recording_calibration
+
+    if calib_path is not None:
+        return (*load_calibration(calib_path), f"--calib {calib_path}")
+    found = recording_calibration(McapSource(recording, topics)) if is_mcap else None
+    if found is None:
+        raise CalibrationError("--calib is needed: the recording carries no calibration "
+                               "(/edge/calibration, or a CameraInfo pair mapped with --topics)",
+                               path=str(recording))
+    return found
+
+
+def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
+                  refine: bool = False, overlay_path: Path | None = None,
+                  max_frames: int = 20, topics=None) -> int:
+    """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities,
+    optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image.
+    Without `calib_path`, a recording's own calibration is used (ours, or a ROS 2 bag's
+    CameraInfo pair and /tf_static; `topics` maps the bag's topics)."""
+    from calibration.io import save_calibration
+    from calibration.model import LidarExtrinsics
+    from edge.sim.folder import list_scene_folders, read_scene_folder
+
+    if max_frames < 1:
+        raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")
+    is_mcap = Path(recording).suffix == ".mcap"
+    stereo, lidar, origin = _initial_calibration(recording, calib_path, is_mcap, topics)
+    if lidar is None:
+        raise CalibrationError(f"{origin} has no LiDAR extrinsics: give an initial "
+                               "T_cam_lidar to refine (a [lidar] section in --calib)",
+                               key="lidar")
+    print(f"calibration: {origin}")
+    data = []  # (left, right, points)
+    if is_mcap:
+        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics)
+        folders = []
+    else:
+        folders = list_scene_folders(recording)
+        if not folders:
+            raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) and not "
+                                   "a .mcap recording", path=str(recording))
+    for folder in folders[:max_frames]:
+        scene = read_scene_folder(folder)
+        if scene.lidar is None:
+            print(f"skipping {folder}: no lidar.npy")
+            continue
+        if scene.left.shape[::-1] != stereo.image_size:
+            raise CalibrationError(f"image size {scene.left.shape[::-1]} differs from the "
+                                   f"calibration's {stereo.image_size}", path=str(folder))
+        data.append((scene.left, scene.right, scene.lidar))
+    frames = [make_frame(*d) for d in data]
+    before = disagreement(frames, stereo, lidar.T_cam_lidar)
+    print(f"{len(frames)} frames, {before['points']} LiDAR points on SGBM pixels")
+    print(f"before: |LiDAR - SGBM| disparity median {before['median_px']:.3f} px, "
+          f"p90 {before['p90_px']:.3f} px")
+    T = lidar.T_cam_lidar
+    if refine:
+        if len(data) < MIN_REFINE_FRAMES:
+            print(f"warning: {len(data)} frames; refinement wants {MIN_REFINE_FRAMES} or more "
+                  "with depth edges in view (on the rig 3 frames end up to 0.25 deg off)")
+
+        def progress(sigma: float, points: int, cost: float) -> None:
+            print(f"  blur {sigma:.0f} px, {points} points seen by both cameras: "
+                  f"mean |left - right| {cost:.3f} grey levels", flush=True)
+
+        T, result = refine_extrinsics(data, stereo, T, progress=progress)
+        angle, shift = pose_difference(T, lidar.T_cam_lidar)
+        after = disagreement(frames, stereo, T)
+        print(f"refined: mean |left - right| at the LiDAR points {result['cost_before']:.3f} -> "
+              f"{result['cost_after']:.3f} grey levels; moved {angle:.3f} deg, "
+              f"{shift * 1000:.1f} mm")
+        print(f"after: |LiDAR - SGBM| disparity median {after['median_px']:.3f} px, "
+              f"p90 {after['p90_px']:.3f} px")
+    if overlay_path is not None:
+        _write_overlay(Path(overlay_path), data, stereo, lidar.T_cam_lidar,
+                       T if refine else None)
+    if out is not None:
+        save_calibration(out, stereo, LidarExtrinsics(T, lidar.time_offset_ns))
+        print(f"wrote {out}" + ("" if refine else " (extrinsics unchanged)"))
+    return 0

@@ -1,0 +1,56 @@
+"""The packages layer without cycles: checked on the source, every import statement included
+(those inside functions too), so a lazy import cannot hide one.
+
+    calibration   models, file formats, projection, the fits: imports nothing of edge
+    edge.capture  readers and sources: never the writers (edge.mcap_log, edge.ros2_log)
+    edge.runtime  the engine: never torch, never the daemon or the network code
+
+Data flows from the sensors' calibration into the pipeline, so `edge` depends on
+`calibration` and never the other way round.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def imported_modules(path: Path) -> set[str]:
+    names = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            names.add(node.module)
+    return names
+
+
+def offenders(folder: str, forbidden: tuple[str, ...]) -> dict[str, list[str]]:
+    found = {}
+    for path in sorted((ROOT / folder).rglob("*.py")):
+        bad = sorted(m for m in imported_modules(path)
+                     if any(m == f or m.startswith(f + ".") for f in forbidden))
+        if bad:
+            found[str(path.relative_to(ROOT))] = bad
+    return found
+
+
+@pytest.mark.parametrize("folder, forbidden", [
+    ("calibration", ("edge", "tools")),
+    ("edge/capture", ("edge.mcap_log", "edge.ros2_log", "edge.daemon", "edge.runner",
+                      "torch", "tools")),
+    ("edge/runtime", ("torch", "edge.model", "edge.daemon", "edge.runner", "tools")),
+    ("edge", ("tools",)),
+])
+def test_no_package_imports_a_layer_above_it(folder, forbidden):
+    assert offenders(folder, forbidden) == {}
+
+
+def test_the_check_sees_imports_inside_functions(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("import os\n\ndef f():\n    from edge.cli import main\n    import torch\n")
+    assert imported_modules(module) == {"os", "edge.cli", "torch"}
