@@ -85,6 +85,41 @@ def parse_host_port(text: str) -> tuple[str, int]:
     return host or "127.0.0.1", number
 
 
+# the jobs around the robot: `edge-depth NAME ARGS...` runs tools/NAME.py's main(ARGS);
+# the ones that need torch or onnx say so in one line when the `train` extra is missing
+TOOL_COMMANDS = {
+    "train": ("tools.train", "train a checkpoint (supervised or self-supervised)"),
+    "evaluate": ("tools.evaluate", "score methods on scene folders against ground truth"),
+    "export": ("tools.export", "export a checkpoint to an ONNX bundle"),
+    "quantize": ("tools.quantize", "int8-quantize a bundle, calibrated on frames"),
+    "bench": ("tools.bench", "benchmark the stages, the engine and SGBM"),
+    "ablation": ("tools.ablation", "the paper's ablation in miniature"),
+    "real-pairs": ("tools.real_pairs", "unpack the real evaluation pair (opencv-doc)"),
+    "upsampling-study": ("tools.upsampling_study", "what the upsampling recovers at 1/8"),
+}
+TRAIN_MODULES = ("torch", "onnx", "onnxscript", "tqdm", "matplotlib")
+TRAIN_EXTRA_HINT = ("pip install 'edge-depth[train]' (for the CPU build of torch first: pip "
+                    "install torch --index-url https://download.pytorch.org/whl/cpu)")
+
+
+def run_tool(name: str, argv: list[str]) -> int:
+    import importlib
+
+    module_name = TOOL_COMMANDS[name][0]
+    program, sys.argv[0] = sys.argv[0], f"edge-depth {name}"  # the tool's usage lines
+    try:
+        module = importlib.import_module(module_name)
+        return int(module.main(argv) or 0)
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] not in TRAIN_MODULES:
+            raise
+        print(f"edge-depth {name}: needs {exc.name}, from the train extra: "
+              f"{TRAIN_EXTRA_HINT}", file=sys.stderr)
+        return 1
+    finally:
+        sys.argv[0] = program
+
+
 PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas) or ros2 (ROS 2 "
                 "messages in CDR, for ros2 bag play)")
 
@@ -170,6 +205,11 @@ def build_parser() -> argparse.ArgumentParser:
     record.add_argument("--max-frames", type=_positive_int, default=None)
     record.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
                         help="override log.profile (foxglove or ros2)")
+    for name, (_, description) in TOOL_COMMANDS.items():
+        tool = sub.add_parser(name, help=description, add_help=False,
+                              description=f"{description}; `edge-depth {name} --help` for its "
+                                          "options")
+        tool.add_argument("tool_args", nargs=argparse.REMAINDER)
     compare = sub.add_parser("compare", help="compare two replay outputs of one recording "
                                              "(exit 1 when NEW regresses: golden replays in CI)")
     compare.add_argument("base", type=Path, help="the reference replay output (MCAP)")
@@ -197,6 +237,14 @@ def _share(text: str) -> float:
 
 
 def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
+    flags = [a for a in argv[:2] if a in ("-v", "--verbose", "-q", "--quiet")]
+    if len(argv) > len(flags) and argv[len(flags)] in TOOL_COMMANDS:
+        # the tool parses its own arguments (--help included): argparse's REMAINDER would
+        # stop at the first option
+        configure_logging(bool({"-v", "--verbose"} & set(flags)),
+                          bool({"-q", "--quiet"} & set(flags)))
+        return run_tool(argv[len(flags)], argv[len(flags) + 1:])
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
@@ -250,6 +298,8 @@ def main(argv: list[str] | None = None) -> int:
 
             return run_command(args.config, args.out, args.live, args.max_frames,
                                args.profile)
+        if args.command in TOOL_COMMANDS:
+            return run_tool(args.command, args.tool_args)
         if args.command == "compare":
             from edge.compare import CompareError, compare_command
 

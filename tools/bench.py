@@ -34,14 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from calibration.model import StereoCalibration  # noqa: E402
-from calibration.projection import project_to_disparity  # noqa: E402
-from edge.baselines import make_sgbm, sgbm_disparity  # noqa: E402
-from edge.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta  # noqa: E402
-from edge.sim import RigConfig, make_sample  # noqa: E402
-from edge.types import LidarScan  # noqa: E402
+from calibration.model import StereoCalibration
+from calibration.projection import project_to_disparity
+from edge.baselines import make_sgbm, sgbm_disparity
+from edge.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
+from edge.sim import RigConfig, make_sample
+from edge.types import LidarScan
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_SEED0 = 1_000_000

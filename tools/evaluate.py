@@ -26,15 +26,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.baselines import (  # noqa: E402
+from edge.baselines import (
     fill_row_nearest,
     lidar_linear,
     lidar_nearest,
@@ -43,9 +40,9 @@ from edge.baselines import (  # noqa: E402
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
-from edge.metrics import confidence_calibration, depth_metrics, disparity_metrics  # noqa: E402
-from edge.runtime.engine import DEFAULT_BUNDLE  # noqa: E402
-from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
+from edge.metrics import confidence_calibration, depth_metrics, disparity_metrics
+from edge.runtime.engine import DEFAULT_BUNDLE
+from edge.sim.folder import list_scene_folders, read_scene_folder
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
 ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")

@@ -16,14 +16,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.cli import parse_size  # noqa: E402
+from edge.cli import parse_size
 
 ENCODER_INPUTS = ["left", "right", "sparse", "valid"]
 STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]

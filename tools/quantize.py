@@ -20,18 +20,15 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.metrics import disparity_metrics  # noqa: E402
-from edge.runtime.engine import Engine, load_bundle_meta  # noqa: E402
-from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
+from edge.metrics import disparity_metrics
+from edge.runtime.engine import Engine, load_bundle_meta
+from edge.sim.folder import list_scene_folders, read_scene_folder
 
 CALIB_SEED0 = 500_000  # synthetic calibration frames come from the training seeds
 PARTS = ("encoder", "step", "upsample")

@@ -18,18 +18,15 @@ import argparse
 import json
 import shutil
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.sim.folder import write_pfm  # noqa: E402
-from edge.sim.gt_lidar import GtLidarPattern  # noqa: E402
-from edge.sim.textures import OPENCV_DOC_PHOTOS  # noqa: E402
+from edge.sim.folder import write_pfm
+from edge.sim.gt_lidar import GtLidarPattern
+from edge.sim.textures import OPENCV_DOC_PHOTOS
 
 DATA_IN_DEB = "usr/share/doc/opencv-doc/examples/data"
 SIZE = (640, 400)

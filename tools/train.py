@@ -27,16 +27,14 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.model.config import ModelConfig  # noqa: E402
-from edge.model.data import (  # noqa: E402
+from edge.model.config import ModelConfig
+from edge.model.data import (
     VAL_SEED0,
     FixedSplit,
     RecordedTrainSet,
     SyntheticTrainSet,
 )
-from edge.model.losses import (  # noqa: E402
+from edge.model.losses import (
     CONFIDENCE_WEIGHT,
     confidence_loss,
     self_supervised_loss,
@@ -44,7 +42,7 @@ from edge.model.losses import (  # noqa: E402
     split_sparse,
     view_loss,
 )
-from edge.model.network import SparseStereoNet  # noqa: E402
+from edge.model.network import SparseStereoNet
 
 
 def parse_args(argv):

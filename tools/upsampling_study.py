@@ -13,16 +13,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
-from edge.metrics import disparity_metrics  # noqa: E402
-from edge.sim.folder import list_scene_folders, read_scene_folder  # noqa: E402
+from edge.metrics import disparity_metrics
+from edge.sim.folder import list_scene_folders, read_scene_folder
 
 FACTOR = 8
 

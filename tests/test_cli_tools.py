@@ -1,0 +1,40 @@
+"""`edge-depth train | evaluate | export | quantize | bench | ...`: the tools as subcommands."""
+
+from __future__ import annotations
+
+import sys
+
+import pytest
+
+from edge.cli import TOOL_COMMANDS, main
+
+
+def test_a_tool_parses_its_own_arguments_under_its_subcommand_name(capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["bench", "--help"])
+    assert exit_info.value.code == 0
+    out = capsys.readouterr().out
+    assert out.startswith("usage: edge-depth bench") and "--runtimes" in out
+    with pytest.raises(SystemExit) as exit_info:  # a usage error: 2, as for edge-depth's own
+        main(["evaluate", "/nonexistent-folder", "--methods", "sgbm"])
+    assert exit_info.value.code == 2
+    assert "edge-depth evaluate: error: no scene folders" in capsys.readouterr().err
+
+
+def test_without_torch_a_training_tool_names_the_extra_in_one_line(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "torch", None)  # import torch now fails
+    for module in ("tools.train", "tools.export"):
+        monkeypatch.delitem(sys.modules, module, raising=False)
+    assert main(["train", "--steps", "1", "--out", "/tmp/never"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "edge-depth[train]" in err and "needs torch" in err
+    assert "whl/cpu" in err
+
+
+def test_every_tool_command_has_a_main():
+    import importlib
+
+    for name, (module, _) in TOOL_COMMANDS.items():
+        if name in ("train", "export", "ablation", "upsampling-study"):
+            continue  # torch: imported by the tests that train
+        assert callable(importlib.import_module(module).main), name
