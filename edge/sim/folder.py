@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import os
-import re
 import shutil
 import tempfile
 from dataclasses import dataclass
@@ -36,32 +35,35 @@ class SceneFolderError(EdgeError):
 
 
 def write_pfm(path: Path | str, image: np.ndarray) -> None:
-    """Write an (H, W) float32 map as a little-endian greyscale PFM (rows bottom to top)."""
+    """Write an (H, W) float32 map as a greyscale PFM (OpenCV's writer: little-endian, rows
+    bottom to top; inf and NaN kept)."""
     image = np.asarray(image, np.float32)
     if image.ndim != 2:
         raise ValueError(f"write_pfm: expected (H, W), got {image.shape}")
-    h, w = image.shape
-    with open(path, "wb") as f:
-        f.write(f"Pf\n{w} {h}\n-1.0\n".encode("ascii"))
-        f.write(np.ascontiguousarray(np.flipud(image)).astype("<f4").tobytes())
+    if Path(path).suffix.lower() != ".pfm":
+        raise ValueError(f"write_pfm: the file name must end in .pfm, got {path}")
+    if not cv2.imwrite(str(path), image):
+        raise SceneFolderError(path, "could not write the PFM file")
 
 
 def read_pfm(path: Path | str) -> np.ndarray:
-    """Read a greyscale or colour PFM; returns (H, W) float32 (first channel for colour)."""
+    """Read a greyscale or colour PFM (OpenCV's reader: either byte order); returns (H, W)
+    float32 (the first channel for colour)."""
     with open(path, "rb") as f:
-        data = f.read()
-    match = re.match(rb"(P[fF])\s+(\d+)\s+(\d+)\s+(-?[\d.eE+-]+)\s", data)
-    if not match:
+        magic = f.read(2)
+    if magic not in (b"Pf", b"PF"):
         raise SceneFolderError(path, "not a PFM file (bad header)")
-    channels = 1 if match.group(1) == b"Pf" else 3
-    w, h, scale = int(match.group(2)), int(match.group(3)), float(match.group(4))
-    count = w * h * channels
-    body = data[match.end():]
-    if len(body) < 4 * count:
-        raise SceneFolderError(path, f"truncated PFM: {len(body)} of {4 * count} bytes")
-    image = np.frombuffer(body[: 4 * count], "<f4" if scale < 0 else ">f4")
-    image = image.reshape(h, w, channels)[..., 0]
-    return np.flipud(image).astype(np.float32)
+    level = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_SILENT)  # our error says it
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    finally:
+        cv2.utils.logging.setLogLevel(level)
+    if image is None:
+        raise SceneFolderError(path, "truncated or malformed PFM data")
+    if image.ndim == 3:  # OpenCV's channel order is BGR: the file's first channel is last
+        image = image[..., 2]
+    return np.ascontiguousarray(image, np.float32)
 
 
 @dataclass(frozen=True)
