@@ -31,6 +31,23 @@ class Source:
         self.close()
 
 
+class Backoff:
+    """Exponential back-off between reconnect attempts (the serial LiDARs and the OAK):
+    `wait()` waits the current delay on `stop` (so a close ends it at once) and doubles it up
+    to `max_s`; `reset()` after a success starts again at `first_s`."""
+
+    def __init__(self, stop: threading.Event, first_s: float, max_s: float) -> None:
+        self.stop, self.first_s, self.max_s = stop, first_s, max_s
+        self.delay = first_s
+
+    def wait(self) -> None:
+        self.stop.wait(self.delay)
+        self.delay = min(2 * self.delay, self.max_s)
+
+    def reset(self) -> None:
+        self.delay = self.first_s
+
+
 class MergedSource(Source):
     """Several sources (a camera and a LiDAR) as one event stream: each runs in its own
     thread; events come out in arrival order. Ends when every source has ended."""

@@ -17,7 +17,7 @@ from collections import Counter
 
 import numpy as np
 
-from edge.capture import Source
+from edge.capture import Backoff, Source
 from edge.errors import InvalidDataError
 from edge.types import StereoFrame
 
@@ -108,20 +108,20 @@ class OakSource(Source):
         return pipeline, queues
 
     def __iter__(self):
-        delay = self.backoff_s[0]
+        backoff = Backoff(self._stop, *self.backoff_s)
         connected_once = False
         while not self._stop.is_set():
             try:
                 pipeline, queues = self._build()
             except RuntimeError as exc:  # no device, or X_LINK trouble while opening
                 self.errors[f"open: {exc}"[:80]] += 1
-                log.warning("OAK: %s; retrying in %.1f s", exc, delay)
-                self._stop.wait(delay)
-                delay = min(2 * delay, self.backoff_s[1])
+                log.warning("OAK: %s; retrying in %.1f s", exc, backoff.delay)
+                backoff.wait()
                 continue
             if connected_once:
                 self.reconnects += 1
-            connected_once, delay = True, self.backoff_s[0]
+            connected_once = True
+            backoff.reset()
             try:
                 with pipeline:
                     while pipeline.isRunning() and not self._stop.is_set():

@@ -22,7 +22,7 @@ from collections import Counter
 
 import numpy as np
 
-from edge.capture import Source, ld06, rplidar
+from edge.capture import Backoff, Source, ld06, rplidar
 from edge.errors import ConfigError, EdgeError
 from edge.types import LidarScan
 
@@ -132,7 +132,7 @@ class SerialLidarSource(Source):
     def __iter__(self):
         import serial
 
-        delay = self.backoff_s[0]
+        backoff = Backoff(self._stop, *self.backoff_s)
         self.assembler = assembler = ld06.RevolutionAssembler()
         revolution: list[rplidar.ScanNode] = []
         rev_stamp = 0
@@ -144,11 +144,10 @@ class SerialLidarSource(Source):
                         if self.connects > 1:
                             self.reconnects += 1
                             log.warning("%s: reconnected", self.url)
-                        delay = self.backoff_s[0]
+                        backoff.reset()
                     except (serial.SerialException, OSError, LidarDeviceError) as exc:
                         self.errors[f"open: {type(exc).__name__}"] += 1
-                        self._stop.wait(delay)
-                        delay = min(delay * 2, self.backoff_s[1])
+                        backoff.wait()
                         continue
                 try:
                     waiting = getattr(self._port, "in_waiting", 0) or 1
