@@ -24,7 +24,7 @@ test: $(STAMP)
 
 bench: $(STAMP)
 	mkdir -p out
-	$(BIN)/python tools/bench.py --json out/bench.json --markdown out/bench.md
+	$(BIN)/python tools/bench.py --runs 3 --json out/bench.json --markdown out/bench.md
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
 # calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split)
