@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 
+import numpy as np
 import pytest
 import torch
 
@@ -63,7 +64,8 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
 
     out, md = tmp_path / "bench.json", tmp_path / "bench.md"
     assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1,4", "--rss-frames", "1",
-                       "--json", str(out), "--markdown", str(md)]) == 0
+                       "--runs", "2", "--runtime", "onnxruntime", "--json", str(out),
+                       "--markdown", str(md)]) == 0
     result = json.loads(out.read_text())
     stages = result["stages"]
     for stage in ("rectify", "project_filter", "sgbm", "log", "frame", "encoder", "step",
@@ -78,6 +80,14 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000
     assert "int8 engine / SGBM" in md.read_text()
+    # two runs: the median of the per-run ratios, and how busy the machine was in each
+    assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
+    assert result["ratio_median"] == pytest.approx(
+        float(np.median([r["int8_vs_sgbm"] for r in result["runs"]])))
+    share = result["runs"][0]["others_cpu_share"]
+    assert share is None or 0.0 <= share <= 1.0
+    assert result["runs"][0]["busy"] == (share is not None and share > bench.BUSY_SHARE)
+    assert "2 runs: int8 engine / SGBM per run" in md.read_text()
 
 
 def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
