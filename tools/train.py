@@ -159,14 +159,23 @@ def plot_metrics(csv_path: Path, png_path: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    # denormal floats (early training, tiny activations) make CPU convolutions crawl; the
+    # setting is the whole process's (a caller's subnormals read as 0 after it), so it is
+    # undone on the way out
+    torch.set_flush_denormal(True)
+    try:
+        return _train(argv)
+    finally:
+        torch.set_flush_denormal(False)
+
+
+def _train(argv: list[str] | None) -> int:
     args = parse_args(argv)
     from tqdm import tqdm
 
     rank, world = setup_distributed()
     main_rank = rank == 0
     args.out.mkdir(parents=True, exist_ok=True)
-    # denormal floats (early training, tiny activations) make CPU convolutions crawl
-    torch.set_flush_denormal(True)
     if args.threads:
         torch.set_num_threads(args.threads)
     cw, ch = (int(v) for v in args.crop.split("x"))
