@@ -4,7 +4,7 @@ Both read the same ONNX files, the int8 QDQ graphs included. A session here is a
 `input_names`, `output_names` and `run(feeds) -> list of arrays`, so the engine does not care
 which runtime it holds. `resolve_runtime("auto")` picks OpenVINO on x86-64 when it is
 installed and ONNX Runtime elsewhere (ARM robots); the measurements behind that are in the
-README's speed table (`tools/bench.py --runtime`).
+README's speed section (`tools/bench.py --runtimes`).
 
 OpenVINO's CPU plugin would run float graphs in bf16 on a CPU with AVX512-BF16 or AMX by
 default; that breaks index arithmetic (a column index of 319 rounds to 320 in bf16's 8-bit
