@@ -305,8 +305,14 @@ class Runner:
 
         def log_loop() -> None:
             while (item := to_log.get()) is not StopIteration:
-                if item is not None:
+                if item is None:
+                    continue
+                try:
                     self._after(item[0].frame, self._finish(*item))
+                except Exception as exc:  # noqa: BLE001 - e.g. on_output: stop, and keep
+                    # draining, or the engine thread would block on a full hand-off forever
+                    self.stats.count_error(f"output: {type(exc).__name__}", exc)
+                    self.stop.set()
 
         workers = [threading.Thread(target=engine_loop, name="engine", daemon=True),
                    threading.Thread(target=log_loop, name="log", daemon=True)]

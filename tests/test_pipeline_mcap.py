@@ -226,6 +226,24 @@ def test_the_pipelined_daemon_gives_the_sequential_results(tmp_path):
         assert outputs[True][seq].stamp_ns == 1_000_000_000 + seq * 400_000_000
 
 
+def test_a_failing_output_callback_stops_a_pipelined_run_instead_of_hanging_it(engine):
+    import threading
+
+    source = SimSource(6, SEED, period_ms=50.0, realtime=True, distinct=1)
+
+    def broken(frame, out):
+        raise RuntimeError("the caller's callback failed")
+
+    box = {}
+    worker = threading.Thread(target=lambda: box.update(stats=run(
+        source, Pipeline(engine, *source.calibration), threaded=True, pipelined=True,
+        on_output=broken)), daemon=True)
+    worker.start()
+    worker.join(timeout=60)
+    assert not worker.is_alive(), "the pipelined run hung"
+    assert box["stats"].errors["output: RuntimeError"] >= 1
+
+
 def test_logger_rotates_by_duration_and_every_file_is_complete(tmp_path):
     sample = make_sample(SEED, RigConfig(width=160, height=96))
     with McapLogger(tmp_path / "rot.mcap", rotate_s=0.25) as logger:
