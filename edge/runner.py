@@ -300,7 +300,7 @@ class Runner:
                 result = self._infer(item)
                 to_log.put(None if result is None else (item, result))
                 if result is None:
-                    self._after_skipped(item.frame)
+                    self._after(item.frame, None)  # skipped: still counts for the stops
             to_log.put(StopIteration)
 
         def log_loop() -> None:
@@ -329,7 +329,7 @@ class Runner:
                 continue
             prepared = self._prepare(frame, self._wait_for_lidar(frame))
             if prepared is None:
-                self._after_skipped(frame)
+                self._after(frame, None)
                 continue
             # the freshest frame wins: one still waiting for the engine is dropped (latency
             # stays ~one engine time instead of growing by a frame per slot)
@@ -347,10 +347,6 @@ class Runner:
             while worker.is_alive():
                 worker.join(timeout=0.1)
                 self.tick()
-
-    def _after_skipped(self, frame: StereoFrame) -> None:
-        """Pipelined: a frame a stage skipped still counts for the stop checks."""
-        self._after(frame, None)
 
     def _run_replay(self) -> None:
         # a frame is held at least until the next event that is not its ground truth (so
