@@ -138,6 +138,16 @@ def test_gt_lidar_random_patterns_include_stereo_only_and_skip_unknown_gt():
     assert not some.sample(gt, rng).any()
 
 
+def test_gt_lidar_none_share_sets_the_stereo_only_probability():
+    rng = np.random.default_rng(2)
+    none = [GtLidarPattern.random(400, rng, none_share=0.5) is None for _ in range(400)]
+    assert 160 < sum(none) < 240
+    assert all(GtLidarPattern.random(400, rng, none_share=1.0) is None for _ in range(20))
+    assert all(GtLidarPattern.random(400, rng, none_share=0.0) is not None for _ in range(50))
+    with pytest.raises(ValueError, match="none_share"):
+        GtLidarPattern.random(400, rng, none_share=1.5)
+
+
 def test_training_stream_flips_swap_views_and_lidar_matches_the_gt(tmp_path):
     from edge.model.things_data import ThingsTrainSet, spatial
 

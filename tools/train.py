@@ -71,12 +71,20 @@ def parse_args(argv):
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
     p.add_argument("--ckpt-every", type=int, default=250)
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
+    p.add_argument("--stereo-only-share", type=float, default=None,
+                   help="things data: the share of samples without LiDAR (default 0.12)")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
     p.add_argument("--data", default=None,
                    help="scene folders, REC.mcap, kitti:DIR, sceneflow:DIR or things:DIR "
                         "(rendered by `edge-depth synth --world things`; default: the rig)")
-    return p.parse_args(argv)
+    args = p.parse_args(argv)
+    if args.stereo_only_share is not None:
+        if not 0.0 <= args.stereo_only_share <= 1.0:
+            p.error(f"--stereo-only-share must be within 0-1, got {args.stereo_only_share}")
+        if not (args.data or "").startswith("things:"):
+            p.error("--stereo-only-share applies to --data things:DIR only")
+    return args
 
 
 def self_supervised_step(net, batch, split: str, iters: int):
@@ -232,7 +240,8 @@ def _train(argv: list[str] | None) -> int:
         from edge.model.things_data import ThingsTrainSet
 
         data = ThingsTrainSet(args.data[len("things:"):], (cw, ch),
-                              seed=(args.seed * 1000 + step) * world + rank)
+                              seed=(args.seed * 1000 + step) * world + rank,
+                              stereo_only_share=args.stereo_only_share)
     elif args.data is None:
         data = SyntheticTrainSet(seed=(args.seed * 1000 + step) * world + rank, crop=(cw, ch),
                                  patterns=tuple(args.patterns.split(",")))

@@ -75,11 +75,13 @@ def eraser(right: torch.Tensor, rng: np.random.Generator) -> torch.Tensor:
     return right
 
 
-def things_arrays(arrays: dict, rng: np.random.Generator, crop: tuple[int, int]) -> dict:
-    """A stored things sample → the training dict of `edge.model.data.sample_to_arrays`."""
+def things_arrays(arrays: dict, rng: np.random.Generator, crop: tuple[int, int],
+                  stereo_only_share: float | None = None) -> dict:
+    """A stored things sample → the training dict of `edge.model.data.sample_to_arrays`;
+    stereo_only_share: the probability of no LiDAR (default: `GtLidarPattern.random`'s)."""
     arrays = spatial(dict(arrays), rng, crop)
     h, _ = arrays["left"].shape
-    pattern = GtLidarPattern.random(h, rng)
+    pattern = GtLidarPattern.random(h, rng, stereo_only_share)
     sparse = {}
     for side in ("left", "right"):
         gt = arrays[f"disp_{side}"]
@@ -97,8 +99,9 @@ class ThingsTrainSet(IterableDataset):
 
     def __init__(self, root, crop: tuple[int, int] = (320, 192), seed: int = 0,
                  rig_share: float = 0.15, relist_every: int = 200, shard: int = 0,
-                 shards: int = 1) -> None:
+                 shards: int = 1, stereo_only_share: float | None = None) -> None:
         self.root, self.crop, self.seed, self.rig_share = root, crop, seed, rig_share
+        self.stereo_only_share = stereo_only_share
         self.relist_every, self.shard, self.shards = relist_every, shard, shards
         if not list_things(root):
             raise ValueError(f"{root}: no things samples (NNNNNNN.npz) in this folder")
@@ -118,7 +121,7 @@ class ThingsTrainSet(IterableDataset):
                 arrays = sample_to_arrays(sample)
             else:
                 arrays = things_arrays(read_things(files[int(rng.integers(len(files)))]), rng,
-                                       self.crop)
+                                       self.crop, self.stereo_only_share)
             # the rig's crop (same draws); the photometric changes below replace its own
             out = to_tensors(arrays, self.crop, rng, augment=False)
             out["left"], out["right"] = photometric(out["left"], out["right"], rng)

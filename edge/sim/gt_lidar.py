@@ -38,10 +38,18 @@ class GtLidarPattern:
         return cls(rows=(np.arange(count) + 0.5) * height / count, **kw)
 
     @classmethod
-    def random(cls, height: int, rng: np.random.Generator) -> GtLidarPattern | None:
-        """A random pattern for training (None: no LiDAR)."""
+    def random(cls, height: int, rng: np.random.Generator,
+               none_share: float | None = None) -> GtLidarPattern | None:
+        """A random pattern for training (None: no LiDAR). none_share: the probability of no
+        LiDAR (default PATTERN_WEIGHTS'); the other patterns keep their relative weights."""
         names = list(PATTERN_WEIGHTS)
-        name = names[int(rng.choice(len(names), p=list(PATTERN_WEIGHTS.values())))]
+        weights = np.array(list(PATTERN_WEIGHTS.values()))
+        if none_share is not None:
+            if not 0.0 <= none_share <= 1.0:
+                raise ValueError(f"none_share must be within 0-1, got {none_share}")
+            weights[1:] *= (1.0 - none_share) / weights[1:].sum()
+            weights[0] = none_share
+        name = names[int(rng.choice(len(names), p=weights / weights.sum()))]
         if name == "none":
             return None
         if name == "planar":
