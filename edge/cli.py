@@ -96,6 +96,7 @@ TOOL_COMMANDS = {
     "ablation": ("tools.ablation", "the paper's ablation in miniature"),
     "real-pairs": ("tools.real_pairs", "unpack the real evaluation pair (opencv-doc)"),
     "upsampling-study": ("tools.upsampling_study", "what the upsampling recovers at 1/8"),
+    "adapt": ("tools.adapt", "fine-tune on the robot's recordings into a checked int8 bundle"),
 }
 TRAIN_MODULES = ("torch", "onnx", "onnxscript", "tqdm", "matplotlib")
 TRAIN_EXTRA_HINT = ("pip install 'edge-depth[train]' (for the CPU build of torch first: pip "

@@ -119,12 +119,17 @@ def evaluate(engine: Engine, folders: list[Path], iters: int) -> dict[str, float
     return out
 
 
-def quantize_bundle(bundle: Path, calib: str, max_graph_px: float = 0.1, iters: int = 4,
+def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, iters: int = 4,
                     eval_dir: Path | None = None, threads: int = 2,
-                    node_search: bool = True) -> dict:
+                    node_search: bool = True, calib_label: str | None = None) -> dict:
+    """calib: a `calibration_frames` spec, or the frames themselves ((left, right, sparse)
+    tuples of (H, W) arrays, e.g. a robot's recordings), then named by `calib_label`."""
     meta = load_bundle_meta(bundle)
     fp32 = Engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
-    frames = list(calibration_frames(calib, fp32.size))
+    if isinstance(calib, str):
+        frames = list(calibration_frames(calib, fp32.size))
+    else:
+        frames, calib = list(calib), calib_label or f"{len(calib)} frames"
     if not frames:
         raise SystemExit(f"--calib {calib}: no frames")
     record: dict[str, list] = {}

@@ -1,0 +1,116 @@
+"""`edge-depth adapt`: the no-GT check measures, the time split, the decision and the
+adapt → bundle → replay round trip on a tiny recording."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from edge import selfcheck
+from edge.cli import main
+
+pytest.importorskip("torch")
+
+from tools.adapt import FineTune, Frame, is_better, split_by_time  # noqa: E402
+
+
+def _textured_pair(disparity: float, shape=(64, 96), seed=0):
+    rng = np.random.default_rng(seed)
+    left = (rng.random(shape) * 255).astype(np.float32)
+    left = np.clip(left, 0, 255)
+    xs = np.arange(shape[1], dtype=np.float32)
+    # right(x) = left(x + d): the left pixel x is seen at x - d in the right image
+    right = np.stack([np.interp(xs + disparity, xs, row) for row in left])
+    return left.astype(np.uint8), right.astype(np.uint8)
+
+
+def test_photometric_error_is_lowest_at_the_true_disparity():
+    left, right = _textured_pair(5.0)
+    errors = {}
+    for d in (3.0, 5.0, 7.0):
+        disp = np.full(left.shape, d, np.float32)
+        seen = selfcheck.visible(disp, disp)
+        errors[d] = float(selfcheck.photometric_error(left, right, disp)[seen].mean())
+    assert errors[5.0] < 0.02 < min(errors[3.0], errors[7.0])
+
+
+def test_visible_and_lr_consistency_see_occlusion_and_disagreement():
+    d = np.full((4, 20), 3.0, np.float32)
+    seen = selfcheck.visible(d, d)
+    assert not seen[:, :3].any() and seen[:, 3:].all()  # x - d < 0 is outside the right image
+    nearer = d.copy()
+    nearer[:, 5:8] = 6.0  # the right view sees something nearer where x = 8..10 lands
+    assert not selfcheck.visible(d, nearer)[:, 8:11].any()
+    assert selfcheck.lr_inconsistent_share(d, d) == 0.0
+    assert selfcheck.lr_inconsistent_share(d, nearer) == pytest.approx(3 / 17)
+
+
+def test_held_out_points_are_disjoint_and_scored_apart():
+    valid = np.zeros((10, 10), bool)
+    valid[::2] = True
+    fed, held = selfcheck.split_points(valid, seed=1)
+    assert not (fed & held).any() and ((fed | held) == valid).all() and fed.any() and held.any()
+    lidar = np.where(valid, 4.0, 0.0).astype(np.float32)
+    assert selfcheck.held_out_error(np.full((10, 10), 4.5, np.float32), lidar, held) == 0.5
+
+
+def _frames(name, n):
+    image = np.zeros((8, 8), np.uint8)
+    empty = (np.zeros(0, np.int32), np.zeros(0, np.float32))
+    return [Frame(name, 100 * i, image, image, empty, empty) for i in range(n)]
+
+
+def test_check_frames_are_each_recordings_last_fifth():
+    adapt_frames, check_frames = split_by_time([_frames("a", 10), _frames("b", 3)], 0.2)
+    assert [(f.recording, f.stamp_ns) for f in check_frames] == [("a", 800), ("a", 900),
+                                                                 ("b", 200)]
+    assert len(adapt_frames) == 10
+    with pytest.raises(ValueError, match="at least 2"):
+        split_by_time([_frames("c", 1)])
+
+
+def test_better_needs_photometric_and_held_out_lidar_both_lower():
+    old = dict(photometric=0.10, held_out_px=1.0)
+    assert is_better(old, dict(photometric=0.09, held_out_px=0.9))[0]
+    assert not is_better(old, dict(photometric=0.09, held_out_px=1.1))[0]
+    assert not is_better(old, dict(photometric=0.11, held_out_px=0.9))[0]
+    no_lidar = dict(photometric=0.10, held_out_px=float("nan"))
+    assert is_better(no_lidar, dict(photometric=0.09, held_out_px=float("nan")))[0]
+
+
+def test_fine_tune_needs_a_bound_and_stops_at_the_first():
+    with pytest.raises(ValueError, match="--steps or --minutes"):
+        FineTune()
+    plan = FineTune(steps=100, minutes=1.0)
+    assert plan.progress(50, 0.0) == 0.5 and plan.progress(10, 60.0) == 1.0
+
+
+def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
+    rec = tmp_path / "rec.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "5", "--seed", "7",
+                 "--size", "192x128"]) == 0
+    out = tmp_path / "robot"
+    rc = main(["adapt", str(rec), "--out", str(out), "--steps", "1", "--batch", "1",
+               "--no-node-search", "--force"])
+    assert rc == 0
+    meta = json.loads((out / "model.json").read_text())
+    assert meta["size"] == [192, 128] and "int8" in meta["precisions"]
+    assert (out / "checkpoint.pt").is_file() and (out / "report.png").is_file()
+    report = json.loads((out / "report.json").read_text())
+    assert report["frames"] == {"adapt": 4, "check": 1} and report["written"]
+    assert report["training"]["steps"] == 1
+    for side in ("before", "after"):
+        assert 0 < report["check"][side]["photometric"] < 1
+        assert report["check"][side]["epe"] >= 0  # the recording carries GT
+    replayed = tmp_path / "replayed.mcap"
+    assert main(["replay", str(rec), "--out", str(replayed), "--bundle", str(out)]) == 0
+    assert "5 frames" in capsys.readouterr().out
+    # adapting the adapted bundle again starts from the weights it carries
+    rc = main(["adapt", str(rec), "--out", str(tmp_path / "again"), "--from", str(out),
+               "--steps", "1", "--batch", "1", "--no-node-search"])
+    again = json.loads((tmp_path / "again.adapt" / "report.json").read_text())
+    assert again["training"]["init"] == str(out / "checkpoint.pt")
+    assert rc == (0 if again["better"] else 3)
+    assert (tmp_path / "again").exists() == again["better"]

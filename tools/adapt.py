@@ -1,0 +1,503 @@
+"""Adapt the model to a robot's own recordings: self-supervised fine-tuning, an int8 bundle at
+the recordings' camera size, and a report that says whether it got better.
+
+    edge-depth adapt REC.mcap [REC2.mcap ...] --out BUNDLE_DIR [--minutes M | --steps N]
+        [--topics topics.toml] [--calib calib.toml] [--from BUNDLE_OR_CKPT] [--work DIR]
+        [--resume] [--force]
+
+1. The recordings' synced frames (LiDAR projected into both views; `replay`'s calibration
+   order: --calib, the recording's own) are split by time: the last --check-share of each
+   recording are the check frames, never trained on.
+2. Fine-tuning from --from (default: the shipped checkpoint) with the paper's self-supervised
+   losses (Sparse-half2: half the LiDAR points in, the other half supervise), bounded by
+   --steps and/or --minutes, checkpointed in --work (--resume continues).
+3. Export at the recordings' camera size (rounded up to the network's multiple of 8; the
+   engine pads) and int8 quantization calibrated on the adapt frames.
+4. The old bundle and the new one on the check frames, by measures that need no ground truth
+   (`edge.selfcheck`: photometric error on visible pixels, error against held-out LiDAR
+   points, left-right inconsistency) and EPE / bad-3 where the recording carries ground truth
+   (/sim/gt_disparity). Report: --work/report.md, report.json, report.png (check frames,
+   before | after).
+5. The new bundle goes to --out only if it is better on the check frames — lower photometric
+   error and, where there is LiDAR, lower held-out error — unless --force. Exit status 0 when
+   it was written, 3 when the old one is kept, 2 for bad arguments or recordings.
+
+Python: `adapt(["rec.mcap"], "bundles/robot", minutes=20)` returns an `AdaptResult`.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from edge import selfcheck
+from edge.compare import accuracy
+from edge.runtime.engine import DEFAULT_BUNDLE, Engine
+
+log = logging.getLogger(__name__)
+DEFAULT_CHECKPOINT = Path(DEFAULT_BUNDLE).parent / "sparse_stereo.pt"
+BUNDLE_CHECKPOINT = "checkpoint.pt"  # an adapted bundle carries its weights: adapt it again
+
+
+@dataclass
+class Frame:
+    """One synced frame of a recording: rectified grey images (H, W) uint8, its LiDAR as
+    disparity in each view kept compact (flat pixel indices, px), GT disparity or None."""
+
+    recording: str
+    stamp_ns: int
+    left: np.ndarray
+    right: np.ndarray
+    lidar_left: tuple[np.ndarray, np.ndarray]
+    lidar_right: tuple[np.ndarray, np.ndarray]
+    gt: np.ndarray | None = None
+
+    def sparse(self, side: str = "left") -> np.ndarray:
+        """(H, W) float32 disparity of the LiDAR in one view, 0 = no point."""
+        index, value = self.lidar_left if side == "left" else self.lidar_right
+        out = np.zeros(self.left.size, np.float32)
+        out[index] = value
+        return out.reshape(self.left.shape)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """The training dict of `edge.model.data.sample_to_arrays`."""
+        sparse_l, sparse_r = self.sparse("left"), self.sparse("right")
+        zeros = np.zeros(self.left.shape, np.float32)
+        return dict(left=self.left, right=self.right,
+                    gt=self.gt if self.gt is not None else zeros, gt_right=zeros,
+                    sparse=sparse_l, valid=sparse_l > 0, sparse_right=sparse_r,
+                    valid_right=sparse_r > 0)
+
+
+def _compact(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    index = np.flatnonzero(sparse > 0)
+    return index.astype(np.int32), sparse.ravel()[index].astype(np.float32)
+
+
+def load_frames(recording: Path, calib: Path | None = None, topics: dict | None = None,
+                max_frames: int = 300) -> list[Frame]:
+    """A recording's synced frames in time order, at most `max_frames` evenly spread (the
+    stride doubles whenever the kept frames pass the limit, so memory stays bounded)."""
+    from calibration.projection import project_to_disparity
+    from edge.capture.replay import McapSource, TopicMap, synced_frames
+    from edge.commands import replay_calibration
+
+    topic_map = TopicMap.from_dict(topics or {})
+    source = McapSource(recording, topic_map)
+    source.check_topics()
+    stereo, lidar = replay_calibration(source, calib)
+    offset = lidar.time_offset_ns if lidar else 0
+    frames: list[Frame] = []
+    stride = 1
+    for i, (event, left, right, points, gt) in enumerate(
+            synced_frames(recording, stereo, offset, topics=topic_map)):
+        if i % stride:
+            continue
+        sparse = {side: np.zeros(left.shape, np.float32) for side in ("left", "right")}
+        if lidar is not None and len(points):
+            for side in sparse:
+                sparse[side], _ = project_to_disparity(points, stereo, lidar.T_cam_lidar, side)
+        frames.append(Frame(str(recording), int(event.stamp_ns), left, right,
+                            _compact(sparse["left"]), _compact(sparse["right"]),
+                            None if gt is None else np.asarray(gt, np.float32)))
+        if len(frames) > max_frames:
+            frames, stride = frames[::2], stride * 2
+    return sorted(frames, key=lambda f: f.stamp_ns)
+
+
+def split_by_time(recordings: list[list[Frame]], check_share: float = 0.2
+                  ) -> tuple[list[Frame], list[Frame]]:
+    """(adapt, check): the last `check_share` of each recording's frames (at least one) are
+    check frames."""
+    adapt_frames, check_frames = [], []
+    for frames in recordings:
+        if len(frames) < 2:
+            raise ValueError(f"{frames[0].recording if frames else 'a recording'}: "
+                             f"{len(frames)} synced frame(s); adapting needs at least 2")
+        n_check = max(1, int(math.ceil(check_share * len(frames))))
+        adapt_frames += frames[:-n_check]
+        check_frames += frames[-n_check:]
+    return adapt_frames, check_frames
+
+
+@dataclass
+class FineTune:
+    """How the fine-tuning runs; steps and/or minutes bound it (at least one)."""
+
+    steps: int | None = None
+    minutes: float | None = None
+    lr: float = 5e-5
+    batch: int = 4
+    crop: tuple[int, int] = (320, 192)
+    iters: int = 4
+    split: str = "half2"
+    ckpt_every: int = 50
+    seed: int = 0
+    supervised: bool = False  # the comparison the paper makes: GT instead of the self losses
+
+    def __post_init__(self) -> None:
+        if self.steps is None and self.minutes is None:
+            raise ValueError("fine-tuning needs --steps or --minutes")
+        if self.steps is not None and self.steps < 1:
+            raise ValueError(f"steps must be >= 1, got {self.steps}")
+        if self.minutes is not None and not self.minutes > 0:
+            raise ValueError(f"minutes must be > 0, got {self.minutes}")
+
+    def progress(self, step: int, seconds: float) -> float:
+        """0 → 1 along whichever bound comes first."""
+        parts = []
+        if self.steps is not None:
+            parts.append(step / self.steps)
+        if self.minutes is not None:
+            parts.append(seconds / (60 * self.minutes))
+        return min(1.0, max(parts))
+
+
+def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
+             resume: bool = False) -> tuple[Path, dict]:
+    """Self-supervised fine-tuning of `init` on `frames`; (checkpoint path, summary). The
+    learning rate warms up over the first 5 % and falls linearly to 0 at the bound."""
+    import torch
+    from tqdm import tqdm
+
+    from edge.model.data import to_tensors
+    from edge.model.losses import sequence_loss
+    from tools.export import load_checkpoint
+    from tools.train import self_supervised_step
+
+    if not frames:
+        raise ValueError("no adapt frames")
+    work.mkdir(parents=True, exist_ok=True)
+    net, ckpt = load_checkpoint(init)
+    h, w = frames[0].left.shape
+    crop = (min(plan.crop[0], w // 8 * 8), min(plan.crop[1], h // 8 * 8))
+    opt = torch.optim.AdamW(net.parameters(), lr=plan.lr, weight_decay=1e-5)
+    last = work / "last.pt"
+    step, seconds = 0, 0.0
+    if resume and last.exists():
+        state = torch.load(last, weights_only=False)
+        net.load_state_dict(state["model"])
+        opt.load_state_dict(state["optimizer"])
+        step, seconds = state["step"], state["seconds"]
+        print(f"resumed from {last} at step {step} ({seconds / 60:.1f} min)")
+    rng = np.random.default_rng([plan.seed, step])
+    torch.manual_seed(plan.seed + step)
+
+    def save(path: Path) -> None:
+        tmp = path.with_suffix(".tmp")
+        torch.save(dict(model=net.state_dict(), optimizer=opt.state_dict(), step=step,
+                        seconds=seconds, config=ckpt["config"],
+                        training=dict(ckpt.get("training") or {}, adapted=summary())), tmp)
+        tmp.replace(path)
+
+    def summary() -> dict:
+        return dict(init=str(init), steps=step, minutes=round(seconds / 60, 2),
+                    frames=len(frames), lr=plan.lr, batch=plan.batch, crop=list(crop),
+                    iters=plan.iters, mode="supervised" if plan.supervised else "self",
+                    split=plan.split)
+
+    net.train()
+    bar = tqdm(total=plan.steps or None, initial=step, desc="adapt", dynamic_ncols=True)
+    started = time.time() - seconds
+    while plan.progress(step, seconds) < 1.0:
+        frac = plan.progress(step, seconds)
+        for group in opt.param_groups:
+            group["lr"] = plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac)
+        items = [to_tensors(frames[int(i)].arrays(), crop, rng, augment=True)
+                 for i in rng.integers(0, len(frames), plan.batch)]
+        batch = {k: torch.stack([item[k] for item in items]) for k in items[0]}
+        if plan.supervised:
+            preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
+                        plan.iters)
+            loss = sequence_loss(preds, batch["gt"], (batch["gt"] > 0).float())
+            terms = {}
+        else:
+            loss, terms, _ = self_supervised_step(net, batch, plan.split, plan.iters)
+        if not math.isfinite(float(loss.detach())):
+            log.warning("step %d: non-finite loss, batch skipped", step)
+            continue
+        opt.zero_grad()
+        loss.backward()
+        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+        opt.step()
+        step += 1
+        seconds = time.time() - started
+        bar.update(1)
+        bar.set_postfix(loss=f"{float(loss.detach()):.4f}",
+                        **{k: f"{v:.4f}" for k, v in terms.items()})
+        if step % plan.ckpt_every == 0:
+            save(last)
+    bar.close()
+    save(last)
+    out = work / "adapted.pt"
+    save(out)
+    return out, summary()
+
+
+def bundle_size(frames: list[Frame], multiple: int = 8) -> tuple[int, int]:
+    """The camera's (w, h) rounded up to the network's multiple (the engine pads)."""
+    h, w = frames[0].left.shape
+    return (-(-w // multiple) * multiple, -(-h // multiple) * multiple)
+
+
+def build_bundle(checkpoint: Path, bundle: Path, size: tuple[int, int], frames: list[Frame],
+                 calib_frames: int = 16, node_search: bool = True) -> dict:
+    """Export at `size`, then int8 quantization calibrated on up to `calib_frames` frames."""
+    from tools.export import export
+    from tools.quantize import quantize_bundle
+
+    if bundle.exists():
+        shutil.rmtree(bundle)
+    export(checkpoint, bundle, size)
+    pick = np.linspace(0, len(frames) - 1, min(calib_frames, len(frames))).round().astype(int)
+    feeds = [(frames[i].left, frames[i].right, frames[i].sparse("left")) for i in pick]
+    shutil.copy(checkpoint, bundle / BUNDLE_CHECKPOINT)
+    return quantize_bundle(bundle, feeds, node_search=node_search,
+                           calib_label=f"{len(feeds)} adapt frames of the recordings")
+
+
+def check(engines: dict[str, Engine], frames: list[Frame], seed: int = 0
+          ) -> tuple[dict[str, dict], list[dict], dict]:
+    """Each engine on the check frames: (means per engine, rows per frame, disparities of a
+    few frames for the picture). Photometric error is averaged over the pixels visible under
+    every engine's estimate, so no engine gains by calling its mistakes occlusions."""
+    rows, shown = [], {}
+    show = set(np.linspace(0, len(frames) - 1, min(3, len(frames))).round().astype(int))
+    for i, frame in enumerate(frames):
+        sparse_l, sparse_r = frame.sparse("left"), frame.sparse("right")
+        fed, held = selfcheck.split_points(sparse_l > 0, seed + i)
+        outputs = {}
+        for name, engine in engines.items():
+            d = engine.infer(frame.left, frame.right, sparse_l).disparity
+            d_right = engine.infer(np.ascontiguousarray(frame.right[:, ::-1]),
+                                   np.ascontiguousarray(frame.left[:, ::-1]),
+                                   np.ascontiguousarray(sparse_r[:, ::-1])).disparity[:, ::-1]
+            d_half = engine.infer(frame.left, frame.right, np.where(fed, sparse_l, 0)
+                                  ).disparity if held.any() else None
+            outputs[name] = (d, d_right, d_half)
+        seen = np.logical_and.reduce([selfcheck.visible(d, dr) for d, dr, _ in outputs.values()])
+        row = dict(recording=Path(frame.recording).name, stamp_ns=frame.stamp_ns)
+        for name, (d, d_right, d_half) in outputs.items():
+            photo = selfcheck.photometric_error(frame.left, frame.right, d)
+            m = dict(photometric=float(photo[seen].mean()) if seen.any() else float("nan"),
+                     lr_inconsistent_pct=100 * selfcheck.lr_inconsistent_share(d, d_right),
+                     held_out_px=selfcheck.held_out_error(d_half, sparse_l, held)
+                     if d_half is not None else float("nan"))
+            if frame.gt is not None:
+                error_sum, bad, pixels = accuracy(d, frame.gt)
+                m.update(epe=error_sum / max(pixels, 1), bad3=100 * bad / max(pixels, 1))
+            row[name] = m
+        rows.append(row)
+        if i in show:
+            shown[i] = (frame, {name: out[0] for name, out in outputs.items()})
+    means = {}
+    for name in engines:
+        keys = sorted({k for r in rows for k in r[name]})
+        means[name] = {k: float(np.nanmean([r[name].get(k, np.nan) for r in rows]))
+                       if any(np.isfinite(r[name].get(k, np.nan)) for r in rows)
+                       else float("nan") for k in keys}
+    return means, rows, shown
+
+
+def is_better(old: dict, new: dict) -> tuple[bool, str]:
+    """The decision without ground truth: lower photometric error and, where the check frames
+    have LiDAR, lower held-out LiDAR error."""
+    photo = new["photometric"] < old["photometric"]
+    held = True
+    if np.isfinite(old.get("held_out_px", np.nan)):
+        held = new["held_out_px"] < old["held_out_px"]
+    why = (f"photometric {old['photometric']:.4f} -> {new['photometric']:.4f}, held-out LiDAR "
+           f"{old.get('held_out_px', float('nan')):.3f} -> "
+           f"{new.get('held_out_px', float('nan')):.3f} px")
+    return photo and held, why
+
+
+def colour(disparity: np.ndarray, top: float) -> np.ndarray:
+    d = np.clip(np.nan_to_num(disparity) / max(top, 1e-6) * 255, 0, 255).astype(np.uint8)
+    return cv2.applyColorMap(d, cv2.COLORMAP_TURBO)
+
+
+def picture(shown: dict, path: Path) -> None:
+    """Rows of check frames: left | before | after (| |error| before | after, with GT)."""
+    rows = []
+    for frame, outputs in shown.values():
+        top = float(np.percentile(frame.gt[frame.gt > 0], 99)) if frame.gt is not None \
+            and (frame.gt > 0).any() else float(np.nanpercentile(outputs["before"], 99))
+        tiles = [("left", cv2.cvtColor(frame.left, cv2.COLOR_GRAY2BGR))]
+        tiles += [(name, colour(d, top)) for name, d in outputs.items()]
+        if frame.gt is not None:
+            for name, d in outputs.items():
+                err = np.where(frame.gt > 0, np.abs(np.nan_to_num(d) - frame.gt), 0)
+                tiles.append((f"|error| {name}", colour(err, 5.0)))
+        for label, tile in tiles:
+            cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
+        rows.append(np.hstack([t for _, t in tiles]))
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
+    cv2.imwrite(str(path), np.vstack(rows))
+
+
+def format_report(report: dict) -> str:
+    names = ("before", "after")
+    keys = [k for k in ("photometric", "held_out_px", "lr_inconsistent_pct", "epe", "bad3")
+            if k in report["check"]["before"]]
+    lines = [f"# edge-depth adapt: {', '.join(report['recordings'])}", "",
+             f"{report['frames']['adapt']} adapt frames, {report['frames']['check']} check "
+             f"frames (the last {report['check_share']:.0%} of each recording, never trained "
+             f"on); fine-tuning: {report['training']['steps']} steps in "
+             f"{report['training']['minutes']} min ({report['training']['mode']}).", "",
+             "| on the check frames | " + " | ".join(keys) + " |",
+             "|---|" + "---|" * len(keys)]
+    for name in names:
+        lines.append(f"| {name} ({report['bundles'][name]}) | "
+                     + " | ".join(f"{report['check'][name][k]:.4f}" for k in keys) + " |")
+    lines += ["", f"**{report['verdict']}** ({report['why']})", ""]
+    return "\n".join(lines)
+
+
+@dataclass
+class AdaptResult:
+    written: bool  # the new bundle went to `out`
+    report: dict
+    work: Path
+    files: list[Path] = field(default_factory=list)
+
+
+def resolve_start(start: Path | None) -> tuple[Path, Path]:
+    """(checkpoint to fine-tune, bundle to compare against) for --from."""
+    if start is None:
+        return DEFAULT_CHECKPOINT, Path(DEFAULT_BUNDLE)
+    if start.is_dir():
+        if not (start / BUNDLE_CHECKPOINT).is_file():
+            raise ValueError(f"--from {start}: a bundle without {BUNDLE_CHECKPOINT} (only "
+                             "bundles written by adapt carry their weights); give the .pt "
+                             "checkpoint it was exported from")
+        return start / BUNDLE_CHECKPOINT, start
+    if not start.is_file():
+        raise ValueError(f"--from {start}: no such checkpoint or bundle")
+    return start, Path(DEFAULT_BUNDLE)
+
+
+def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = None,
+          minutes: float | None = None, topics: dict | None = None, calib: Path | None = None,
+          start: Path | None = None, work: Path | None = None, resume: bool = False,
+          force: bool = False, check_share: float = 0.2, max_frames: int = 300,
+          plan: FineTune | None = None, node_search: bool = True) -> AdaptResult:
+    """The whole job (module docstring); the Python entry for scheduled adaptation."""
+    recordings = [Path(r) for r in recordings]
+    out = Path(out)
+    work = Path(work) if work else out.with_name(out.name + ".adapt")
+    init, old_bundle = resolve_start(Path(start) if start else None)
+    plan = plan or FineTune(steps=steps, minutes=minutes)
+    per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
+                     for r in recordings]
+    adapt_frames, check_frames = split_by_time(per_recording, check_share)
+    print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames")
+    if plan.supervised and any(f.gt is None for f in adapt_frames):
+        raise ValueError("supervised fine-tuning needs ground truth on every adapt frame")
+    checkpoint, training = finetune(init, adapt_frames, work, plan, resume)
+    candidate = work / "bundle"
+    quant = build_bundle(checkpoint, candidate, bundle_size(adapt_frames), adapt_frames,
+                         node_search=node_search)
+    engines = {"before": Engine(old_bundle, "int8"), "after": Engine(candidate, "int8")}
+    means, rows, shown = check(engines, check_frames)
+    better, why = is_better(means["before"], means["after"])
+    written = better or force
+    verdict = ("better on the check frames: the new bundle is written" if better else
+               "not better on the check frames: " + ("written anyway (--force)" if force
+                                                     else "the old bundle is kept"))
+    report = dict(recordings=[str(r) for r in recordings], out=str(out), check_share=check_share,
+                  frames=dict(adapt=len(adapt_frames), check=len(check_frames)),
+                  bundles=dict(before=str(old_bundle), after=str(out) if written else
+                               str(candidate)),
+                  training=training, quantization=dict(
+                      mean_abs_px_vs_fp32=quant["mean_abs_px_vs_fp32"],
+                      int8={k: v["int8"] for k, v in quant["graphs"].items()}),
+                  check=means, per_frame=rows, better=better, written=written,
+                  verdict=verdict, why=why)
+    files = [work / "report.json", work / "report.md", work / "report.png"]
+    files[0].write_text(json.dumps(report, indent=2))
+    files[1].write_text(format_report(report))
+    picture(shown, files[2])
+    if written:
+        for f in files:
+            shutil.copy(f, candidate / f.name)
+        staging = out.with_name(out.name + ".new")
+        if staging.exists():
+            shutil.rmtree(staging)
+        shutil.copytree(candidate, staging)
+        if out.exists():
+            previous = out.with_name(out.name + ".previous")
+            if previous.exists():
+                shutil.rmtree(previous)
+            out.rename(previous)
+        staging.rename(out)
+    print(format_report(report))
+    return AdaptResult(written, report, work, files)
+
+
+def main(argv: list[str] | None = None) -> int:
+    import torch  # noqa: F401  (the train extra: said in one line before any work)
+    import tqdm  # noqa: F401
+
+    from edge.cli import load_topic_map
+
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("recordings", type=Path, nargs="+", help="MCAP recordings")
+    p.add_argument("--out", type=Path, required=True, help="the adapted bundle's folder")
+    p.add_argument("--steps", type=int, default=None)
+    p.add_argument("--minutes", type=float, default=None)
+    p.add_argument("--topics", type=Path, default=None, help="TOML [topics] map (as replay)")
+    p.add_argument("--calib", type=Path, default=None, help="calibration TOML (as replay)")
+    p.add_argument("--from", dest="start", type=Path, default=None,
+                   help="checkpoint (.pt) or adapted bundle to start from (default: shipped)")
+    p.add_argument("--work", type=Path, default=None,
+                   help="checkpoints, candidate bundle and report (default: OUT.adapt)")
+    p.add_argument("--resume", action="store_true", help="continue WORK/last.pt")
+    p.add_argument("--force", action="store_true",
+                   help="write the new bundle even when it is not better")
+    p.add_argument("--check-share", type=float, default=0.2)
+    p.add_argument("--max-frames", type=int, default=300,
+                   help="frames kept in memory, evenly spread over the recordings' time")
+    p.add_argument("--lr", type=float, default=5e-5)
+    p.add_argument("--batch", type=int, default=4)
+    p.add_argument("--iters", type=int, default=4, help="GRU iterations while training")
+    p.add_argument("--supervised", action="store_true",
+                   help="train on the recordings' ground truth instead (for comparison)")
+    p.add_argument("--no-node-search", action="store_true",
+                   help="quantize without the per-convolution pass (faster)")
+    args = p.parse_args(argv)
+    if args.steps is None and args.minutes is None:
+        p.error("give --steps N and/or --minutes M")
+    if not 0 < args.check_share < 1:
+        p.error(f"--check-share must be within (0, 1), got {args.check_share}")
+    for r in args.recordings:
+        if not r.is_file():
+            p.error(f"{r}: no such recording")
+    try:
+        plan = FineTune(steps=args.steps, minutes=args.minutes, lr=args.lr, batch=args.batch,
+                        iters=args.iters, supervised=args.supervised)
+        result = adapt(args.recordings, args.out,
+                       topics=load_topic_map(args.topics) if args.topics else None,
+                       calib=args.calib, start=args.start, work=args.work, resume=args.resume,
+                       force=args.force, check_share=args.check_share,
+                       max_frames=args.max_frames, plan=plan,
+                       node_search=not args.no_node_search)
+    except ValueError as exc:
+        print(f"edge-depth adapt: {exc}")
+        return 2
+    print(f"report: {', '.join(str(f) for f in result.files)}")
+    return 0 if result.written else 3
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
