@@ -144,9 +144,11 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
     synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
     synth.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
-    synth.add_argument("--world", choices=("rig", "things"), default="rig",
+    synth.add_argument("--world", choices=("rig", "things", "street"), default="rig",
                        help="rig: the planar rig as scene folders; things: the 3-D training "
-                            "world as OUT/NNNNNNN.npz (LiDAR sampled at training time)")
+                            "world as OUT/NNNNNNN.npz (LiDAR sampled at training time); "
+                            "street: a recording (--mcap) of a road at 1242x375 with a "
+                            "64-beam LiDAR, a world no shipped model trained on")
     synth.add_argument("--workers", type=_positive_int, default=1,
                        help="rendering processes (--world things)")
     synth.add_argument("--scene-folders", action="store_true",
@@ -253,10 +255,19 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
     if args.command == "synth" and args.world == "things" and args.mcap:
         parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
+    if args.command == "synth" and args.world == "street" and not args.mcap:
+        parser.error("synth: --world street writes a recording: give --mcap FILE")
     try:
         if args.command == "synth":
             from edge.sim.export import synth_command
 
+            if args.mcap and args.world == "street":
+                from edge.sim_recording import write_street_recording
+
+                n = write_street_recording(args.mcap, args.count, args.seed)
+                print(f"wrote {args.mcap} ({args.count} street frames, 1242x375, {n} "
+                      "messages)")
+                return 0
             if args.mcap:
                 from edge.sim import RigConfig
                 from edge.sim_recording import write_sim_recording

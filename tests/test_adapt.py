@@ -114,3 +114,18 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     assert again["training"]["init"] == str(out / "checkpoint.pt")
     assert rc == (0 if again["better"] else 3)
     assert (tmp_path / "again").exists() == again["better"]
+
+
+def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
+    from tools.adapt import load_frames
+
+    rec = tmp_path / "street.mcap"
+    assert main(["synth", "--world", "street", "--mcap", str(rec), "--frames", "1"]) == 0
+    (frame,) = load_frames(rec)
+    assert frame.left.shape == (375, 1242) and frame.gt is not None
+    sparse = frame.sparse("left")
+    points = sparse > 0
+    assert points.sum() > 20_000  # 64 rows, every 2nd column, over the lower two thirds
+    assert not points[:120].any()
+    error = np.abs(sparse[points] - frame.gt[points])
+    assert np.median(error) < 0.15 and np.mean(error < 0.5) > 0.95

@@ -287,11 +287,13 @@ class ThingsScene:
         return outside | ~seen | ~np.isfinite(depth)
 
 
-def make_things_sample(seed: int, cfg: WorldConfig | None = None) -> ThingsSample:
-    """Render one scene of the things world deterministically from `seed`."""
+def make_things_sample(seed: int, cfg: WorldConfig | None = None,
+                       scene_class: type[ThingsScene] = ThingsScene) -> ThingsSample:
+    """Render one scene of the things world (or another layout on its surfaces, e.g.
+    `edge.sim.street.StreetScene`) deterministically from `seed`."""
     cfg = cfg or WorldConfig()
     scene_seq, light_seq, camera_seq = np.random.SeedSequence([seed, 7]).spawn(3)
-    scene = ThingsScene(cfg, np.random.default_rng(scene_seq))
+    scene = scene_class(cfg, np.random.default_rng(scene_seq))
     rng = np.random.default_rng(light_seq)
     light = Light(position=np.array([rng.uniform(-2, 2), rng.uniform(-2, 0.5),
                                      rng.uniform(-0.5, 2)]),
