@@ -83,14 +83,32 @@ def _compact(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return index.astype(np.int32), sparse.ravel()[index].astype(np.float32)
 
 
+def folder_frames(root: Path) -> list[Frame]:
+    """Scene folders (left.png, right.png, sparse.pfm, disp.pfm as GT if there) as frames, in
+    name order (one a "second")."""
+    from edge.model.datasets import scene_folder_arrays
+    from edge.sim.folder import list_scene_folders
+
+    frames = []
+    for i, folder in enumerate(list_scene_folders(root)):
+        a = scene_folder_arrays(folder)
+        frames.append(Frame(str(folder), i * 1_000_000_000, a["left"], a["right"],
+                            _compact(a["sparse"]), _compact(a["sparse_right"]),
+                            a["gt"] if (a["gt"] > 0).any() else None))
+    return frames
+
+
 def load_frames(recording: Path, calib: Path | None = None, topics: dict | None = None,
                 max_frames: int = 300) -> list[Frame]:
     """A recording's synced frames in time order, at most `max_frames` evenly spread (the
-    stride doubles whenever the kept frames pass the limit, so memory stays bounded)."""
+    stride doubles whenever the kept frames pass the limit, so memory stays bounded). A
+    directory is read as scene folders (`folder_frames`)."""
     from calibration.projection import project_to_disparity
     from edge.capture.replay import McapSource, TopicMap, synced_frames
     from edge.commands import replay_calibration
 
+    if Path(recording).is_dir():
+        return folder_frames(Path(recording))[:max_frames]
     topic_map = TopicMap.from_dict(topics or {})
     source = McapSource(recording, topic_map)
     source.check_topics()
@@ -352,8 +370,11 @@ def format_report(report: dict) -> str:
             if k in report["check"]["before"]]
     lines = [f"# edge-depth adapt: {', '.join(report['recordings'])}", "",
              f"{report['frames']['adapt']} adapt frames, {report['frames']['check']} check "
-             f"frames (the last {report['check_share']:.0%} of each recording, never trained "
-             f"on); fine-tuning: {report['training']['steps']} steps in "
+             + ("frames (test-time adaptation: the same frames, their GT never used); "
+                if report["test_time"] else
+                f"frames (the last {report['check_share']:.0%} of each recording, never "
+                "trained on); ")
+             + f"fine-tuning: {report['training']['steps']} steps in "
              f"{report['training']['minutes']} min ({report['training']['mode']}).", "",
              "| on the check frames | " + " | ".join(keys) + " |",
              "|---|" + "---|" * len(keys)]
@@ -391,8 +412,11 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
           minutes: float | None = None, topics: dict | None = None, calib: Path | None = None,
           start: Path | None = None, work: Path | None = None, resume: bool = False,
           force: bool = False, check_share: float = 0.2, max_frames: int = 300,
-          plan: FineTune | None = None, node_search: bool = True) -> AdaptResult:
-    """The whole job (module docstring); the Python entry for scheduled adaptation."""
+          plan: FineTune | None = None, node_search: bool = True,
+          test_time: bool = False) -> AdaptResult:
+    """The whole job (module docstring); the Python entry for scheduled adaptation.
+    test_time: adapt on every frame and check on the same frames (test-time adaptation: the
+    frames are the ones to be measured, e.g. one real pair with its LiDAR)."""
     recordings = [Path(r) for r in recordings]
     out = Path(out)
     work = Path(work) if work else out.with_name(out.name + ".adapt")
@@ -400,8 +424,14 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     plan = plan or FineTune(steps=steps, minutes=minutes)
     per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
                      for r in recordings]
-    adapt_frames, check_frames = split_by_time(per_recording, check_share)
-    print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames")
+    if test_time:
+        adapt_frames = check_frames = [f for frames in per_recording for f in frames]
+        if not adapt_frames:
+            raise ValueError("no frames to adapt on")
+    else:
+        adapt_frames, check_frames = split_by_time(per_recording, check_share)
+    print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames"
+          + (" (test-time: the same frames)" if test_time else ""))
     if plan.supervised and any(f.gt is None for f in adapt_frames):
         raise ValueError("supervised fine-tuning needs ground truth on every adapt frame")
     checkpoint, training = finetune(init, adapt_frames, work, plan, resume)
@@ -415,7 +445,8 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     verdict = ("better on the check frames: the new bundle is written" if better else
                "not better on the check frames: " + ("written anyway (--force)" if force
                                                      else "the old bundle is kept"))
-    report = dict(recordings=[str(r) for r in recordings], out=str(out), check_share=check_share,
+    report = dict(recordings=[str(r) for r in recordings], out=str(out), test_time=test_time,
+                  check_share=0.0 if test_time else check_share,
                   frames=dict(adapt=len(adapt_frames), check=len(check_frames)),
                   bundles=dict(before=str(old_bundle), after=str(out) if written else
                                str(candidate)),
@@ -452,7 +483,8 @@ def main(argv: list[str] | None = None) -> int:
     from edge.cli import load_topic_map
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    p.add_argument("recordings", type=Path, nargs="+", help="MCAP recordings")
+    p.add_argument("recordings", type=Path, nargs="+",
+                   help="MCAP recordings (or folders of scene folders)")
     p.add_argument("--out", type=Path, required=True, help="the adapted bundle's folder")
     p.add_argument("--steps", type=int, default=None)
     p.add_argument("--minutes", type=float, default=None)
@@ -473,6 +505,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", type=int, default=4, help="GRU iterations while training")
     p.add_argument("--supervised", action="store_true",
                    help="train on the recordings' ground truth instead (for comparison)")
+    p.add_argument("--test-time", action="store_true",
+                   help="adapt on all frames and check on the same ones (test-time "
+                        "adaptation, e.g. on one real pair)")
     p.add_argument("--no-node-search", action="store_true",
                    help="quantize without the per-convolution pass (faster)")
     args = p.parse_args(argv)
@@ -481,7 +516,7 @@ def main(argv: list[str] | None = None) -> int:
     if not 0 < args.check_share < 1:
         p.error(f"--check-share must be within (0, 1), got {args.check_share}")
     for r in args.recordings:
-        if not r.is_file():
+        if not r.exists():
             p.error(f"{r}: no such recording")
     try:
         plan = FineTune(steps=args.steps, minutes=args.minutes, lr=args.lr, batch=args.batch,
@@ -491,7 +526,7 @@ def main(argv: list[str] | None = None) -> int:
                        calib=args.calib, start=args.start, work=args.work, resume=args.resume,
                        force=args.force, check_share=args.check_share,
                        max_frames=args.max_frames, plan=plan,
-                       node_search=not args.no_node_search)
+                       node_search=not args.no_node_search, test_time=args.test_time)
     except ValueError as exc:
         print(f"edge-depth adapt: {exc}")
         return 2
