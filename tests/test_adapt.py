@@ -101,6 +101,7 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == {"adapt": 4, "check": 1} and report["written"]
     assert report["training"]["steps"] == 1
+    assert set(report["check"]) == {"before", "unadapted", "after"}  # 192x128 != 640x400
     for side in ("before", "after"):
         assert 0 < report["check"][side]["photometric"] < 1
         assert report["check"][side]["epe"] >= 0  # the recording carries GT

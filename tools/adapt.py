@@ -316,7 +316,8 @@ def check(engines: dict[str, Engine], frames: list[Frame], seed: int = 0
             row[name] = m
         rows.append(row)
         if i in show:
-            shown[i] = (frame, {name: out[0] for name, out in outputs.items()})
+            shown[i] = (frame, {name: outputs[name][0] for name in ("before", "after")
+                                if name in outputs})
     means = {}
     for name in engines:
         keys = sorted({k for r in rows for k in r[name]})
@@ -365,7 +366,7 @@ def picture(shown: dict, path: Path) -> None:
 
 
 def format_report(report: dict) -> str:
-    names = ("before", "after")
+    names = list(report["check"])
     keys = [k for k in ("photometric", "held_out_px", "lr_inconsistent_pct", "epe", "bad3")
             if k in report["check"]["before"]]
     lines = [f"# edge-depth adapt: {', '.join(report['recordings'])}", "",
@@ -379,9 +380,14 @@ def format_report(report: dict) -> str:
              "| on the check frames | " + " | ".join(keys) + " |",
              "|---|" + "---|" * len(keys)]
     for name in names:
-        lines.append(f"| {name} ({report['bundles'][name]}) | "
+        source = report["bundles"].get(name, "the starting weights at the camera size")
+        lines.append(f"| {name} ({source}) | "
                      + " | ".join(f"{report['check'][name][k]:.4f}" for k in keys) + " |")
     lines += ["", f"**{report['verdict']}** ({report['why']})", ""]
+    if "unadapted" in report["check"]:
+        lines += ["The old bundle ran the camera scaled to its own size; `unadapted` is the "
+                  "starting weights exported at the camera's size, so after − unadapted is "
+                  "what adaptation itself changed.", ""]
     return "\n".join(lines)
 
 
@@ -413,7 +419,7 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
           start: Path | None = None, work: Path | None = None, resume: bool = False,
           force: bool = False, check_share: float = 0.2, max_frames: int = 300,
           plan: FineTune | None = None, node_search: bool = True,
-          test_time: bool = False) -> AdaptResult:
+          test_time: bool = False, unadapted: bool = True) -> AdaptResult:
     """The whole job (module docstring); the Python entry for scheduled adaptation.
     test_time: adapt on every frame and check on the same frames (test-time adaptation: the
     frames are the ones to be measured, e.g. one real pair with its LiDAR)."""
@@ -438,7 +444,15 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     candidate = work / "bundle"
     quant = build_bundle(checkpoint, candidate, bundle_size(adapt_frames), adapt_frames,
                          node_search=node_search)
-    engines = {"before": Engine(old_bundle, "int8"), "after": Engine(candidate, "int8")}
+    engines = {"before": Engine(old_bundle, "int8")}
+    size = bundle_size(adapt_frames)
+    if unadapted and tuple(engines["before"].size) != size:
+        # the starting weights at the camera's size: what adaptation gained apart from the
+        # resolution the old bundle ran at
+        start_bundle = work / "start_bundle"
+        build_bundle(init, start_bundle, size, adapt_frames, node_search=node_search)
+        engines["unadapted"] = Engine(start_bundle, "int8")
+    engines["after"] = Engine(candidate, "int8")
     means, rows, shown = check(engines, check_frames)
     better, why = is_better(means["before"], means["after"])
     written = better or force
@@ -508,6 +522,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--test-time", action="store_true",
                    help="adapt on all frames and check on the same ones (test-time "
                         "adaptation, e.g. on one real pair)")
+    p.add_argument("--no-unadapted", action="store_true",
+                   help="skip scoring the starting weights at the camera's size")
     p.add_argument("--no-node-search", action="store_true",
                    help="quantize without the per-convolution pass (faster)")
     args = p.parse_args(argv)
@@ -526,7 +542,8 @@ def main(argv: list[str] | None = None) -> int:
                        calib=args.calib, start=args.start, work=args.work, resume=args.resume,
                        force=args.force, check_share=args.check_share,
                        max_frames=args.max_frames, plan=plan,
-                       node_search=not args.no_node_search, test_time=args.test_time)
+                       node_search=not args.no_node_search, test_time=args.test_time,
+                       unadapted=not args.no_unadapted)
     except ValueError as exc:
         print(f"edge-depth adapt: {exc}")
         return 2
