@@ -16,7 +16,7 @@ import sys
 from pathlib import Path
 
 STAGE_KEYS = ("mode", "steps", "batch", "crop", "iters", "patterns", "lr", "seed", "data",
-              "refine", "no_half_res_block", "split")
+              "refine", "no_half_res_block", "split", "stereo_only_share")
 
 
 def stage_from_args(args: dict, note: str) -> dict:
