@@ -46,6 +46,7 @@ from edge.runtime.engine import DEFAULT_BUNDLE, Engine
 log = logging.getLogger(__name__)
 DEFAULT_CHECKPOINT = Path(DEFAULT_BUNDLE).parent / "sparse_stereo.pt"
 BUNDLE_CHECKPOINT = "checkpoint.pt"  # an adapted bundle carries its weights: adapt it again
+MAX_SKIPPED_IN_A_ROW = 20
 
 
 @dataclass
@@ -200,7 +201,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     crop = (min(plan.crop[0], w // 8 * 8), min(plan.crop[1], h // 8 * 8))
     opt = torch.optim.AdamW(net.parameters(), lr=plan.lr, weight_decay=1e-5)
     last = work / "last.pt"
-    step, seconds = 0, 0.0
+    step, seconds, skipped, skipped_in_a_row = 0, 0.0, 0, 0
     if resume and last.exists():
         state = torch.load(last, weights_only=False)
         net.load_state_dict(state["model"])
@@ -221,7 +222,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
         return dict(init=str(init), steps=step, minutes=round(seconds / 60, 2),
                     frames=len(frames), lr=plan.lr, batch=plan.batch, crop=list(crop),
                     iters=plan.iters, mode="supervised" if plan.supervised else "self",
-                    split=plan.split)
+                    split=plan.split, skipped_batches=skipped)
 
     net.train()
     bar = tqdm(total=plan.steps or None, initial=step, desc="adapt", dynamic_ncols=True)
@@ -240,9 +241,15 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
             terms = {}
         else:
             loss, terms, _ = self_supervised_step(net, batch, plan.split, plan.iters)
+        seconds = time.time() - started
         if not math.isfinite(float(loss.detach())):
-            log.warning("step %d: non-finite loss, batch skipped", step)
+            skipped, skipped_in_a_row = skipped + 1, skipped_in_a_row + 1
+            log.warning("step %d: non-finite loss, batch skipped (%d so far)", step, skipped)
+            if skipped_in_a_row >= MAX_SKIPPED_IN_A_ROW:
+                raise ValueError(f"{skipped_in_a_row} batches in a row gave a non-finite loss "
+                                 "(check the recordings' LiDAR and calibration)")
             continue
+        skipped_in_a_row = 0
         opt.zero_grad()
         loss.backward()
         torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
@@ -436,6 +443,10 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
             raise ValueError("no frames to adapt on")
     else:
         adapt_frames, check_frames = split_by_time(per_recording, check_share)
+    sizes = sorted({f.left.shape[::-1] for f in adapt_frames + check_frames})
+    if len(sizes) > 1:
+        raise ValueError(f"the recordings hold more than one camera size {sizes}: adapt one "
+                         "camera at a time")
     print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames"
           + (" (test-time: the same frames)" if test_time else ""))
     if plan.supervised and any(f.gt is None for f in adapt_frames):
