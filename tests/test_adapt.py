@@ -13,7 +13,9 @@ from edge.cli import main
 
 pytest.importorskip("torch")
 
-from tools.adapt import FineTune, Frame, is_better, split_by_time  # noqa: E402
+from tools.adapt import FineTune  # noqa: E402
+from tools.adapt_check import is_better  # noqa: E402
+from tools.adapt_frames import Frame, split_by_time  # noqa: E402
 
 
 def _textured_pair(disparity: float, shape=(64, 96), seed=0):
@@ -118,7 +120,7 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
 
 
 def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
-    from tools.adapt import load_frames
+    from tools.adapt_frames import load_frames
 
     rec = tmp_path / "street.mcap"
     assert main(["synth", "--world", "street", "--mcap", str(rec), "--frames", "1"]) == 0

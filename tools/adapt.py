@@ -36,116 +36,16 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import cv2
 import numpy as np
 
-from edge import selfcheck
-from edge.compare import accuracy
 from edge.runtime.engine import DEFAULT_BUNDLE, Engine
+from tools.adapt_check import check, format_report, is_better, picture
+from tools.adapt_frames import Frame, load_frames, split_by_time
 
 log = logging.getLogger(__name__)
 DEFAULT_CHECKPOINT = Path(DEFAULT_BUNDLE).parent / "sparse_stereo.pt"
 BUNDLE_CHECKPOINT = "checkpoint.pt"  # an adapted bundle carries its weights: adapt it again
 MAX_SKIPPED_IN_A_ROW = 20
-
-
-@dataclass
-class Frame:
-    """One synced frame of a recording: rectified grey images (H, W) uint8, its LiDAR as
-    disparity in each view kept compact (flat pixel indices, px), GT disparity or None."""
-
-    recording: str
-    stamp_ns: int
-    left: np.ndarray
-    right: np.ndarray
-    lidar_left: tuple[np.ndarray, np.ndarray]
-    lidar_right: tuple[np.ndarray, np.ndarray]
-    gt: np.ndarray | None = None
-
-    def sparse(self, side: str = "left") -> np.ndarray:
-        """(H, W) float32 disparity of the LiDAR in one view, 0 = no point."""
-        index, value = self.lidar_left if side == "left" else self.lidar_right
-        out = np.zeros(self.left.size, np.float32)
-        out[index] = value
-        return out.reshape(self.left.shape)
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """The training dict of `edge.model.data.sample_to_arrays`."""
-        sparse_l, sparse_r = self.sparse("left"), self.sparse("right")
-        zeros = np.zeros(self.left.shape, np.float32)
-        return dict(left=self.left, right=self.right,
-                    gt=self.gt if self.gt is not None else zeros, gt_right=zeros,
-                    sparse=sparse_l, valid=sparse_l > 0, sparse_right=sparse_r,
-                    valid_right=sparse_r > 0)
-
-
-def _compact(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    index = np.flatnonzero(sparse > 0)
-    return index.astype(np.int32), sparse.ravel()[index].astype(np.float32)
-
-
-def folder_frames(root: Path) -> list[Frame]:
-    """Scene folders (left.png, right.png, sparse.pfm, disp.pfm as GT if there) as frames, in
-    name order (one a "second")."""
-    from edge.model.datasets import scene_folder_arrays
-    from edge.sim.folder import list_scene_folders
-
-    frames = []
-    for i, folder in enumerate(list_scene_folders(root)):
-        a = scene_folder_arrays(folder)
-        frames.append(Frame(str(folder), i * 1_000_000_000, a["left"], a["right"],
-                            _compact(a["sparse"]), _compact(a["sparse_right"]),
-                            a["gt"] if (a["gt"] > 0).any() else None))
-    return frames
-
-
-def load_frames(recording: Path, calib: Path | None = None, topics: dict | None = None,
-                max_frames: int = 300) -> list[Frame]:
-    """A recording's synced frames in time order, at most `max_frames` evenly spread (the
-    stride doubles whenever the kept frames pass the limit, so memory stays bounded). A
-    directory is read as scene folders (`folder_frames`)."""
-    from calibration.projection import project_to_disparity
-    from edge.capture.replay import McapSource, TopicMap, synced_frames
-    from edge.commands import replay_calibration
-
-    if Path(recording).is_dir():
-        return folder_frames(Path(recording))[:max_frames]
-    topic_map = TopicMap.from_dict(topics or {})
-    source = McapSource(recording, topic_map)
-    source.check_topics()
-    stereo, lidar = replay_calibration(source, calib)
-    offset = lidar.time_offset_ns if lidar else 0
-    frames: list[Frame] = []
-    stride = 1
-    for i, (event, left, right, points, gt) in enumerate(
-            synced_frames(recording, stereo, offset, topics=topic_map)):
-        if i % stride:
-            continue
-        sparse = {side: np.zeros(left.shape, np.float32) for side in ("left", "right")}
-        if lidar is not None and len(points):
-            for side in sparse:
-                sparse[side], _ = project_to_disparity(points, stereo, lidar.T_cam_lidar, side)
-        frames.append(Frame(str(recording), int(event.stamp_ns), left, right,
-                            _compact(sparse["left"]), _compact(sparse["right"]),
-                            None if gt is None else np.asarray(gt, np.float32)))
-        if len(frames) > max_frames:
-            frames, stride = frames[::2], stride * 2
-    return sorted(frames, key=lambda f: f.stamp_ns)
-
-
-def split_by_time(recordings: list[list[Frame]], check_share: float = 0.2
-                  ) -> tuple[list[Frame], list[Frame]]:
-    """(adapt, check): the last `check_share` of each recording's frames (at least one) are
-    check frames."""
-    adapt_frames, check_frames = [], []
-    for frames in recordings:
-        if len(frames) < 2:
-            raise ValueError(f"{frames[0].recording if frames else 'a recording'}: "
-                             f"{len(frames)} synced frame(s); adapting needs at least 2")
-        n_check = max(1, int(math.ceil(check_share * len(frames))))
-        adapt_frames += frames[:-n_check]
-        check_frames += frames[-n_check:]
-    return adapt_frames, check_frames
 
 
 @dataclass
@@ -288,114 +188,6 @@ def build_bundle(checkpoint: Path, bundle: Path, size: tuple[int, int], frames: 
     shutil.copy(checkpoint, bundle / BUNDLE_CHECKPOINT)
     return quantize_bundle(bundle, feeds, node_search=node_search,
                            calib_label=f"{len(feeds)} adapt frames of the recordings")
-
-
-def check(engines: dict[str, Engine], frames: list[Frame], seed: int = 0
-          ) -> tuple[dict[str, dict], list[dict], dict]:
-    """Each engine on the check frames: (means per engine, rows per frame, disparities of a
-    few frames for the picture). Photometric error is averaged over the pixels visible under
-    every engine's estimate, so no engine gains by calling its mistakes occlusions."""
-    rows, shown = [], {}
-    show = set(np.linspace(0, len(frames) - 1, min(3, len(frames))).round().astype(int))
-    for i, frame in enumerate(frames):
-        sparse_l, sparse_r = frame.sparse("left"), frame.sparse("right")
-        fed, held = selfcheck.split_points(sparse_l > 0, seed + i)
-        outputs = {}
-        for name, engine in engines.items():
-            d = engine.infer(frame.left, frame.right, sparse_l).disparity
-            d_right = engine.infer(np.ascontiguousarray(frame.right[:, ::-1]),
-                                   np.ascontiguousarray(frame.left[:, ::-1]),
-                                   np.ascontiguousarray(sparse_r[:, ::-1])).disparity[:, ::-1]
-            d_half = engine.infer(frame.left, frame.right, np.where(fed, sparse_l, 0)
-                                  ).disparity if held.any() else None
-            outputs[name] = (d, d_right, d_half)
-        seen = np.logical_and.reduce([selfcheck.visible(d, dr) for d, dr, _ in outputs.values()])
-        row = dict(recording=Path(frame.recording).name, stamp_ns=frame.stamp_ns)
-        for name, (d, d_right, d_half) in outputs.items():
-            photo = selfcheck.photometric_error(frame.left, frame.right, d)
-            m = dict(photometric=float(photo[seen].mean()) if seen.any() else float("nan"),
-                     lr_inconsistent_pct=100 * selfcheck.lr_inconsistent_share(d, d_right),
-                     held_out_px=selfcheck.held_out_error(d_half, sparse_l, held)
-                     if d_half is not None else float("nan"))
-            if frame.gt is not None:
-                error_sum, bad, pixels = accuracy(d, frame.gt)
-                m.update(epe=error_sum / max(pixels, 1), bad3=100 * bad / max(pixels, 1))
-            row[name] = m
-        rows.append(row)
-        if i in show:
-            shown[i] = (frame, {name: outputs[name][0] for name in ("before", "after")
-                                if name in outputs})
-    means = {}
-    for name in engines:
-        keys = sorted({k for r in rows for k in r[name]})
-        means[name] = {k: float(np.nanmean([r[name].get(k, np.nan) for r in rows]))
-                       if any(np.isfinite(r[name].get(k, np.nan)) for r in rows)
-                       else float("nan") for k in keys}
-    return means, rows, shown
-
-
-def is_better(old: dict, new: dict) -> tuple[bool, str]:
-    """The decision without ground truth: lower photometric error and, where the check frames
-    have LiDAR, lower held-out LiDAR error."""
-    photo = new["photometric"] < old["photometric"]
-    held = True
-    if np.isfinite(old.get("held_out_px", np.nan)):
-        held = new["held_out_px"] < old["held_out_px"]
-    why = (f"photometric {old['photometric']:.4f} -> {new['photometric']:.4f}, held-out LiDAR "
-           f"{old.get('held_out_px', float('nan')):.3f} -> "
-           f"{new.get('held_out_px', float('nan')):.3f} px")
-    return photo and held, why
-
-
-def colour(disparity: np.ndarray, top: float) -> np.ndarray:
-    d = np.clip(np.nan_to_num(disparity) / max(top, 1e-6) * 255, 0, 255).astype(np.uint8)
-    return cv2.applyColorMap(d, cv2.COLORMAP_TURBO)
-
-
-def picture(shown: dict, path: Path) -> None:
-    """Rows of check frames: left | before | after (| |error| before | after, with GT)."""
-    rows = []
-    for frame, outputs in shown.values():
-        top = float(np.percentile(frame.gt[frame.gt > 0], 99)) if frame.gt is not None \
-            and (frame.gt > 0).any() else float(np.nanpercentile(outputs["before"], 99))
-        tiles = [("left", cv2.cvtColor(frame.left, cv2.COLOR_GRAY2BGR))]
-        tiles += [(name, colour(d, top)) for name, d in outputs.items()]
-        if frame.gt is not None:
-            for name, d in outputs.items():
-                err = np.where(frame.gt > 0, np.abs(np.nan_to_num(d) - frame.gt), 0)
-                tiles.append((f"|error| {name}", colour(err, 5.0)))
-        for label, tile in tiles:
-            cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
-        rows.append(np.hstack([t for _, t in tiles]))
-    width = max(r.shape[1] for r in rows)
-    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
-    cv2.imwrite(str(path), np.vstack(rows))
-
-
-def format_report(report: dict) -> str:
-    names = list(report["check"])
-    keys = [k for k in ("photometric", "held_out_px", "lr_inconsistent_pct", "epe", "bad3")
-            if k in report["check"]["before"]]
-    lines = [f"# edge-depth adapt: {', '.join(report['recordings'])}", "",
-             f"{report['frames']['adapt']} adapt frames, {report['frames']['check']} check "
-             + ("frames (test-time adaptation: the same frames, their GT never used); "
-                if report["test_time"] else
-                f"frames (the last {report['check_share']:.0%} of each recording, never "
-                "trained on); ")
-             + f"fine-tuning: {report['training']['steps']} steps in "
-             f"{report['training']['minutes']} min ({report['training']['mode']}).", "",
-             "| on the check frames | " + " | ".join(keys) + " |",
-             "|---|" + "---|" * len(keys)]
-    for name in names:
-        source = report["bundles"].get(name, "the starting weights at the camera size")
-        lines.append(f"| {name} ({source}) | "
-                     + " | ".join(f"{report['check'][name][k]:.4f}" for k in keys) + " |")
-    lines += ["", f"**{report['verdict']}** ({report['why']})", ""]
-    if "unadapted" in report["check"]:
-        lines += ["The old bundle ran the camera scaled to its own size; `unadapted` is the "
-                  "starting weights exported at the camera's size, so after − unadapted is "
-                  "what adaptation itself changed.", ""]
-    return "\n".join(lines)
 
 
 @dataclass
