@@ -132,3 +132,22 @@ def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
     assert not points[:120].any()
     error = np.abs(sparse[points] - frame.gt[points])
     assert np.median(error) < 0.15 and np.mean(error < 0.5) > 0.95
+
+
+def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path):
+    from edge.sim import RigConfig, make_sample
+    from tools.adapt import DEFAULT_CHECKPOINT, finetune
+    from tools.adapt_frames import _compact
+
+    frames = []
+    for seed in (11, 12):
+        sample = make_sample(seed, RigConfig(width=192, height=128), "beams16")
+        sparse, valid = sample.sparse_disparity("left")
+        frames.append(Frame("rig", seed, sample.left, sample.right, _compact(sparse * valid),
+                            _compact(np.zeros_like(sparse))))
+    plan = FineTune(minutes=0.05, batch=1, ckpt_every=1)
+    path, summary = finetune(DEFAULT_CHECKPOINT, frames, tmp_path, plan)
+    assert path.is_file() and summary["steps"] >= 1 and 0.05 <= summary["minutes"] < 0.5
+    again, resumed = finetune(DEFAULT_CHECKPOINT, frames, tmp_path, FineTune(
+        steps=summary["steps"] + 1, batch=1), resume=True)
+    assert resumed["steps"] == summary["steps"] + 1

@@ -125,7 +125,11 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
                     split=plan.split, skipped_batches=skipped)
 
     net.train()
-    bar = tqdm(total=plan.steps or None, initial=step, desc="adapt", dynamic_ncols=True)
+    # the bar counts steps, or seconds when only --minutes bounds the run
+    by_time = plan.steps is None
+    bar = tqdm(total=round(60 * plan.minutes) if by_time else plan.steps,
+               initial=round(seconds) if by_time else step, desc="adapt",
+               unit="s" if by_time else "it", dynamic_ncols=True)
     started = time.time() - seconds
     while plan.progress(step, seconds) < 1.0:
         frac = plan.progress(step, seconds)
@@ -156,8 +160,8 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
         opt.step()
         step += 1
         seconds = time.time() - started
-        bar.update(1)
-        bar.set_postfix(loss=f"{float(loss.detach()):.4f}",
+        bar.update(min(round(seconds), bar.total) - bar.n if by_time else 1)
+        bar.set_postfix(step=step, loss=f"{float(loss.detach()):.4f}",
                         **{k: f"{v:.4f}" for k, v in terms.items()})
         if step % plan.ckpt_every == 0:
             save(last)
