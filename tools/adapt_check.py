@@ -76,6 +76,9 @@ def colour(disparity: np.ndarray, top: float) -> np.ndarray:
     return cv2.applyColorMap(d, cv2.COLORMAP_TURBO)
 
 
+TILE_WIDTH = 640  # px: wider cameras are scaled down in the report picture
+
+
 def picture(shown: dict, path: Path) -> None:
     """Rows of check frames: left | before | after (| |error| before | after, with GT)."""
     rows = []
@@ -88,9 +91,14 @@ def picture(shown: dict, path: Path) -> None:
             for name, d in outputs.items():
                 err = np.where(frame.gt > 0, np.abs(np.nan_to_num(d) - frame.gt), 0)
                 tiles.append((f"|error| {name}", colour(err, 5.0)))
+        scale = min(1.0, TILE_WIDTH / frame.left.shape[1])  # a wide camera's row stays legible
+        row = []
         for label, tile in tiles:
+            if scale < 1.0:
+                tile = cv2.resize(tile, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
             cv2.putText(tile, label, (8, 24), cv2.FONT_HERSHEY_SIMPLEX, 0.7, (255, 255, 255), 2)
-        rows.append(np.hstack([t for _, t in tiles]))
+            row.append(tile)
+        rows.append(np.hstack(row))
     width = max(r.shape[1] for r in rows)
     rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0))) for r in rows]
     cv2.imwrite(str(path), np.vstack(rows))
