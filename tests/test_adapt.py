@@ -89,6 +89,7 @@ def test_fine_tune_needs_a_bound_and_stops_at_the_first():
     assert plan.progress(50, 0.0) == 0.5 and plan.progress(10, 60.0) == 1.0
 
 
+@pytest.mark.slow
 def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     rec = tmp_path / "rec.mcap"
     assert main(["synth", "--mcap", str(rec), "--frames", "5", "--seed", "7",
@@ -119,6 +120,7 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     assert (tmp_path / "again").exists() == again["better"]
 
 
+@pytest.mark.slow
 def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
     from tools.adapt_frames import load_frames
 
@@ -134,6 +136,7 @@ def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
     assert np.median(error) < 0.15 and np.mean(error < 0.5) > 0.95
 
 
+@pytest.mark.slow
 def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path):
     from edge.sim import RigConfig, make_sample
     from tools.adapt import DEFAULT_CHECKPOINT, finetune

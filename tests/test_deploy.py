@@ -62,6 +62,7 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     assert float(np.abs(one.disparity - ref).mean()) > 0.01
 
 
+@pytest.mark.slow
 def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_path):
     import shutil
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import cv2
 import numpy as np
+import pytest
 
 from calibration.extrinsics import disagreement, pose_difference
 from calibration.io import save_calibration
@@ -63,6 +64,7 @@ def test_calibrate_lidar_reads_an_mcap_recording(tmp_path, capsys):
     assert median < 0.5  # the recording's true extrinsics: LiDAR and SGBM agree
 
 
+@pytest.mark.slow
 def test_refinement_recovers_a_one_degree_two_centimetre_error():
     from calibration.extrinsics import PhotometricCost, refine_extrinsics
 

@@ -198,6 +198,7 @@ def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined):
     assert seen == sorted(seen) and seen[-1] == 7
 
 
+@pytest.mark.slow
 def test_the_pipelined_daemon_gives_the_sequential_results(tmp_path):
     """The stages overlap in threads, the frames and their results do not change: a paced sim
     camera, pipelined against sequential, frame by frame (on a busy machine a frame may
@@ -260,6 +261,7 @@ def test_logger_rotates_by_duration_and_every_file_is_complete(tmp_path):
         assert counts[TOPICS["left_calibration"]] == counts[TOPICS["right_calibration"]] == 1
 
 
+@pytest.mark.slow
 def test_sigterm_finishes_the_frame_and_closes_the_output(recording, tmp_path):
     long_rec = tmp_path / "long.mcap"
     write_sim_recording(long_rec, 12, SEED, period_ms=300.0)

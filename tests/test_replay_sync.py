@@ -64,6 +64,7 @@ def test_pairing_does_not_depend_on_whether_scans_are_stored_before_or_after_fra
         np.testing.assert_array_equal(a, b)
 
 
+@pytest.mark.slow
 def test_a_lidar_on_another_clock_warns_with_the_measured_gap(engine, caplog):
     moments = sim_events(60, 5.0)
     shifted = []

@@ -59,6 +59,7 @@ def test_evaluate_reports_every_method_and_writes_json(tmp_path, capsys):
     assert (tmp_path / "curve.png").stat().st_size > 0
 
 
+@pytest.mark.slow
 def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
     from tools import bench
 

@@ -127,6 +127,7 @@ def test_supervised_training_from_scene_folders(tmp_path):
     assert (out / "final.pt").exists()
 
 
+@pytest.mark.slow
 def test_torchrun_two_cpu_processes_keep_identical_replicas(tmp_path):
     out = tmp_path / "ddp"
     cmd = [sys.executable, "-m", "torch.distributed.run", "--nproc_per_node=2",

@@ -46,6 +46,7 @@ log = logging.getLogger(__name__)
 DEFAULT_CHECKPOINT = Path(DEFAULT_BUNDLE).parent / "sparse_stereo.pt"
 BUNDLE_CHECKPOINT = "checkpoint.pt"  # an adapted bundle carries its weights: adapt it again
 MAX_SKIPPED_IN_A_ROW = 20
+TERM_NAMES = {"lr": "left_right"}  # the loss terms' short names, as the bar shows them
 
 
 @dataclass
@@ -162,7 +163,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
         seconds = time.time() - started
         bar.update(min(round(seconds), bar.total) - bar.n if by_time else 1)
         bar.set_postfix(step=step, loss=f"{float(loss.detach()):.4f}",
-                        **{k: f"{v:.4f}" for k, v in terms.items()})
+                        **{TERM_NAMES.get(k, k): f"{v:.4f}" for k, v in terms.items()})
         if step % plan.ckpt_every == 0:
             save(last)
     bar.close()
