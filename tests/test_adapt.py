@@ -101,6 +101,10 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     meta = json.loads((out / "model.json").read_text())
     assert meta["size"] == [192, 128] and "int8" in meta["precisions"]
     assert (out / "checkpoint.pt").is_file() and (out / "report.png").is_file()
+    import torch
+
+    shipped = torch.load(out / "checkpoint.pt", weights_only=False)
+    assert "optimizer" not in shipped and shipped["training"]["adapted"]["steps"] == 1
     report = json.loads((out / "report.json").read_text())
     assert report["frames"] == {"adapt": 4, "check": 1} and report["written"]
     assert report["training"]["steps"] == 1

@@ -112,11 +112,13 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     rng = np.random.default_rng([plan.seed, step])
     torch.manual_seed(plan.seed + step)
 
-    def save(path: Path) -> None:
+    def save(path: Path, optimizer: bool = True) -> None:
         tmp = path.with_suffix(".tmp")
-        torch.save(dict(model=net.state_dict(), optimizer=opt.state_dict(), step=step,
-                        seconds=seconds, config=ckpt["config"],
-                        training=dict(ckpt.get("training") or {}, adapted=summary())), tmp)
+        state = dict(model=net.state_dict(), step=step, seconds=seconds, config=ckpt["config"],
+                     training=dict(ckpt.get("training") or {}, adapted=summary()))
+        if optimizer:  # resumable; the one that ships with the bundle stays small
+            state["optimizer"] = opt.state_dict()
+        torch.save(state, tmp)
         tmp.replace(path)
 
     def summary() -> dict:
@@ -169,7 +171,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     bar.close()
     save(last)
     out = work / "adapted.pt"
-    save(out)
+    save(out, optimizer=False)
     return out, summary()
 
 
