@@ -60,25 +60,29 @@ def photometric_error(left: np.ndarray, right: np.ndarray, disparity: np.ndarray
     return ALPHA * (1 - ssim(img, recon)) / 2 + (1 - ALPHA) * np.abs(img - recon)
 
 
-def visible(disparity: np.ndarray, right_disparity: np.ndarray) -> np.ndarray:
-    """(H, W) bool: the correspondence x − d lies inside the right image and nothing nearer
-    covers it there (the right view's disparity at it is not more than 1 px larger)."""
-    h, w = disparity.shape
-    d = np.nan_to_num(disparity)
-    xr = np.rint(np.arange(w)[None, :] - d).astype(int)
-    inside = (xr >= 0) & (xr < w) & (d > 0)
-    seen = right_disparity[np.arange(h)[:, None], np.clip(xr, 0, w - 1)]
-    return inside & (np.nan_to_num(seen) <= d + LR_PX)
-
-
-def lr_inconsistent_share(disparity: np.ndarray, right_disparity: np.ndarray) -> float:
-    """Share (0–1) of pixels with a correspondence inside the right image whose two views'
-    disparities differ by more than 1 px (occlusions count too: equal for any method)."""
+def _correspondence(disparity: np.ndarray, right_disparity: np.ndarray
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(d, inside, other): the disparity with non-finite as 0, whether its correspondence
+    x − d lies inside the right image, and the right view's disparity there (all (H, W))."""
     h, w = disparity.shape
     d = np.nan_to_num(disparity)
     xr = np.rint(np.arange(w)[None, :] - d).astype(int)
     inside = (xr >= 0) & (xr < w) & (d > 0)
     other = np.nan_to_num(right_disparity[np.arange(h)[:, None], np.clip(xr, 0, w - 1)])
+    return d, inside, other
+
+
+def visible(disparity: np.ndarray, right_disparity: np.ndarray) -> np.ndarray:
+    """(H, W) bool: the correspondence x − d lies inside the right image and nothing nearer
+    covers it there (the right view's disparity at it is not more than 1 px larger)."""
+    d, inside, other = _correspondence(disparity, right_disparity)
+    return inside & (other <= d + LR_PX)
+
+
+def lr_inconsistent_share(disparity: np.ndarray, right_disparity: np.ndarray) -> float:
+    """Share (0–1) of pixels with a correspondence inside the right image whose two views'
+    disparities differ by more than 1 px (occlusions count too: equal for any method)."""
+    d, inside, other = _correspondence(disparity, right_disparity)
     return float((np.abs(other - d) > LR_PX)[inside].mean()) if inside.any() else float("nan")
 
 
