@@ -27,11 +27,14 @@ def _pixels(points_cam: np.ndarray, focal_px: float, cx: float, cy: float, basel
         pts = pts - np.array([baseline_m, 0.0, 0.0])
     elif side != "left":
         raise ValueError(f"side: expected 'left' or 'right', got {side!r}")
-    z = pts[:, 2]
-    ok = np.isfinite(pts).all(axis=1) & (z > min_depth_m)
+    x, y, z = pts[:, 0], pts[:, 1], pts[:, 2]
+    ok = (z > min_depth_m) & (z < np.inf)  # NaN fails both
     zs = np.where(ok, z, 1.0)
-    u = np.rint(np.where(ok, focal_px * pts[:, 0] / zs + cx, -1)).astype(np.int64)
-    v = np.rint(np.where(ok, focal_px * pts[:, 1] / zs + cy, -1)).astype(np.int64)
+    uf = focal_px * x / zs + cx
+    vf = focal_px * y / zs + cy
+    ok &= np.isfinite(uf) & np.isfinite(vf)  # a non-finite x or y
+    u = np.rint(np.where(ok, uf, -1)).astype(np.int64)
+    v = np.rint(np.where(ok, vf, -1)).astype(np.int64)
     w, h = size
     ok &= (u >= 0) & (u < w) & (v >= 0) & (v < h)
     return u, v, z, ok
@@ -44,10 +47,11 @@ def _zbuffer(u: np.ndarray, v: np.ndarray, d: np.ndarray, size: tuple[int, int]
     w, h = size
     disparity = np.zeros((h, w), np.float32)
     valid = np.zeros((h, w), bool)
-    # Far to near, so the nearest point is written last and wins.
-    order = np.argsort(d, kind="stable")
-    flat = v[order] * w + u[order]
-    disparity.ravel()[flat] = d[order]
+    flat = v * w + u
+    # the largest disparity per pixel, unbuffered (~13x faster than sorting the points far to
+    # near and writing them in that order, as this did until the projection's speed was
+    # measured; the same map)
+    np.maximum.at(disparity.ravel(), flat, np.asarray(d, np.float32))
     valid.ravel()[flat] = True
     return disparity, valid
 
@@ -109,9 +113,9 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
     cfg = config or OcclusionFilterConfig()
     import cv2
 
-    sparse = np.where(valid, sparse, 0).astype(np.float32)
+    sparse = np.where(valid, np.asarray(sparse, np.float32), np.float32(0))
     keep = valid.copy()
-    ys, xs = np.nonzero(valid)
+    ys, xs = np.divmod(np.flatnonzero(valid), valid.shape[1])
     if ys.size == 0:
         return keep
     d = sparse[ys, xs]
@@ -134,27 +138,30 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
         signs = (1.0, -1.0) if cfg.both_directions else (1.0,)
         # zero-pad by the search length so every probe is in bounds (zero never occludes)
         pad = cfg.max_search_px + 1
-        padded = np.pad(wide, pad)
         pw = w + 2 * pad
+        padded = np.zeros((h + 2 * pad, pw), np.float32)
+        padded[pad:pad + h, pad:pad + w] = wide
         flat = (ys + pad) * pw + (xs + pad)
-        # no k beyond a point's reach can hit: the nearest point its search can meet lies
-        # within the box the search segment spans (a dilation by it; cheaper than the
-        # image-wide maximum, which kept every point searching to max_search_px)
-        span = (2 * int(np.ceil(cfg.max_search_px * abs(direction[0]))) + 1,
-                2 * int(np.ceil(cfg.max_search_px * abs(direction[1]))) + 1)
-        nearby = cv2.dilate(wide, cv2.getStructuringElement(cv2.MORPH_RECT, span))
-        reach = gain * (nearby[ys, xs] - d) + cfg.slack_px
         for sign in signs:
-            idx = np.nonzero(~occluded & (reach >= cfg.step_px))[0]
+            nearby = _search_box_max(wide, sign * direction, cfg.max_search_px)[ys, xs]
+            reach = gain * (nearby - d) + cfg.slack_px
+            # a point whose box holds nothing markedly nearer can never be hit
+            idx = np.nonzero(~occluded & (reach >= cfg.step_px) & (nearby > threshold))[0]
             p_flat, p_d, p_thr, p_reach = flat[idx], d[idx], threshold[idx], reach[idx]
-            for k in range(cfg.step_px, cfg.max_search_px + 1, cfg.step_px):
-                offset = int(np.rint(sign * k * direction[1])) * pw + \
-                    int(np.rint(sign * k * direction[0]))
-                near = padded.ravel()[p_flat + offset]
-                hit = (near > p_thr) & (gain * (near - p_d) + cfg.slack_px >= k)
+            steps = np.arange(cfg.step_px, cfg.max_search_px + 1, cfg.step_px)
+            # probes in blocks of 8 steps, one gather each (the per-step loop spent most of
+            # its time in numpy's per-call overhead); a probe past a point's reach cannot
+            # hit (it would need a nearer point than its box holds), so none is masked
+            for start in range(0, steps.size, 8):
+                k = steps[start:start + 8]
+                offsets = (np.rint(sign * k * direction[1]).astype(np.int64) * pw
+                           + np.rint(sign * k * direction[0]).astype(np.int64))
+                near = padded.ravel()[p_flat[:, None] + offsets]
+                hit = ((near > p_thr[:, None])
+                       & (gain * (near - p_d[:, None]) + cfg.slack_px >= k)).any(axis=1)
                 occluded[idx[hit]] = True
                 # drop the points just removed and those no nearer point can reach any more
-                stay = ~hit & (p_reach >= k + cfg.step_px)
+                stay = ~hit & (p_reach >= k[-1] + cfg.step_px)
                 if not stay.all():
                     idx, p_flat, p_d, p_thr, p_reach = (a[stay] for a in
                                                         (idx, p_flat, p_d, p_thr, p_reach))
@@ -162,6 +169,24 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
                         break
     keep[ys[occluded], xs[occluded]] = False
     return keep
+
+
+def _search_box_max(image: np.ndarray, direction: np.ndarray, length: int) -> np.ndarray:
+    """Per pixel, the maximum of `image` over the box that the segment from the pixel to
+    `length` px along `direction` (x, y) spans: no probe of a search along that segment can
+    meet a nearer point than this. No k beyond a point's reach can hit, so this bounds how far
+    each point searches. The box lies on the search's side of the pixel only (an anchored
+    dilation): the symmetric box let every point on a slanted floor, which has nearer floor
+    behind it, search to its full reach; one-sided, the 64-beam filter is ~2x faster."""
+    import cv2
+
+    extent = [int(np.ceil(length * abs(c))) for c in direction]
+    size = (extent[0] + 1, extent[1] + 1)
+    # dilate reads src(p + offset - anchor) for every offset in the kernel
+    anchor = tuple(0 if c >= 0 else e for c, e in zip(direction, extent, strict=True))
+    kernel = np.ones((size[1], size[0]), np.uint8)
+    return cv2.dilate(image, kernel, anchor=anchor, borderType=cv2.BORDER_CONSTANT,
+                      borderValue=0)
 
 
 def rectified_lidar(calib, T_cam_lidar: np.ndarray) -> np.ndarray:
@@ -194,7 +219,7 @@ def project_to_disparity(points: np.ndarray, calib, T_cam_lidar: np.ndarray,
     if filter_occlusions:
         valid = filter_occluded(sparse, valid, _parallax_source(calib, T, side),
                                 calib.baseline_m, occlusion)
-        sparse = np.where(valid, sparse, 0).astype(np.float32)
+        sparse = np.where(valid, sparse, np.float32(0))
     return sparse, valid
 
 

@@ -7,6 +7,7 @@ import numpy as np
 from calibration.model import StereoCalibration
 from calibration.projection import (
     OcclusionFilterConfig,
+    _search_box_max,
     filter_occluded,
     project_rectified,
     project_to_disparity,
@@ -29,6 +30,27 @@ def test_nearest_point_wins_and_points_behind_or_outside_are_dropped():
                     [np.nan, 0, 1.0]])
     d, v = project_rectified(pts, 100.0, 10.0, 10.0, 0.1, (21, 21))
     assert v.sum() == 1 and np.isclose(d[10, 10], 100 * 0.1 / 2)
+
+
+def test_points_with_any_non_finite_coordinate_or_infinite_depth_are_dropped():
+    pts = np.array([[0, 0, 2.0], [np.inf, 0, 2.0], [0, -np.inf, 2.0], [0, np.nan, 2.0],
+                    [0, 0, np.inf], [0, 0, np.nan], [0, 0, -np.inf]])
+    d, v = project_rectified(pts, 100.0, 10.0, 10.0, 0.1, (21, 21))
+    assert v.sum() == 1 and np.isclose(d[10, 10], 100 * 0.1 / 2) and np.isfinite(d).all()
+
+
+def test_search_box_covers_exactly_the_segment_side_of_each_pixel():
+    rng = np.random.default_rng(3)
+    image = rng.random((40, 50)).astype(np.float32)
+    for direction in ([0.0, -1.0], [1.0, 0.0], [0.6, 0.8], [-0.8, 0.6], [-0.6, -0.8]):
+        direction = np.array(direction)
+        got = _search_box_max(image, direction, 7)
+        ex, ey = (int(np.ceil(7 * abs(c))) for c in direction)
+        for y, x in ((0, 0), (20, 25), (39, 49), (5, 44), (33, 3)):
+            x0, x1 = (x, x + ex) if direction[0] >= 0 else (x - ex, x)
+            y0, y1 = (y, y + ey) if direction[1] >= 0 else (y - ey, y)
+            box = image[max(y0, 0):y1 + 1, max(x0, 0):x1 + 1]
+            assert got[y, x] == box.max(), (direction, y, x)
 
 
 def test_occlusion_filter_removes_far_points_displaced_under_a_near_edge():
