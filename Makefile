@@ -12,7 +12,7 @@ $(STAMP): pyproject.toml Makefile constraints/robot.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet torch==$(TORCH_VERSION)
-	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[train,dev,openvino]'
+	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino]'
 	touch $(STAMP)
 
 demo: $(STAMP)

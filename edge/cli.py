@@ -99,6 +99,7 @@ TOOL_COMMANDS = {
     "adapt": ("tools.adapt", "fine-tune on the robot's recordings into a checked int8 bundle"),
 }
 TRAIN_MODULES = ("torch", "onnx", "onnxscript", "tqdm", "matplotlib")
+OAK_EXTRA_HINT = "pip install 'edge-depth[oak]'"
 TRAIN_EXTRA_HINT = ("pip install 'edge-depth[train]' (for the CPU build of torch first: pip "
                     "install torch --index-url https://download.pytorch.org/whl/cpu)")
 
@@ -327,6 +328,12 @@ def main(argv: list[str] | None = None) -> int:
             return record_command(args.config, args.out, args.max_frames, args.profile)
     except (EdgeError, CalibrationError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
+        return 1
+    except ModuleNotFoundError as exc:
+        if (exc.name or "").split(".")[0] != "depthai":
+            raise
+        print(f"edge-depth {args.command}: the OAK camera needs depthai, from the oak extra: "
+              f"{OAK_EXTRA_HINT}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:  # Ctrl-C before a command's own handlers were installed
         print(f"edge-depth {args.command}: interrupted", file=sys.stderr)

@@ -38,3 +38,13 @@ def test_every_tool_command_has_a_main():
         if name in ("train", "export", "ablation", "upsampling-study"):
             continue  # torch: imported by the tests that train
         assert callable(importlib.import_module(module).main), name
+
+
+def test_without_depthai_the_oak_names_its_extra_in_one_line(monkeypatch, capsys, tmp_path):
+    monkeypatch.setitem(sys.modules, "depthai", None)  # import depthai now fails
+    config = tmp_path / "robot.toml"
+    config.write_text('[camera]\nsource = "oak"\n[lidar]\nmodel = "none"\n')
+    assert main(["run", "--config", str(config), "--out", str(tmp_path / "o.mcap")]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "depthai" in err and "edge-depth[oak]" in err
+    assert not (tmp_path / "o.mcap").exists()
