@@ -18,13 +18,12 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import tomllib
 
+from calibration.atomic import atomic_write
 from calibration.errors import CalibrationError, CalibrationFileError
 from calibration.model import LidarExtrinsics, StereoCalibration
 
@@ -150,15 +149,6 @@ def dumps_calibration(stereo: StereoCalibration, lidar: LidarExtrinsics | None =
 def save_calibration(path: str | Path, stereo: StereoCalibration,
                      lidar: LidarExtrinsics | None = None) -> None:
     """Write atomically: a temporary file in the same folder, then rename over `path`."""
-    path = Path(path)
     text = dumps_calibration(stereo, lidar)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path) as tmp:
+        tmp.write_text(text)

@@ -118,3 +118,17 @@ def test_save_is_atomic_and_leaves_no_temporary_files(tmp_path, monkeypatch):
         save_calibration(path, StereoCalibration.ideal(400, 0.05, (320, 200)))
     assert path.read_text() == before
     assert [p.name for p in tmp_path.iterdir()] == ["c.toml"]
+
+
+def test_atomic_write_replaces_whole_or_leaves_the_old_file(tmp_path):
+    from calibration.atomic import atomic_write
+
+    target = tmp_path / "calib.toml"
+    target.write_text("old")
+    with pytest.raises(OSError), atomic_write(target) as tmp:
+        tmp.write_text("half")
+        raise OSError("disk full")
+    assert target.read_text() == "old" and sorted(tmp_path.iterdir()) == [target]
+    with atomic_write(target) as tmp:
+        tmp.write_text("new")
+    assert target.read_text() == "new" and sorted(tmp_path.iterdir()) == [target]

@@ -38,6 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
+from calibration.atomic import atomic_write
 from edge.runtime.engine import DEFAULT_BUNDLE, Engine
 from tools.adapt_check import check, format_report, is_better, picture
 from tools.adapt_frames import Frame, load_frames, split_by_time
@@ -113,13 +114,12 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     torch.manual_seed(plan.seed + step)
 
     def save(path: Path, optimizer: bool = True) -> None:
-        tmp = path.with_suffix(".tmp")
         state = dict(model=net.state_dict(), step=step, seconds=seconds, config=ckpt["config"],
                      training=dict(ckpt.get("training") or {}, adapted=summary()))
         if optimizer:  # resumable; the one that ships with the bundle stays small
             state["optimizer"] = opt.state_dict()
-        torch.save(state, tmp)
-        tmp.replace(path)
+        with atomic_write(path) as tmp:
+            torch.save(state, tmp)
 
     def summary() -> dict:
         return dict(init=str(init), steps=step, minutes=round(seconds / 60, 2),

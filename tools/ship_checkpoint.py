@@ -15,6 +15,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from calibration.atomic import atomic_write
+
 STAGE_KEYS = ("mode", "steps", "batch", "crop", "iters", "patterns", "lr", "seed", "data",
               "refine", "no_half_res_block", "split", "stereo_only_share")
 
@@ -41,9 +43,8 @@ def ship(checkpoint: Path, previous: Path | None, note: str, out: Path) -> dict:
                     total_steps=int(sum(s.get("steps", 0) for s in stages)))
     shipped = dict(model=ckpt["model"], config=ckpt["config"], step=int(ckpt.get("step", 0)),
                    training=training)
-    tmp = out.with_suffix(".tmp")
-    torch.save(shipped, tmp)
-    tmp.replace(out)
+    with atomic_write(out) as tmp:
+        torch.save(shipped, tmp)
     return training
 
 

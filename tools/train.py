@@ -27,6 +27,7 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
+from calibration.atomic import atomic_write
 from edge.model.config import ModelConfig
 from edge.model.data import (
     VAL_SEED0,
@@ -262,11 +263,11 @@ def _train(argv: list[str] | None) -> int:
     def save(path: Path) -> None:
         if not main_rank:
             return
-        tmp = path.with_suffix(".tmp")
-        torch.save(dict(model=model.state_dict(), optimizer=opt.state_dict(),
-                        scheduler=sched.state_dict(), step=step, config=config.to_dict(),
-                        args=vars(args) | {"out": str(args.out), "init": str(args.init)}), tmp)
-        tmp.replace(path)
+        with atomic_write(path) as tmp:
+            torch.save(dict(model=model.state_dict(), optimizer=opt.state_dict(),
+                            scheduler=sched.state_dict(), step=step, config=config.to_dict(),
+                            args=vars(args) | {"out": str(args.out), "init": str(args.init)}),
+                       tmp)
 
     net.train()
     bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True,

@@ -7,12 +7,11 @@
 
 from __future__ import annotations
 
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from calibration.atomic import atomic_write
 from edge.sim.world import ThingsSample, WorldConfig, make_things_sample
 
 DISPARITY_SCALE = 64.0
@@ -20,19 +19,12 @@ DISPARITY_SCALE = 64.0
 
 def write_things(path: Path | str, sample: ThingsSample) -> None:
     """Write one sample atomically (a temporary file in the same folder, then a rename)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez_compressed(
-                f, left=sample.left, right=sample.right, seed=sample.seed,
-                disp_left=np.rint(sample.disp_left * DISPARITY_SCALE).astype(np.uint16),
-                disp_right=np.rint(sample.disp_right * DISPARITY_SCALE).astype(np.uint16),
-                occ_left=sample.occ_left, occ_right=sample.occ_right)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    with atomic_write(path, suffix=".npz") as tmp:
+        np.savez_compressed(
+            tmp, left=sample.left, right=sample.right, seed=sample.seed,
+            disp_left=np.rint(sample.disp_left * DISPARITY_SCALE).astype(np.uint16),
+            disp_right=np.rint(sample.disp_right * DISPARITY_SCALE).astype(np.uint16),
+            occ_left=sample.occ_left, occ_right=sample.occ_right)
 
 
 def read_things(path: Path | str) -> dict[str, np.ndarray]:
