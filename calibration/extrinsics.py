@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from calibration.errors import CalibrationError
-from calibration.model import StereoCalibration
-from calibration.sampling import sample_bilinear
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.calibration.sampling import sample_bilinear
 
 
 @dataclass(frozen=True)
@@ -38,7 +38,7 @@ def _subpixel(points: np.ndarray, calib: StereoCalibration, T: np.ndarray,
     """Each LiDAR point's continuous position (u, v) float32 in the rectified left image, its
     disparity d and its depth z; d, u, v use the depth clamped to `min_depth_m` (callers mask
     the points nearer than that when it matters)."""
-    from calibration.projection import rectified_lidar, transform_points
+    from edge_depth.calibration.projection import rectified_lidar, transform_points
 
     cam = transform_points(rectified_lidar(calib, T), points)
     zs = np.maximum(cam[:, 2], min_depth_m)
@@ -91,7 +91,7 @@ class PhotometricCost:
                  truncate: float = 20.0) -> None:
         import cv2
 
-        from calibration.projection import OcclusionFilterConfig, visible_points
+        from edge_depth.calibration.projection import OcclusionFilterConfig, visible_points
 
         base = OcclusionFilterConfig()
         # "markedly nearer" well above the range noise (1 cm is 0.7 px at 0.7 m on the rig):
@@ -193,7 +193,7 @@ def overlay(left: np.ndarray, points: np.ndarray, calib: StereoCalibration, T: n
     disparity (near red, far blue), for judging the extrinsics at depth edges by eye."""
     import cv2
 
-    from calibration.projection import project_to_disparity
+    from edge_depth.calibration.projection import project_to_disparity
 
     sparse, valid = project_to_disparity(points, calib, T)
     image = cv2.cvtColor(np.asarray(left, np.uint8), cv2.COLOR_GRAY2BGR)

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import tomllib
 
-from calibration.atomic import atomic_write
-from calibration.errors import CalibrationError, CalibrationFileError
-from calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.calibration.atomic import atomic_write
+from edge_depth.calibration.errors import CalibrationError, CalibrationFileError
+from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 
 _SCHEMA: dict[str, set[str]] = {
     "": {"stereo", "lidar"},

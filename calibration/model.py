@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from calibration.errors import CalibrationError
+from edge_depth.calibration.errors import CalibrationError
 
 
 def _array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.errors import CalibrationError
-from calibration.model import StereoCalibration
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.calibration.model import StereoCalibration
 
 
 def stereo_from_handler(handler, size: tuple[int, int]) -> StereoCalibration:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from calibration.errors import CalibrationFileError
-from calibration.model import StereoCalibration
+from edge_depth.calibration.errors import CalibrationFileError
+from edge_depth.calibration.model import StereoCalibration
 
 
 def _matrix(path: str, info: dict, key: str, shape: tuple[int, int]) -> np.ndarray:

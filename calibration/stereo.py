@@ -13,8 +13,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from calibration.errors import CalibrationFailedError
-from calibration.model import StereoCalibration
+from edge_depth.calibration.errors import CalibrationFailedError
+from edge_depth.calibration.model import StereoCalibration
 
 MIN_GOOD_PAIRS = 8
 

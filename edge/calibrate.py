@@ -12,16 +12,16 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.errors import CalibrationError
-from calibration.extrinsics import (
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.calibration.extrinsics import (
     ExtrinsicsFrame,
     disagreement,
     overlay,
     pose_difference,
     refine_extrinsics,
 )
-from calibration.model import StereoCalibration
-from edge.errors import EdgeError
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.errors import EdgeError
 
 
 def add_parsers(sub) -> None:
@@ -79,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
         if args.calib_command == "import-oak":
             return _import_oak(args)
         if args.calib_command == "import-ros":
-            from calibration.io import save_calibration
-            from calibration.ros import load_camera_info_pair
+            from edge_depth.calibration.io import save_calibration
+            from edge_depth.calibration.ros import load_camera_info_pair
 
             stereo = load_camera_info_pair(args.left, args.right)
             save_calibration(args.out, stereo)
@@ -88,16 +88,16 @@ def run(args: argparse.Namespace) -> int:
                   f"{stereo.baseline_m * 1000:.2f} mm")
             return 0
         if args.calib_command == "export-ros":
-            from calibration.io import load_calibration
-            from calibration.ros import save_camera_info_pair
+            from edge_depth.calibration.io import load_calibration
+            from edge_depth.calibration.ros import save_camera_info_pair
 
             stereo, _ = load_calibration(args.calib)
             paths = save_camera_info_pair(stereo, args.out_dir)
             print("wrote " + ", ".join(str(p) for p in paths))
             return 0
         if args.calib_command == "lidar":
-            from edge.capture.replay import TopicMap
-            from edge.cli import load_topic_map
+            from edge_depth.capture.replay import TopicMap
+            from edge_depth.cli import load_topic_map
 
             topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
             return lidar_command(args.recording, args.calib, args.out, args.refine,
@@ -109,8 +109,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _stereo(args: argparse.Namespace) -> int:
-    from calibration.io import save_calibration
-    from calibration.stereo import Board, calibrate_stereo, load_views
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.calibration.stereo import Board, calibrate_stereo, load_views
 
     board = Board.parse(args.board, args.square_m, args.marker_m)
     left, right, names = load_views(args.left, args.right)
@@ -123,9 +123,9 @@ def _stereo(args: argparse.Namespace) -> int:
 
 
 def _import_oak(args: argparse.Namespace) -> int:
-    from calibration.io import save_calibration
-    from calibration.oak import stereo_from_oak
-    from edge.cli import parse_size
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.calibration.oak import stereo_from_oak
+    from edge_depth.cli import parse_size
 
     size = parse_size(args.size)
     stereo = stereo_from_oak(args.eeprom_json, size)
@@ -137,7 +137,7 @@ def _import_oak(args: argparse.Namespace) -> int:
 
 def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> ExtrinsicsFrame:
     """SGBM on the rectified pair plus the points."""
-    from edge.baselines import sgbm_disparity
+    from edge_depth.baselines import sgbm_disparity
 
     disparity = sgbm_disparity(left, right)
     disparity[disparity <= 0] = np.nan
@@ -149,7 +149,7 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
                 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
     nearest in time (images rectified with `stereo` unless the recording's already are)."""
-    from edge.capture.replay import synced_frames
+    from edge_depth.capture.replay import synced_frames
 
     frames = []
     for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
@@ -191,8 +191,8 @@ MIN_REFINE_FRAMES = 6
 
 def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool, topics):
     """(stereo, lidar or None, where it came from): --calib, else the recording's own."""
-    from calibration.io import load_calibration
-    from edge.capture.replay import McapSource, recording_calibration
+    from edge_depth.calibration.io import load_calibration
+    from edge_depth.capture.replay import McapSource, recording_calibration
 
     if calib_path is not None:
         return (*load_calibration(calib_path), f"--calib {calib_path}")
@@ -211,9 +211,9 @@ def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
     optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image.
     Without `calib_path`, a recording's own calibration is used (ours, or a ROS 2 bag's
     CameraInfo pair and /tf_static; `topics` maps the bag's topics)."""
-    from calibration.io import save_calibration
-    from calibration.model import LidarExtrinsics
-    from edge.sim.folder import list_scene_folders, read_scene_folder
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
     if max_frames < 1:
         raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")

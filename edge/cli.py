@@ -6,8 +6,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from calibration.errors import CalibrationError
-from edge.errors import EdgeError
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.errors import EdgeError
 
 
 def parse_size(text: str) -> tuple[int, int]:
@@ -62,7 +62,7 @@ def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
 def load_topic_map(path: Path) -> dict:
     import tomllib
 
-    from edge.errors import ConfigError
+    from edge_depth.errors import ConfigError
 
     try:
         data = tomllib.loads(path.read_text())
@@ -110,7 +110,7 @@ def run_tool(name: str, argv: list[str]) -> int:
     module_name = TOOL_COMMANDS[name][0]
     program, sys.argv[0] = sys.argv[0], f"edge-depth {name}"  # the tool's usage lines
     try:
-        module = importlib.import_module(module_name)
+        module = importlib.import_module(f"edge_depth.{module_name}")
         return int(module.main(argv) or 0)
     except ModuleNotFoundError as exc:
         if (exc.name or "").split(".")[0] not in TRAIN_MODULES:
@@ -127,7 +127,7 @@ PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from edge.sim.lidar import PATTERNS
+    from edge_depth.sim.lidar import PATTERNS
 
     parser = _Parser(prog="edge-depth", description=__doc__)
     parser.add_argument("--version", action="version", version=f"edge-depth {_version()}")
@@ -223,7 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("--max-share", type=_share, default=0.01,
                          help="the share of differing pixels allowed, e.g. 1%% or 0.01")
     compare.add_argument("--json", type=Path, default=None, help="also write the report")
-    from edge.calibrate import add_parsers
+    from edge_depth.calibrate import add_parsers
 
     add_parsers(sub)
     return parser
@@ -260,18 +260,18 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("synth: --world street writes a recording: give --mcap FILE")
     try:
         if args.command == "synth":
-            from edge.sim.export import synth_command
+            from edge_depth.sim.export import synth_command
 
             if args.mcap and args.world == "street":
-                from edge.sim_recording import write_street_recording
+                from edge_depth.sim_recording import write_street_recording
 
                 n = write_street_recording(args.mcap, args.count, args.seed)
                 print(f"wrote {args.mcap} ({args.count} street frames, 1242x375, {n} "
                       "messages)")
                 return 0
             if args.mcap:
-                from edge.sim import RigConfig
-                from edge.sim_recording import write_sim_recording
+                from edge_depth.sim import RigConfig
+                from edge_depth.sim_recording import write_sim_recording
 
                 w, h = args.size
                 n = write_sim_recording(args.mcap, args.count, args.seed,
@@ -279,26 +279,26 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
                 return 0
             if args.world == "things" and args.scene_folders:
-                from edge.sim.export import things_folders_command
+                from edge_depth.sim.export import things_folders_command
 
                 return things_folders_command(args.out, args.count, args.seed, args.size)
             if args.world == "things":
-                from edge.sim.export import things_command
+                from edge_depth.sim.export import things_command
 
                 return things_command(args.out, args.count, args.seed, args.size,
                                       args.workers)
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
-            from edge.calibrate import run
+            from edge_depth.calibrate import run
 
             return run(args)
         if args.command == "demo":
-            from edge.demo import demo_command
+            from edge_depth.demo import demo_command
 
             return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
                                 args.deadline_ms, args.profile)
         if args.command == "replay":
-            from edge.commands import replay_command
+            from edge_depth.commands import replay_command
 
             topics = load_topic_map(args.topics) if args.topics else None
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
@@ -307,14 +307,14 @@ def main(argv: list[str] | None = None) -> int:
                                   args.runtime, {"auto": None, "on": True,
                                                  "off": False}[args.bf16])
         if args.command == "run":
-            from edge.commands import run_command
+            from edge_depth.commands import run_command
 
             return run_command(args.config, args.out, args.live, args.max_frames,
                                args.profile)
         if args.command in TOOL_COMMANDS:
             return run_tool(args.command, args.tool_args)
         if args.command == "compare":
-            from edge.compare import CompareError, compare_command
+            from edge_depth.compare import CompareError, compare_command
 
             try:
                 return compare_command(args.base, args.new, args.tolerance_px,
@@ -323,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"edge-depth compare: error: {exc}", file=sys.stderr)
                 return 2
         if args.command == "record":
-            from edge.commands import record_command
+            from edge_depth.commands import record_command
 
             return record_command(args.config, args.out, args.max_frames, args.profile)
     except (EdgeError, CalibrationError, OSError) as exc:

@@ -15,14 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.capture.sync import SyncConfig
-from edge.config import LogConfig
-from edge.daemon import Pipeline, format_latency, lidar_summary, summarise
-from edge.errors import ConfigError
-from edge.mcap_log import open_logger
-from edge.runner import StopFlag, run
-from edge.runtime.engine import Engine
-from edge.types import LidarScan
+from edge_depth.capture.sync import SyncConfig
+from edge_depth.config import LogConfig
+from edge_depth.daemon import Pipeline, format_latency, lidar_summary, summarise
+from edge_depth.errors import ConfigError
+from edge_depth.mcap_log import open_logger
+from edge_depth.runner import StopFlag, run
+from edge_depth.runtime.engine import Engine
+from edge_depth.types import LidarScan
 
 log = logging.getLogger(__name__)
 SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
@@ -35,8 +35,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    bf16: bool | None = None) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
-    from edge.capture.replay import McapSource, TopicMap
-    from edge.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.capture.replay import McapSource, TopicMap
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     if Path(out).exists() and Path(path).exists() and os.path.samefile(out, path):
         raise ConfigError("--out", "a file other than the input recording", str(out))
@@ -96,8 +96,8 @@ def replay_calibration(source, calib):
     """The replay's calibration, resolved once before the run in this order: `--calib`, the
     recording's /edge/calibration, its CameraInfo pair with T_cam_lidar from /tf_static.
     Logs where it came from; a mapped LiDAR topic with no extrinsics is an error."""
-    from calibration.io import load_calibration
-    from edge.capture.replay import ReplayError, recording_calibration
+    from edge_depth.calibration.io import load_calibration
+    from edge_depth.capture.replay import ReplayError, recording_calibration
 
     if calib is not None:
         stereo, lidar = load_calibration(calib)
@@ -134,10 +134,10 @@ def replay_calibration(source, calib):
 def open_sources(config, max_frames: int | None = None):
     """The configured camera and LiDAR as one source, plus the calibration (loaded first, so
     a bad calibration file stops the daemon before any device is opened)."""
-    from calibration.io import load_calibration
-    from edge.capture import MergedSource
-    from edge.capture.sim import SimSource
-    from edge.sim import RigConfig
+    from edge_depth.calibration.io import load_calibration
+    from edge_depth.capture import MergedSource
+    from edge_depth.capture.sim import SimSource
+    from edge_depth.sim import RigConfig
 
     cam, lid = config.camera, config.lidar
     stereo = lidar = None
@@ -145,7 +145,7 @@ def open_sources(config, max_frames: int | None = None):
         stereo, lidar = load_calibration(config.calibration.file)
         log.info("calibration: %s (the config's calibration.file)", config.calibration.file)
     elif cam.source == "oak":
-        from calibration.oak import stereo_from_oak
+        from edge_depth.calibration.oak import stereo_from_oak
 
         stereo = stereo_from_oak(None, tuple(cam.size))  # opens the device briefly
         log.info("calibration: the OAK's factory calibration at %dx%d (no LiDAR "
@@ -165,11 +165,11 @@ def open_sources(config, max_frames: int | None = None):
             sim = _FramesOnly(sim)
         sources.append(sim)
     else:
-        from edge.capture.oak import OakSource
+        from edge_depth.capture.oak import OakSource
 
         sources.append(OakSource(cam.size, cam.fps, cam.device_id or None))
     if lid.model not in ("sim", "none"):
-        from edge.capture.serial_lidar import SerialLidarSource
+        from edge_depth.capture.serial_lidar import SerialLidarSource
 
         sources.append(SerialLidarSource(lid.port, lid.model, lid.baudrate or None))
     if lid.model == "none":
@@ -211,9 +211,9 @@ def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
 def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                 max_frames: int | None = None, profile: str | None = None) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
-    from edge.config import load_robot_config
-    from edge.mcap_log import RESULT_TOPICS, TOPICS
-    from edge.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.config import load_robot_config
+    from edge_depth.mcap_log import RESULT_TOPICS, TOPICS
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     config = load_robot_config(config_path)
     source, stereo, lidar = open_sources(config, max_frames)
@@ -268,8 +268,8 @@ def record_command(config_path, out, max_frames: int | None = None,
                    profile: str | None = None) -> int:
     """`edge-depth record --config robot.toml --out rec.mcap`: the live sensors, rectified
     images and raw points, with the calibration, for replay and training later."""
-    from edge.config import load_robot_config
-    from edge.mcap_log import RAW_TOPICS
+    from edge_depth.config import load_robot_config
+    from edge_depth.mcap_log import RAW_TOPICS
 
     config = load_robot_config(config_path)
     source, stereo, lidar = open_sources(config, max_frames)

@@ -24,9 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.capture.decode import decode_image, decode_message, header_stamp, message_decoders
-from edge.errors import EdgeError
-from edge.topics import ROS2_TOPICS, TOPICS
+from edge_depth.capture.decode import decode_image, decode_message, header_stamp, message_decoders
+from edge_depth.errors import EdgeError
+from edge_depth.topics import ROS2_TOPICS, TOPICS
 
 BAD_PX = 3.0
 
@@ -66,7 +66,7 @@ def _latencies(values: dict, out: ReplayOutput) -> None:
 
 def read_replay_output(path: Path | str) -> ReplayOutput:
     """Disparity (and GT) images by stamp and the latency windows of one replay output."""
-    from edge.capture.mcap_tolerant import ReadReport, iter_messages
+    from edge_depth.capture.mcap_tolerant import ReadReport, iter_messages
 
     out = ReplayOutput(Path(path))
     if not out.path.is_file():

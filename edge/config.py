@@ -56,7 +56,7 @@ from pathlib import Path
 
 import tomllib
 
-from edge.errors import ConfigError
+from edge_depth.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -20,14 +20,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from calibration.model import LidarExtrinsics, StereoCalibration
-from calibration.projection import project_to_disparity
-from edge.capture.sync import LidarSync, SyncConfig
-from edge.errors import EdgeError
-from edge.mcap_log import McapLogger
-from edge.metrics import disparity_metrics
-from edge.runtime.engine import Engine
-from edge.types import DepthResult, LidarScan, StereoFrame
+from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.capture.sync import LidarSync, SyncConfig
+from edge_depth.errors import EdgeError
+from edge_depth.mcap_log import McapLogger
+from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime.engine import Engine
+from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 

@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge.baselines import make_sgbm, sgbm_disparity
-from edge.metrics import disparity_metrics
+from edge_depth.baselines import make_sgbm, sgbm_disparity
+from edge_depth.metrics import disparity_metrics
 
 DEMO_SEED = 1_000_000  # the first test-split scene: nothing was trained on these
 
@@ -91,11 +91,11 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
 def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "int8",
                  iters: int | None = None, deadline_ms: float | None = None,
                  profile: str = "foxglove") -> int:
-    from edge.capture.sim import SimSource
-    from edge.daemon import Pipeline, format_latency, summarise
-    from edge.mcap_log import open_logger
-    from edge.runner import run
-    from edge.runtime.engine import Engine
+    from edge_depth.capture.sim import SimSource
+    from edge_depth.daemon import Pipeline, format_latency, summarise
+    from edge_depth.mcap_log import open_logger
+    from edge_depth.runner import run
+    from edge_depth.runtime.engine import Engine
 
     out.mkdir(parents=True, exist_ok=True)
     source = SimSource(frames, seed)

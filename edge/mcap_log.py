@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.topics import LATCHED, RAW_TOPICS, RESULT_TOPICS, TOPICS  # noqa: F401 - re-exported
-from edge.types import DepthResult, LidarScan, StereoFrame
+from edge_depth.topics import LATCHED, RAW_TOPICS, RESULT_TOPICS, TOPICS  # noqa: F401 - re-exported
+from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -134,7 +134,7 @@ def open_logger(path, profile: str = "foxglove", **kwargs) -> McapLogger:
     """McapLogger (foxglove profile: protobuf Foxglove schemas) or, for "ros2", Ros2Logger
     (ROS 2 messages in CDR, for `ros2 bag play`); the same interface."""
     if profile == "ros2":
-        from edge.ros2_log import Ros2Logger
+        from edge_depth.ros2_log import Ros2Logger
 
         return Ros2Logger(path, **kwargs)
     if profile != "foxglove":
@@ -358,7 +358,7 @@ class McapLogger:
     def set_calibration(self, stereo, lidar=None) -> None:
         """The calibration logged at the start of every file from now on (and again now): the
         TOML on /edge/calibration and the rectified intrinsics of both views."""
-        from calibration.io import dumps_calibration
+        from edge_depth.calibration.io import dumps_calibration
 
         self.calibration_toml = dumps_calibration(stereo, lidar)
         self.camera = (stereo.image_size, stereo.focal_px, stereo.principal_point,

@@ -26,10 +26,10 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
-from edge.ros2_msgs import MSGDEFS, header, transform
-from edge.topics import ros2_topic
-from edge.types import DepthResult, StereoFrame
+from edge_depth.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
+from edge_depth.ros2_msgs import MSGDEFS, header, transform
+from edge_depth.topics import ros2_topic
+from edge_depth.types import DepthResult, StereoFrame
 
 TYPES = dict(left_calibration="sensor_msgs/msg/CameraInfo",
              right_calibration="sensor_msgs/msg/CameraInfo",
@@ -83,7 +83,7 @@ class Ros2Logger(McapLogger):
 
     def __init__(self, path, *args, prefix: str = "/", **kwargs) -> None:
         if kwargs.get("live"):
-            from edge.errors import ConfigError
+            from edge_depth.errors import ConfigError
 
             raise ConfigError("--live", "the foxglove profile (the live view speaks only that)",
                               "ros2")

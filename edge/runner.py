@@ -23,10 +23,10 @@ from collections import deque
 
 import numpy as np
 
-from calibration.errors import CalibrationError
-from edge.daemon import FatalInputError, Pipeline, PipelineStats, summarise
-from edge.errors import EdgeError
-from edge.types import Calibration, GroundTruth, LidarScan, StereoFrame
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.daemon import FatalInputError, Pipeline, PipelineStats, summarise
+from edge_depth.errors import EdgeError
+from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ class Runner:
             elif isinstance(event, GroundTruth):
                 self._keep_gt(event)
             elif isinstance(event, Calibration) and event.toml is not None:
-                from calibration.io import loads_calibration
+                from edge_depth.calibration.io import loads_calibration
 
                 stereo, lidar = loads_calibration(event.toml, "recording /edge/calibration")
                 self.pipeline.set_calibration(stereo, lidar or self.pipeline.lidar)

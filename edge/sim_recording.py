@@ -4,16 +4,16 @@ benchmark use it. Here, not in `edge.capture.sim`, because the capture layer onl
 
 from __future__ import annotations
 
-from edge.capture.sim import SimSource
-from edge.sim import RigConfig
-from edge.types import GroundTruth
+from edge_depth.capture.sim import SimSource
+from edge_depth.sim import RigConfig
+from edge_depth.types import GroundTruth
 
 
 def write_sim_recording(path, count: int, seed: int = 0, rig: RigConfig | None = None,
                         lidar: str = "beams16", period_ms: float = 100.0) -> int:
     """Record rig scenes as a robot would (raw topics, calibration) plus /sim/gt_disparity,
     for replay tests and demos. Returns the number of messages."""
-    from edge.mcap_log import RAW_TOPICS, McapLogger
+    from edge_depth.mcap_log import RAW_TOPICS, McapLogger
 
     source = SimSource(count, seed, rig, lidar, period_ms)
     with McapLogger(path, topics=RAW_TOPICS) as logger:
@@ -35,17 +35,17 @@ def write_street_recording(path, count: int, seed: int = 0, period_ms: float = 1
     scene; the scan is stamped `lidar_lag_ms` before its frame. Returns the message count."""
     import numpy as np
 
-    from calibration.model import LidarExtrinsics, StereoCalibration
-    from edge.mcap_log import RAW_TOPICS, McapLogger
-    from edge.sim.street import (
+    from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+    from edge_depth.mcap_log import RAW_TOPICS, McapLogger
+    from edge_depth.sim.street import (
         STREET_CAMERA,
         T_CAM_LIDAR,
         StreetScene,
         lidar_points,
         street_lidar,
     )
-    from edge.sim.world import make_things_sample
-    from edge.types import LidarScan, StereoFrame
+    from edge_depth.sim.world import make_things_sample
+    from edge_depth.types import LidarScan, StereoFrame
 
     cfg = STREET_CAMERA
     stereo = StereoCalibration.ideal(cfg.focal_px, cfg.baseline_m, (cfg.width, cfg.height),

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.errors import InvalidDataError
+from edge_depth.errors import InvalidDataError
 
 
 def _check_image(name: str, image: np.ndarray) -> None:

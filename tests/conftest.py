@@ -7,7 +7,7 @@ from pathlib import Path
 
 import pytest
 
-from edge.sim import RigConfig, make_sample
+from edge_depth.sim import RigConfig, make_sample
 
 
 @pytest.fixture(scope="session")
@@ -18,7 +18,7 @@ def small_rig() -> RigConfig:
 @pytest.fixture(scope="session")
 def noiseless_samples(small_rig):
     """Scenes with photometric noise off and a noiseless LiDAR, for exact checks."""
-    from edge.sim import PATTERNS
+    from edge_depth.sim import PATTERNS
 
     pattern = PATTERNS["beams64"].noiseless()
     return [make_sample(seed, small_rig.noiseless(), pattern) for seed in range(4)]
@@ -29,7 +29,7 @@ RECORDING_SEED = 1_000_000
 
 @pytest.fixture(scope="session")
 def recording(tmp_path_factory) -> Path:
-    from edge.cli import main
+    from edge_depth.cli import main
 
     path = tmp_path_factory.mktemp("rec") / "rec.mcap"
     assert main(["synth", "--mcap", str(path), "--frames", "3", "--seed",
@@ -39,6 +39,6 @@ def recording(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="session")
 def engine():
-    from edge.runtime.engine import Engine
+    from edge_depth.runtime.engine import Engine
 
     return Engine(precision="int8", threads=2)

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge.ros2_msgs import MSGDEFS, transform  # noqa: F401 - re-exported for the tests
-from edge.ros2_msgs import header as _header
+from edge_depth.ros2_msgs import MSGDEFS, transform  # noqa: F401 - re-exported for the tests
+from edge_depth.ros2_msgs import header as _header
 
 
 def header(stamp_ns: int, frame_id: str = "camera") -> dict:

@@ -8,14 +8,14 @@ import json
 import numpy as np
 import pytest
 
-from edge import selfcheck
-from edge.cli import main
+from edge_depth import selfcheck
+from edge_depth.cli import main
 
 pytest.importorskip("torch")
 
-from tools.adapt import FineTune  # noqa: E402
-from tools.adapt_check import is_better  # noqa: E402
-from tools.adapt_frames import Frame, split_by_time  # noqa: E402
+from edge_depth.tools.adapt import FineTune  # noqa: E402
+from edge_depth.tools.adapt_check import is_better  # noqa: E402
+from edge_depth.tools.adapt_frames import Frame, split_by_time  # noqa: E402
 
 
 def _textured_pair(disparity: float, shape=(64, 96), seed=0):
@@ -126,7 +126,7 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
-    from tools.adapt_frames import load_frames
+    from edge_depth.tools.adapt_frames import load_frames
 
     rec = tmp_path / "street.mcap"
     assert main(["synth", "--world", "street", "--mcap", str(rec), "--frames", "1"]) == 0
@@ -142,9 +142,9 @@ def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
 
 @pytest.mark.slow
 def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path):
-    from edge.sim import RigConfig, make_sample
-    from tools.adapt import DEFAULT_CHECKPOINT, finetune
-    from tools.adapt_frames import _compact
+    from edge_depth.sim import RigConfig, make_sample
+    from edge_depth.tools.adapt import DEFAULT_CHECKPOINT, finetune
+    from edge_depth.tools.adapt_frames import _compact
 
     frames = []
     for seed in (11, 12):

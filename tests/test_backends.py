@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.config import load_robot_config
-from edge.errors import ConfigError
-from edge.metrics import disparity_metrics
-from edge.runtime import backends
-from edge.runtime.engine import Engine
-from edge.sim import RigConfig, make_sample
+from edge_depth.config import load_robot_config
+from edge_depth.errors import ConfigError
+from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime import backends
+from edge_depth.runtime.engine import Engine
+from edge_depth.sim import RigConfig, make_sample
 
 
 @pytest.mark.parametrize("machine, installed, expected", [

@@ -6,10 +6,10 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.io import load_calibration
-from calibration.stereo import Board, calibrate_stereo
-from edge.cli import main
-from edge.sim.board import random_stereo_views
+from edge_depth.calibration.io import load_calibration
+from edge_depth.calibration.stereo import Board, calibrate_stereo
+from edge_depth.cli import main
+from edge_depth.sim.board import random_stereo_views
 
 K_L = np.array([[450.0, 0, 322.0], [0, 450.0, 198.0], [0, 0, 1]])
 D_L = np.array([-0.08, 0.02, 0.0, 0.0, 0.0])
@@ -42,7 +42,7 @@ def test_calibration_recovers_focal_baseline_and_rectifies_rows(views):
 
 
 def test_views_without_a_board_are_listed_and_too_few_pairs_is_an_error(views):
-    from calibration.errors import CalibrationFailedError
+    from edge_depth.calibration.errors import CalibrationFailedError
 
     blank = np.full((400, 640), 90, np.uint8)
     left = list(views[0][:7]) + [blank]

@@ -7,10 +7,10 @@ import re
 import numpy as np
 import pytest
 
-from calibration.errors import CalibrationFileError
-from calibration.io import dumps_calibration, load_calibration, save_calibration
-from calibration.model import LidarExtrinsics, StereoCalibration
-from edge.sim.lidar import default_T_cam_lidar
+from edge_depth.calibration.errors import CalibrationFileError
+from edge_depth.calibration.io import dumps_calibration, load_calibration, save_calibration
+from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.sim.lidar import default_T_cam_lidar
 
 
 def _calib() -> StereoCalibration:
@@ -121,7 +121,7 @@ def test_save_is_atomic_and_leaves_no_temporary_files(tmp_path, monkeypatch):
 
 
 def test_atomic_write_replaces_whole_or_leaves_the_old_file(tmp_path):
-    from calibration.atomic import atomic_write
+    from edge_depth.calibration.atomic import atomic_write
 
     target = tmp_path / "calib.toml"
     target.write_text("old")

@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from calibration.errors import CalibrationFileError
-from calibration.model import StereoCalibration
-from calibration.ros import load_camera_info_pair, save_camera_info_pair
-from edge.cli import main
+from edge_depth.calibration.errors import CalibrationFileError
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.calibration.ros import load_camera_info_pair, save_camera_info_pair
+from edge_depth.cli import main
 
 
 def _eeprom_json(path, translation_cm=(-7.42, 0.03, 0.01), spec_cm=(-7.5, 0.0, 0.0)):
@@ -28,7 +28,7 @@ def _eeprom_json(path, translation_cm=(-7.42, 0.03, 0.01), spec_cm=(-7.5, 0.0, 0
 
 
 def test_oak_import_scales_intrinsics_and_converts_centimetres(tmp_path):
-    from calibration.oak import stereo_from_oak
+    from edge_depth.calibration.oak import stereo_from_oak
 
     _eeprom_json(tmp_path / "eeprom.json")
     stereo = stereo_from_oak(tmp_path / "eeprom.json", (640, 400))
@@ -40,7 +40,7 @@ def test_oak_import_scales_intrinsics_and_converts_centimetres(tmp_path):
 
 
 def test_import_oak_command_writes_a_calibration(tmp_path, capsys):
-    from calibration.io import load_calibration
+    from edge_depth.calibration.io import load_calibration
 
     _eeprom_json(tmp_path / "eeprom.json")
     out = tmp_path / "calib.toml"

@@ -8,11 +8,11 @@ import logging
 import numpy as np
 import pytest
 
-from calibration.io import save_calibration
-from calibration.ros import chain_transform
-from edge.capture.replay import McapSource, ReplayError, TopicMap, recording_calibration
-from edge.commands import replay_command
-from edge.sim import RigConfig, make_sample
+from edge_depth.calibration.io import save_calibration
+from edge_depth.calibration.ros import chain_transform
+from edge_depth.capture.replay import McapSource, ReplayError, TopicMap, recording_calibration
+from edge_depth.commands import replay_command
+from edge_depth.sim import RigConfig, make_sample
 from tests.ros2_bag import transform, write_bag
 
 TOPICS = dict(left="/left/image_rect", right="/right/image_rect", lidar="/points",
@@ -95,7 +95,7 @@ def test_calib_comes_first_and_a_recording_with_nothing_names_the_options(sample
 
 
 def _lidar(sample):
-    from calibration.model import LidarExtrinsics
+    from edge_depth.calibration.model import LidarExtrinsics
 
     return LidarExtrinsics(sample.T_cam_lidar)
 
@@ -103,7 +103,7 @@ def _lidar(sample):
 def test_calibrate_lidar_reads_a_ros2_bag_with_its_topics_and_own_calibration(samples,
                                                                              tmp_path,
                                                                              capsys):
-    from edge.cli import main
+    from edge_depth.cli import main
 
     bag = tmp_path / "bag.mcap"
     write_bag(bag, samples, tf=tf_tree(samples[0].T_cam_lidar))
@@ -139,7 +139,7 @@ def test_an_unmapped_or_missing_lidar_topic_is_said_and_left_equal_right_refused
 
 
 def test_a_ros2_bag_directory_replays_its_files_in_the_metadata_order(samples, tmp_path):
-    from edge.types import StereoFrame
+    from edge_depth.types import StereoFrame
 
     bag = tmp_path / "robot_bag"
     bag.mkdir()

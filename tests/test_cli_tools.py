@@ -6,7 +6,7 @@ import sys
 
 import pytest
 
-from edge.cli import TOOL_COMMANDS, main
+from edge_depth.cli import TOOL_COMMANDS, main
 
 
 def test_a_tool_parses_its_own_arguments_under_its_subcommand_name(capsys):
@@ -23,7 +23,7 @@ def test_a_tool_parses_its_own_arguments_under_its_subcommand_name(capsys):
 
 def test_without_torch_a_training_tool_names_the_extra_in_one_line(monkeypatch, capsys):
     monkeypatch.setitem(sys.modules, "torch", None)  # import torch now fails
-    for module in ("tools.train", "tools.export"):
+    for module in ("edge_depth.tools.train", "edge_depth.tools.export"):
         monkeypatch.delitem(sys.modules, module, raising=False)
     assert main(["train", "--steps", "1", "--out", "/tmp/never"]) == 1
     err = capsys.readouterr().err.strip()
@@ -37,7 +37,7 @@ def test_every_tool_command_has_a_main():
     for name, (module, _) in TOOL_COMMANDS.items():
         if name in ("train", "export", "ablation", "upsampling-study"):
             continue  # torch: imported by the tests that train
-        assert callable(importlib.import_module(module).main), name
+        assert callable(importlib.import_module(f"edge_depth.{module}").main), name
 
 
 def test_without_depthai_the_oak_names_its_extra_in_one_line(monkeypatch, capsys, tmp_path):

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from edge.cli import main
-from edge.compare import compare, frame_difference
+from edge_depth.cli import main
+from edge_depth.compare import compare, frame_difference
 
 
 @pytest.fixture(scope="module")

@@ -9,11 +9,11 @@ import time
 import numpy as np
 import pytest
 
-from calibration.errors import CalibrationError
-from calibration.io import dumps_calibration, load_calibration
-from edge.capture.sim import SimSource
-from edge.config import load_robot_config
-from edge.errors import ConfigError
+from edge_depth.calibration.errors import CalibrationError
+from edge_depth.calibration.io import dumps_calibration, load_calibration
+from edge_depth.capture.sim import SimSource
+from edge_depth.config import load_robot_config
+from edge_depth.errors import ConfigError
 
 ROBOT = """[camera]
 source = "sim"

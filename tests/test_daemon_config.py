@@ -7,12 +7,12 @@ import socket
 import numpy as np
 import pytest
 
-from edge.capture.replay import McapSource
-from edge.cli import main
-from edge.config import load_robot_config
-from edge.errors import ConfigError
-from edge.mcap_log import TOPICS, McapLogger
-from edge.types import StereoFrame
+from edge_depth.capture.replay import McapSource
+from edge_depth.cli import main
+from edge_depth.config import load_robot_config
+from edge_depth.errors import ConfigError
+from edge_depth.mcap_log import TOPICS, McapLogger
+from edge_depth.types import StereoFrame
 from tests.test_pipeline_mcap import topic_counts
 
 SIM = """
@@ -77,8 +77,8 @@ def test_defaults_and_values_load():
 
 def test_a_missing_calibration_key_stops_before_any_device_opens(tmp_path, monkeypatch,
                                                                 capsys):
-    import edge.capture.oak as oak
-    import edge.capture.serial_lidar as serial_lidar
+    import edge_depth.capture.oak as oak
+    import edge_depth.capture.serial_lidar as serial_lidar
 
     def refuse(*args, **kwargs):
         raise AssertionError("a device was opened")
@@ -130,7 +130,7 @@ def test_live_view_serves_a_foxglove_websocket(tmp_path):
 
 
 def test_sync_max_wait_reaches_the_config_and_is_validated(tmp_path):
-    from edge.config import load_robot_config
+    from edge_depth.config import load_robot_config
 
     path = tmp_path / "robot.toml"
     path.write_text("[sync]\nmax_wait_ms = 50.0\n")
@@ -143,7 +143,7 @@ def test_sync_max_wait_reaches_the_config_and_is_validated(tmp_path):
 def test_version_and_log_level_flags(capsys):
     import logging
 
-    from edge.cli import configure_logging, main
+    from edge_depth.cli import configure_logging, main
 
     with pytest.raises(SystemExit) as exc:
         main(["--version"])
@@ -157,7 +157,7 @@ def test_version_and_log_level_flags(capsys):
 
 
 def test_relative_paths_in_a_config_are_relative_to_the_file(tmp_path):
-    from edge.config import load_robot_config
+    from edge_depth.config import load_robot_config
 
     folder = tmp_path / "etc"
     folder.mkdir()
@@ -171,21 +171,21 @@ def test_relative_paths_in_a_config_are_relative_to_the_file(tmp_path):
 
 
 def test_ctrl_c_before_the_handlers_is_one_line_and_exit_130(monkeypatch, capsys):
-    import edge.sim.export
-    from edge.cli import main
+    import edge_depth.sim.export
+    from edge_depth.cli import main
 
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(edge.sim.export, "synth_command", interrupted)
+    monkeypatch.setattr(edge_depth.sim.export, "synth_command", interrupted)
     assert main(["synth", "--out", "unused", "--count", "1"]) == 130
     assert capsys.readouterr().err.strip() == "edge-depth synth: interrupted"
 
 
 def test_a_camera_size_the_calibration_does_not_have_stops_at_the_first_frame(tmp_path,
                                                                              capsys):
-    from calibration.io import save_calibration
-    from edge.capture.sim import SimSource
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.capture.sim import SimSource
 
     calib = tmp_path / "calib.toml"
     save_calibration(calib, *SimSource(1).calibration)  # 640x400
@@ -202,9 +202,9 @@ def test_no_calibration_file_on_an_oak_uses_its_factory_calibration(tmp_path, mo
                                                                    caplog):
     import logging
 
-    import calibration.oak as oak_calibration
-    from calibration.model import StereoCalibration
-    from edge.commands import open_sources
+    import edge_depth.calibration.oak as oak_calibration
+    from edge_depth.calibration.model import StereoCalibration
+    from edge_depth.commands import open_sources
 
     asked = []
 
@@ -244,7 +244,7 @@ def test_a_config_that_is_not_utf8_or_points_log_out_at_a_folder(tmp_path):
 def test_a_damaged_bundle_is_one_line_naming_it(tmp_path, capsys, damage):
     import shutil
 
-    from edge.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     bundle = tmp_path / "bundle"
     shutil.copytree(DEFAULT_BUNDLE, bundle)
@@ -267,7 +267,7 @@ def test_a_disk_that_fills_closes_the_file_complete_and_exits_1(tmp_path, monkey
 
     from mcap.reader import make_reader
 
-    import edge.mcap_log as mcap_log
+    import edge_depth.mcap_log as mcap_log
 
     usage = namedtuple("usage", "total used free")
     calls = []
@@ -327,7 +327,7 @@ def test_a_live_client_joining_after_the_third_frame_gets_calibration_and_transf
         tmp_path):
     import json
 
-    from edge.capture.sim import SimSource
+    from edge_depth.capture.sim import SimSource
 
     stereo, lidar = SimSource(1).calibration
     frames = [e for e in SimSource(3, 1_000_000) if isinstance(e, StereoFrame)]

@@ -8,12 +8,12 @@ import json
 import numpy as np
 import pytest
 
-from edge.baselines import make_sgbm, sgbm_disparity
-from edge.errors import InvalidDataError
-from edge.metrics import disparity_metrics
-from edge.runtime import engine as engine_module
-from edge.runtime.engine import DEFAULT_BUNDLE, Engine, disparity_to_depth
-from edge.sim import RigConfig, make_sample
+from edge_depth.baselines import make_sgbm, sgbm_disparity
+from edge_depth.errors import InvalidDataError
+from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime import engine as engine_module
+from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, disparity_to_depth
+from edge_depth.sim import RigConfig, make_sample
 
 torch = pytest.importorskip("torch")
 
@@ -23,7 +23,7 @@ SMALL = (160, 96)
 
 @pytest.fixture(scope="module")
 def small_bundle(tmp_path_factory):
-    from tools.export import export
+    from edge_depth.tools.export import export
 
     out = tmp_path_factory.mktemp("bundle")
     meta = export(CHECKPOINT, out, SMALL, default_iters=3)
@@ -37,7 +37,7 @@ def scene_inputs(seed: int, size=SMALL, lidar="beams32"):
 
 
 def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
-    from tools.export import load_checkpoint
+    from edge_depth.tools.export import load_checkpoint
 
     bundle, meta = small_bundle
     assert meta["export_check"]["max_abs_px"] < 0.01
@@ -66,7 +66,7 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
 def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_path):
     import shutil
 
-    from tools.quantize import quantize_bundle
+    from edge_depth.tools.quantize import quantize_bundle
 
     bundle = tmp_path / "b"
     shutil.copytree(small_bundle[0], bundle)
@@ -88,7 +88,7 @@ def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_
 def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, tmp_path):
     import shutil
 
-    from tools.quantize import quantize_bundle
+    from edge_depth.tools.quantize import quantize_bundle
 
     bundle = tmp_path / "b"
     shutil.copytree(small_bundle[0], bundle)
@@ -180,8 +180,8 @@ def test_depth_is_zero_and_invalid_below_the_minimum_disparity():
 
 
 def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
-    from edge.cli import main as cli
-    from tools import evaluate
+    from edge_depth.cli import main as cli
+    from edge_depth.tools import evaluate
 
     data = tmp_path / "scenes"
     assert cli(["synth", "--out", str(data), "--count", "1", "--seed", "1000002"]) == 0
@@ -199,10 +199,10 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
 def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, version):
     from mcap.reader import make_reader
 
-    from edge.mcap_log import McapLogger
-    from edge.model.config import ModelConfig
-    from edge.model.network import SparseStereoNet
-    from tools.export import export
+    from edge_depth.mcap_log import McapLogger
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+    from edge_depth.tools.export import export
 
     torch.manual_seed(0)
     ckpt = torch.load(CHECKPOINT, weights_only=False)
@@ -250,7 +250,7 @@ def test_any_camera_size_runs_on_the_shipped_int8_bundle(size):
 
 
 def test_an_engine_scale_beyond_the_bundle_is_a_config_error():
-    from edge.errors import ConfigError
+    from edge_depth.errors import ConfigError
 
     engine = Engine(precision="int8", threads=1, scale=1.0)
     with pytest.raises(ConfigError, match="at most 0.500"):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.errors import ConfigError
-from edge.runtime.fit import FitPlan
+from edge_depth.errors import ConfigError
+from edge_depth.runtime.fit import FitPlan
 
 
 def test_fit_scale_is_the_largest_that_fits_and_never_enlarges():

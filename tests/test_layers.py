@@ -1,6 +1,9 @@
 """The packages layer without cycles: checked on the source, every import statement included
 (those inside functions too), so a lazy import cannot hide one.
 
+Installed, the three folders are one namespace: edge/ is `edge_depth`, calibration/
+`edge_depth.calibration`, tools/ `edge_depth.tools`; the layers are named by folder here.
+
     calibration   models, file formats, projection, the fits: imports nothing of edge
     edge.capture  readers and sources: never the writers (edge.mcap_log, edge.ros2_log)
     edge.runtime  the engine: never torch, never the daemon or the network code
@@ -19,6 +22,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
+FOLDERS = ("edge", "calibration", "tools")
+
+
 def imported_modules(path: Path) -> set[str]:
     names = set()
     for node in ast.walk(ast.parse(path.read_text(), str(path))):
@@ -29,10 +35,21 @@ def imported_modules(path: Path) -> set[str]:
     return names
 
 
+def as_folder(module: str) -> str:
+    """An installed name in the repository's terms: edge_depth.calibration.io -> calibration.io,
+    edge_depth.tools.train -> tools.train, edge_depth.cli -> edge.cli."""
+    for folder in ("calibration", "tools"):
+        if module == f"edge_depth.{folder}" or module.startswith(f"edge_depth.{folder}."):
+            return module[len("edge_depth."):]
+    if module == "edge_depth" or module.startswith("edge_depth."):
+        return "edge" + module[len("edge_depth"):]
+    return module
+
+
 def offenders(folder: str, forbidden: tuple[str, ...]) -> dict[str, list[str]]:
     found = {}
     for path in sorted((ROOT / folder).rglob("*.py")):
-        bad = sorted(m for m in imported_modules(path)
+        bad = sorted(m for m in map(as_folder, imported_modules(path))
                      if any(m == f or m.startswith(f + ".") for f in forbidden))
         if bad:
             found[str(path.relative_to(ROOT))] = bad
@@ -48,6 +65,18 @@ def offenders(folder: str, forbidden: tuple[str, ...]) -> dict[str, list[str]]:
 ])
 def test_no_package_imports_a_layer_above_it(folder, forbidden):
     assert offenders(folder, forbidden) == {}
+
+
+def test_every_import_of_ours_goes_through_the_installed_namespace():
+    # `import calibration` works beside the repository and fails where the wheel is installed
+    bare = {}
+    for folder in FOLDERS + ("tests",):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            names = sorted(m for m in imported_modules(path)
+                           if m.split(".")[0] in FOLDERS)
+            if names:
+                bare[str(path.relative_to(ROOT))] = names
+    assert bare == {}
 
 
 def test_the_check_sees_imports_inside_functions(tmp_path):

@@ -6,13 +6,13 @@ import cv2
 import numpy as np
 import pytest
 
-from calibration.extrinsics import disagreement, pose_difference
-from calibration.io import save_calibration
-from calibration.model import LidarExtrinsics
-from edge.calibrate import make_frame
-from edge.cli import main
-from edge.sim import RigConfig, make_sample
-from tools.extrinsics_study import perturbed
+from edge_depth.calibrate import make_frame
+from edge_depth.calibration.extrinsics import disagreement, pose_difference
+from edge_depth.calibration.io import save_calibration
+from edge_depth.calibration.model import LidarExtrinsics
+from edge_depth.cli import main
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.tools.extrinsics_study import perturbed
 
 
 def test_disagreement_grows_when_the_extrinsics_are_wrong():
@@ -66,7 +66,7 @@ def test_calibrate_lidar_reads_an_mcap_recording(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_refinement_recovers_a_one_degree_two_centimetre_error():
-    from calibration.extrinsics import PhotometricCost, refine_extrinsics
+    from edge_depth.calibration.extrinsics import PhotometricCost, refine_extrinsics
 
     samples = [make_sample(1_000_000 + i, lidar="beams64") for i in range(12)]
     frames = [(s.left, s.right, s.scan.points) for s in samples]
@@ -101,7 +101,7 @@ def test_calibrate_lidar_refine_writes_the_result_and_an_overlay(tmp_path, capsy
     assert after < before
     image = cv2.imread(str(tmp_path / "overlay.png"))
     assert image.shape == (200, 640, 3)  # before | refined
-    from calibration.io import load_calibration
+    from edge_depth.calibration.io import load_calibration
 
     _, lidar = load_calibration(tmp_path / "refined.toml")
     moved, _ = pose_difference(lidar.T_cam_lidar, bad)
@@ -111,8 +111,8 @@ def test_calibrate_lidar_refine_writes_the_result_and_an_overlay(tmp_path, capsy
 def test_refinement_without_usable_points_is_a_clear_error(tmp_path, capsys):
     import pytest
 
-    from calibration.errors import CalibrationError
-    from calibration.extrinsics import refine_extrinsics
+    from edge_depth.calibration.errors import CalibrationError
+    from edge_depth.calibration.extrinsics import refine_extrinsics
 
     sample = make_sample(5, RigConfig(width=160, height=100), "beams64")
     behind = sample.scan.points * np.array([-1.0, 1.0, 1.0], np.float32)  # all behind the rig

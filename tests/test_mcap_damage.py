@@ -9,7 +9,7 @@ import time
 import numpy as np
 import pytest
 
-from edge.capture.mcap_tolerant import ReadReport, iter_messages
+from edge_depth.capture.mcap_tolerant import ReadReport, iter_messages
 
 N = 12
 
@@ -126,9 +126,9 @@ def test_mutation_fuzz_never_raises_and_never_hangs(tmp_path):
 def test_replay_reads_past_a_damaged_chunk_of_our_recording(tmp_path, caplog):
     from mcap.reader import make_reader
 
-    from edge.capture.replay import McapSource
-    from edge.cli import main
-    from edge.types import StereoFrame
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.cli import main
+    from edge_depth.types import StereoFrame
 
     path = tmp_path / "rec.mcap"
     assert main(["synth", "--mcap", str(path), "--frames", "4", "--seed", "1000000"]) == 0
@@ -152,11 +152,11 @@ def test_replay_reads_past_a_damaged_chunk_of_our_recording(tmp_path, caplog):
 def test_replay_mutation_fuzz_ends_in_frames_or_one_clear_error(tmp_path):
     """300 mutated copies of a small recording of ours through McapSource: every one ends
     with its frames or a ReplayError (one line), never another exception."""
-    from calibration.io import dumps_calibration
-    from edge.capture.replay import McapSource, ReplayError
-    from edge.mcap_log import RAW_TOPICS, McapLogger
-    from edge.sim import RigConfig, make_sample
-    from edge.types import StereoFrame
+    from edge_depth.calibration.io import dumps_calibration
+    from edge_depth.capture.replay import McapSource, ReplayError
+    from edge_depth.mcap_log import RAW_TOPICS, McapLogger
+    from edge_depth.sim import RigConfig, make_sample
+    from edge_depth.types import StereoFrame
 
     path = tmp_path / "rec.mcap"  # small chunks, as a long recording has many
     samples = [make_sample(1_000_000 + i, RigConfig(width=96, height=64)) for i in range(6)]
@@ -193,9 +193,9 @@ def test_a_corrupt_log_time_past_2_to_the_32_seconds_is_counted_and_replay_goes_
     from mcap.reader import make_reader
     from mcap.writer import Writer
 
-    from edge.capture.replay import McapSource
-    from edge.mcap_log import TOPICS
-    from edge.types import LidarScan, StereoFrame
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.mcap_log import TOPICS
+    from edge_depth.types import LidarScan, StereoFrame
 
     path = tmp_path / "bad_time.mcap"
     with open(recording, "rb") as src, open(path, "wb") as dst:
@@ -220,6 +220,6 @@ def test_a_corrupt_log_time_past_2_to_the_32_seconds_is_counted_and_replay_goes_
     assert sum(isinstance(e, StereoFrame) for e in events) == 3
     assert sum(isinstance(e, LidarScan) for e in events) == 2  # 3 scans, one skipped
     assert any("out of range" in k for k in source.stats.errors)
-    from edge.commands import replay_command
+    from edge_depth.commands import replay_command
 
     assert replay_command(path, tmp_path / "out.mcap", iters=1) == 0  # no OverflowError

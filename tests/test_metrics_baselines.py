@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.baselines import lidar_linear, lidar_nearest, sgbm_disparity
-from edge.metrics import depth_metrics, disparity_metrics
+from edge_depth.baselines import lidar_linear, lidar_nearest, sgbm_disparity
+from edge_depth.metrics import depth_metrics, disparity_metrics
 
 
 def test_disparity_metrics_count_holes_as_errors():
@@ -53,7 +53,7 @@ def test_sgbm_finds_a_constant_shift():
 
 
 def test_row_fill_takes_the_nearest_valid_value_in_the_row():
-    from edge.baselines import fill_row_nearest
+    from edge_depth.baselines import fill_row_nearest
 
     d = np.array([[0, 5, 0, 0, 9, 0], [0, 0, 0, 0, 0, 0]], np.float32)
     np.testing.assert_array_equal(fill_row_nearest(d),
@@ -61,7 +61,7 @@ def test_row_fill_takes_the_nearest_valid_value_in_the_row():
 
 
 def test_sgbm_disparity_count_follows_the_gt_range():
-    from edge.baselines import sgbm_disparities_for
+    from edge_depth.baselines import sgbm_disparities_for
 
     assert sgbm_disparities_for(105.5) == 112
     assert sgbm_disparities_for(40.0) == 64
@@ -69,7 +69,7 @@ def test_sgbm_disparity_count_follows_the_gt_range():
 
 
 def test_trivial_fusion_keeps_sgbm_and_fills_its_holes_from_the_lidar():
-    from edge.baselines import sgbm_lidar_fusion
+    from edge_depth.baselines import sgbm_lidar_fusion
 
     sgbm = np.array([[3.0, 0.0, 0.0, 4.0]], np.float32)
     sparse = np.array([[0.0, 0.0, 7.0, 0.0]], np.float32)
@@ -78,7 +78,7 @@ def test_trivial_fusion_keeps_sgbm_and_fills_its_holes_from_the_lidar():
 
 
 def test_confidence_calibration_reports_share_kept_and_their_bad1():
-    from edge.metrics import confidence_calibration
+    from edge_depth.metrics import confidence_calibration
 
     gt = np.array([[10.0, 10.0, 10.0, 10.0, np.inf]], np.float32)
     pred = np.array([[10.2, 13.0, 10.5, 20.0, 1.0]], np.float32)   # good, bad, good, bad, no GT

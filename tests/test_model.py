@@ -6,17 +6,17 @@ import numpy as np
 import pytest
 import torch
 
-from edge.errors import ConfigError
-from edge.model.config import ModelConfig
-from edge.model.corr import (
+from edge_depth.errors import ConfigError
+from edge_depth.model.config import ModelConfig
+from edge_depth.model.corr import (
     correlation_pyramid,
     correlation_volume,
     flatten_pyramid,
     lookup,
     lookup_flat,
 )
-from edge.model.cspn import cspn, neighbours, normalise_affinity
-from edge.model.losses import (
+from edge_depth.model.cspn import cspn, neighbours, normalise_affinity
+from edge_depth.model.losses import (
     occlusion_from_range_map,
     sequence_loss,
     split_sparse,
@@ -24,7 +24,7 @@ from edge.model.losses import (
     view_loss,
     warp_horizontal,
 )
-from edge.model.network import SparseStereoNet, convex_upsample, downsample_sparse
+from edge_depth.model.network import SparseStereoNet, convex_upsample, downsample_sparse
 
 
 def test_correlation_equals_an_explicit_einsum():
@@ -198,8 +198,8 @@ def test_split_strategies_partition_the_points():
 
 def test_a_few_steps_on_one_batch_reduce_the_loss():
     torch.manual_seed(0)
-    from edge.model.data import sample_to_arrays, to_tensors
-    from edge.sim import RigConfig, make_sample
+    from edge_depth.model.data import sample_to_arrays, to_tensors
+    from edge_depth.sim import RigConfig, make_sample
 
     rig = RigConfig(width=128, height=64, focal_px=90.0, max_disparity_px=20.0)
     arrays = sample_to_arrays(make_sample(1, rig))
@@ -244,7 +244,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     """Version 2: separate heads; the residual's small non-zero start gives its features a
     gradient from the first step (version 1's zeroed shared layer gave them none), and the
     LiDAR reaches the stage."""
-    from edge.model.refine import Refinement
+    from edge_depth.model.refine import Refinement
 
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
@@ -269,7 +269,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
 
 
 def test_confidence_loss_is_the_cross_entropy_of_being_within_a_pixel():
-    from edge.model.losses import confidence_loss
+    from edge_depth.model.losses import confidence_loss
 
     gt = torch.tensor([[[[10.0, 10.0, 10.0]]]])
     disparity = torch.tensor([[[[10.5, 12.0, 3.0]]]])   # within 1 px, off, off
@@ -280,7 +280,7 @@ def test_confidence_loss_is_the_cross_entropy_of_being_within_a_pixel():
 
 
 def test_refinement_v2_trunk_gets_a_tenth_of_the_confidence_gradient(monkeypatch):
-    import edge.model.refine as refine
+    import edge_depth.model.refine as refine
 
     torch.manual_seed(1)
     stage = refine.Refinement(2)
@@ -299,7 +299,7 @@ def test_refinement_v2_trunk_gets_a_tenth_of_the_confidence_gradient(monkeypatch
 
 
 def test_matching_cost_reads_the_right_features_at_each_candidate():
-    from edge.model.refine import matching_cost
+    from edge_depth.model.refine import matching_cost
 
     torch.manual_seed(2)
     f_left, f_right = torch.randn(1, 3, 4, 10), torch.randn(1, 3, 4, 10)
@@ -335,7 +335,7 @@ def _two_plane_cell_edge():
 def test_guided_selection_starts_as_the_convex_upsampling_and_learns_the_edge():
     """Version 3 is the convex upsampling when its score is zero, is moved by the LiDAR, and
     with a few steps of training picks each pixel's candidate by how it matches."""
-    from edge.model.refine import GuidedSelection
+    from edge_depth.model.refine import GuidedSelection
 
     torch.manual_seed(0)
     stage = GuidedSelection(8)

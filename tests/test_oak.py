@@ -9,8 +9,8 @@ import pytest
 
 dai = pytest.importorskip("depthai")
 
-from edge.capture.oak import OakSource, StereoPairer, frame_to_array  # noqa: E402
-from edge.errors import InvalidDataError  # noqa: E402
+from edge_depth.capture.oak import OakSource, StereoPairer, frame_to_array  # noqa: E402
+from edge_depth.errors import InvalidDataError  # noqa: E402
 
 
 def img_frame(seq: int, seconds: float, image: np.ndarray, kind=None,

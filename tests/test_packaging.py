@@ -36,3 +36,17 @@ def test_every_robot_dependency_is_pinned_within_its_range():
 
 def test_the_pins_hold_no_training_packages():
     assert not {"torch", "onnx", "tqdm", "matplotlib"} & set(_pins())
+
+
+def test_every_package_folder_is_installed_under_edge_depth():
+    setuptools = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    folders = {"edge_depth": "edge", **setuptools["package-dir"]}
+    assert folders == {"edge_depth": "edge", "edge_depth.calibration": "calibration",
+                       "edge_depth.tools": "tools"}
+    expected = set()
+    for name, folder in folders.items():
+        for init in (ROOT / folder).rglob("__init__.py"):
+            sub = init.parent.relative_to(ROOT / folder).parts
+            if not any(name + "." + p in folders for p in sub[:1]):
+                expected.add(".".join((name,) + sub))
+    assert set(setuptools["packages"]) == expected

@@ -15,16 +15,16 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from calibration.io import dumps_calibration
-from edge.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
-from edge.capture.sim import SimSource
-from edge.cli import main
-from edge.daemon import Pipeline
-from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
-from edge.runner import StopFlag, run
-from edge.sim import RigConfig, make_sample
-from edge.sim_recording import write_sim_recording
-from edge.types import LidarScan, StereoFrame
+from edge_depth.calibration.io import dumps_calibration
+from edge_depth.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
+from edge_depth.capture.sim import SimSource
+from edge_depth.cli import main
+from edge_depth.daemon import Pipeline
+from edge_depth.mcap_log import RAW_TOPICS, TOPICS, McapLogger
+from edge_depth.runner import StopFlag, run
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim_recording import write_sim_recording
+from edge_depth.types import LidarScan, StereoFrame
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1_000_000
@@ -203,7 +203,7 @@ def test_the_pipelined_daemon_gives_the_sequential_results(tmp_path):
     """The stages overlap in threads, the frames and their results do not change: a paced sim
     camera, pipelined against sequential, frame by frame (on a busy machine a frame may
     drop: the frames both kept are compared)."""
-    from edge.runtime.engine import Engine
+    from edge_depth.runtime.engine import Engine
 
     engine = Engine(precision="int8", threads=2, runtime="onnxruntime")
     outputs = {}
@@ -266,7 +266,7 @@ def test_sigterm_finishes_the_frame_and_closes_the_output(recording, tmp_path):
     long_rec = tmp_path / "long.mcap"
     write_sim_recording(long_rec, 12, SEED, period_ms=300.0)
     out = tmp_path / "out.mcap"
-    code = ("import sys; from edge.cli import main; rc = main(sys.argv[1:]); "
+    code = ("import sys; from edge_depth.cli import main; rc = main(sys.argv[1:]); "
             "assert 'torch' not in sys.modules, 'torch imported'; sys.exit(rc)")
     proc = subprocess.Popen(
         [sys.executable, "-c", code, "replay", str(long_rec), "--out", str(out), "--realtime"],

@@ -4,15 +4,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from calibration.model import StereoCalibration
-from calibration.projection import (
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.calibration.projection import (
     OcclusionFilterConfig,
     _search_box_max,
     filter_occluded,
     project_rectified,
     project_to_disparity,
 )
-from edge.sim import PATTERNS, RigConfig, make_sample
+from edge_depth.sim import PATTERNS, RigConfig, make_sample
 
 
 def test_projection_puts_a_point_at_its_pixel_with_fb_over_z():

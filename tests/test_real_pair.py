@@ -8,8 +8,8 @@ import json
 import cv2
 import numpy as np
 
-from edge.sim.folder import read_scene_folder
-from tools import evaluate, real_pairs
+from edge_depth.sim.folder import read_scene_folder
+from edge_depth.tools import evaluate, real_pairs
 
 
 def fake_opencv_doc(folder, rng):
@@ -67,8 +67,8 @@ def test_evaluate_scores_the_fusion_and_the_stereo_only_net(tmp_path):
 
 
 def test_upsampling_study_reports_the_ceiling_and_the_network_variants(tmp_path):
-    from edge.sim.folder import write_pfm
-    from tools import upsampling_study
+    from edge_depth.sim.folder import write_pfm
+    from edge_depth.tools import upsampling_study
 
     scene = tmp_path / "plane"       # a fronto-parallel plane 10 px away: a flat GT
     scene.mkdir()
@@ -91,7 +91,7 @@ def test_upsampling_study_reports_the_ceiling_and_the_network_variants(tmp_path)
 
 
 def test_gt_at_an_eighth_averages_the_known_values_of_each_cell():
-    from tools.upsampling_study import gt_at_eighth
+    from edge_depth.tools.upsampling_study import gt_at_eighth
 
     gt = np.full((16, 16), 16.0, np.float32)
     gt[:8, :8] = np.inf            # unknown cell

@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from edge.capture.sim import SimSource
-from edge.cli import main
-from edge.daemon import Pipeline
-from edge.mcap_log import RAW_TOPICS, TOPICS, McapLogger
-from edge.runner import run
-from edge.types import LidarScan, StereoFrame
+from edge_depth.capture.sim import SimSource
+from edge_depth.cli import main
+from edge_depth.daemon import Pipeline
+from edge_depth.mcap_log import RAW_TOPICS, TOPICS, McapLogger
+from edge_depth.runner import run
+from edge_depth.types import LidarScan, StereoFrame
 from tests.test_pipeline_mcap import SEED, topic_counts
 
 
@@ -85,7 +85,7 @@ def test_a_lidar_on_another_clock_warns_with_the_measured_gap(engine, caplog):
 
 
 def engine_result(left, kwargs):
-    from edge.types import DepthResult
+    from edge_depth.types import DepthResult
 
     zeros = np.zeros(left.shape, np.float32)
     return DepthResult(kwargs.get("stamp_ns", 0), zeros, zeros, zeros > 0, 1)
@@ -161,8 +161,8 @@ def test_two_hundred_dropped_frames_leave_nothing_behind(engine, pipelined, boun
     import time
     import tracemalloc
 
-    from edge.capture.replay import GroundTruth
-    from edge.runner import Runner
+    from edge_depth.capture.replay import GroundTruth
+    from edge_depth.runner import Runner
 
     (scan, frame, gt), = sim_events(1, 5.0)
 
@@ -200,8 +200,8 @@ def test_two_hundred_dropped_frames_leave_nothing_behind(engine, pipelined, boun
 
 
 def test_duplicated_stamps_and_a_missing_partner_are_counted_not_silent(tmp_path, caplog):
-    from edge.capture.replay import McapSource
-    from edge.mcap_log import image_message
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.mcap_log import image_message
 
     (scan, frame, _), = sim_events(1, 5.0)
     path = tmp_path / "odd.mcap"

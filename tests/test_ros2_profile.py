@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
-from calibration.io import loads_calibration
-from calibration.ros import transform_matrix
-from edge.capture.replay import Calibration, McapSource
-from edge.cli import main
-from edge.commands import replay_command
-from edge.types import LidarScan, StereoFrame
+from edge_depth.calibration.io import loads_calibration
+from edge_depth.calibration.ros import transform_matrix
+from edge_depth.capture.replay import Calibration, McapSource
+from edge_depth.cli import main
+from edge_depth.commands import replay_command
+from edge_depth.types import LidarScan, StereoFrame
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_every_ros2_topic_decodes_and_agrees_with_the_foxglove_file(both, record
 def foxglove_images(path, topic: str) -> list[np.ndarray]:
     from mcap_protobuf.decoder import DecoderFactory
 
-    from edge.capture.decode import decode_image
+    from edge_depth.capture.decode import decode_image
 
     with open(path, "rb") as f:
         reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -130,8 +130,8 @@ def test_demo_writes_the_ros2_profile(tmp_path, capsys):
 
 @pytest.mark.parametrize("profile", ["ros2", "foxglove"])
 def test_invalid_depth_is_nan_in_both_profiles(tmp_path, profile):
-    from edge.mcap_log import open_logger
-    from edge.types import DepthResult
+    from edge_depth.mcap_log import open_logger
+    from edge_depth.types import DepthResult
 
     disparity = np.full((8, 16), 10.0, np.float32)
     disparity[0] = 0.1  # below the 0.5 px minimum: invalid

@@ -12,8 +12,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from edge.capture import ld06, rplidar
-from edge.capture.serial_lidar import SerialLidarSource
+from edge_depth.capture import ld06, rplidar
+from edge_depth.capture.serial_lidar import SerialLidarSource
 
 
 def crc8_bitwise(data: bytes, poly: int = 0x4D) -> int:

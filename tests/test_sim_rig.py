@@ -5,9 +5,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calibration.projection import transform_points
-from edge.sim import PATTERNS, RigConfig, make_sample
-from edge.sim.lidar import R_CAM_LIDAR, default_T_cam_lidar
+from edge_depth.calibration.projection import transform_points
+from edge_depth.sim import PATTERNS, RigConfig, make_sample
+from edge_depth.sim.lidar import R_CAM_LIDAR, default_T_cam_lidar
 
 
 def _warp_right_to_left(right: np.ndarray, disp_left: np.ndarray) -> np.ndarray:

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.capture.sync import LidarSync, SyncConfig
-from edge.errors import ConfigError
-from edge.types import LidarScan
+from edge_depth.capture.sync import LidarSync, SyncConfig
+from edge_depth.errors import ConfigError
+from edge_depth.types import LidarScan
 
 MS = 1_000_000
 

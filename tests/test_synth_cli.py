@@ -8,9 +8,9 @@ import os
 import numpy as np
 import pytest
 
-from edge.cli import main
-from edge.sim import RigConfig, make_sample
-from edge.sim.folder import (
+from edge_depth.cli import main
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim.folder import (
     SceneFolderError,
     list_scene_folders,
     read_pfm,
@@ -95,7 +95,7 @@ def test_output_under_a_file_is_refused_with_one_line(tmp_path, capsys):
 
 
 def test_failure_midway_removes_the_scenes_already_written(tmp_path, monkeypatch):
-    import edge.sim.export as export
+    import edge_depth.sim.export as export
 
     calls = {"n": 0}
     real = export.make_sample
@@ -113,7 +113,7 @@ def test_failure_midway_removes_the_scenes_already_written(tmp_path, monkeypatch
 
 
 def test_synth_things_world_writes_training_pairs_and_continues(tmp_path, capsys):
-    from edge.sim.things_store import list_things, read_things
+    from edge_depth.sim.things_store import list_things, read_things
 
     args = ["synth", "--world", "things", "--out", str(tmp_path), "--count", "2", "--seed",
             "40", "--size", "96x64"]
@@ -132,7 +132,7 @@ def test_synth_things_world_refuses_an_mcap_output(tmp_path):
 
 
 def test_synth_things_scene_folders_carry_gt_rows_as_the_lidar(tmp_path):
-    from edge.sim.folder import read_scene_folder
+    from edge_depth.sim.folder import read_scene_folder
 
     assert main(["synth", "--world", "things", "--scene-folders", "--out", str(tmp_path),
                  "--count", "1", "--seed", "2000000", "--size", "96x64"]) == 0

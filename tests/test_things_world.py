@@ -6,12 +6,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.sim.gt_lidar import GtLidarPattern
-from edge.sim.photometry import CameraResponse, apply_camera
-from edge.sim.primitives import Cylinder, PlanePatch, Sphere, box_faces
-from edge.sim.textures import OPENCV_DOC_PHOTOS, texture_pyramids
-from edge.sim.things_store import DISPARITY_SCALE, generate, list_things, read_things
-from edge.sim.world import ThingsScene, WorldConfig, make_things_sample
+from edge_depth.sim.gt_lidar import GtLidarPattern
+from edge_depth.sim.photometry import CameraResponse, apply_camera
+from edge_depth.sim.primitives import Cylinder, PlanePatch, Sphere, box_faces
+from edge_depth.sim.textures import OPENCV_DOC_PHOTOS, texture_pyramids
+from edge_depth.sim.things_store import DISPARITY_SCALE, generate, list_things, read_things
+from edge_depth.sim.world import ThingsScene, WorldConfig, make_things_sample
 
 SMALL = WorldConfig(width=160, height=100, focal_px=120.0, min_objects=3, max_objects=8,
                     max_disparity_range_px=(20.0, 35.0))
@@ -149,7 +149,7 @@ def test_gt_lidar_none_share_sets_the_stereo_only_probability():
 
 
 def test_training_stream_flips_swap_views_and_lidar_matches_the_gt(tmp_path):
-    from edge.model.things_data import ThingsTrainSet, spatial
+    from edge_depth.model.things_data import ThingsTrainSet, spatial
 
     generate(tmp_path, 2, 0, WorldConfig(width=192, height=128, focal_px=140.0,
                                          max_disparity_range_px=(20.0, 30.0)))
@@ -175,7 +175,7 @@ def test_training_stream_flips_swap_views_and_lidar_matches_the_gt(tmp_path):
 
 
 def test_things_stream_refuses_an_empty_folder(tmp_path):
-    from edge.model.things_data import ThingsTrainSet
+    from edge_depth.model.things_data import ThingsTrainSet
 
     with pytest.raises(ValueError, match="no things samples"):
         ThingsTrainSet(tmp_path)

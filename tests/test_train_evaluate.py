@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 import torch
 
-from edge.cli import main as cli
-from tools import evaluate, train
+from edge_depth.cli import main as cli
+from edge_depth.tools import evaluate, train
 
 
 def test_train_writes_checkpoints_and_resumes_where_it_stopped(tmp_path):
@@ -61,7 +61,7 @@ def test_evaluate_reports_every_method_and_writes_json(tmp_path, capsys):
 
 @pytest.mark.slow
 def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
-    from tools import bench
+    from edge_depth.tools import bench
 
     out, md = tmp_path / "bench.json", tmp_path / "bench.md"
     assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1,4", "--rss-frames", "1",
@@ -92,7 +92,7 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path):
 
 
 def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
-    from tools import ship_checkpoint
+    from edge_depth.tools import ship_checkpoint
 
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "1", "--batch", "1", "--crop", "64x64",

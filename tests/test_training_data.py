@@ -15,16 +15,16 @@ import pytest
 
 torch = pytest.importorskip("torch")
 
-from edge.cli import main as cli  # noqa: E402
-from edge.model.data import RecordedTrainSet  # noqa: E402
-from edge.model.datasets import (  # noqa: E402
+from edge_depth.cli import main as cli  # noqa: E402
+from edge_depth.model.data import RecordedTrainSet  # noqa: E402
+from edge_depth.model.datasets import (  # noqa: E402
     kitti_arrays,
     open_training_data,
     read_kitti_calibration,
     sceneflow_arrays,
 )
-from edge.sim.folder import write_pfm  # noqa: E402
-from tools import train  # noqa: E402
+from edge_depth.sim.folder import write_pfm  # noqa: E402
+from edge_depth.tools import train  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 CHECKPOINT = ROOT / "edge" / "models" / "sparse_stereo.pt"
@@ -87,7 +87,7 @@ def test_sceneflow_layout_reads_gt_and_a_lidar_like_sample(tmp_path):
 
 
 def test_bad_data_specs_are_clear_errors(tmp_path):
-    from edge.errors import ConfigError
+    from edge_depth.errors import ConfigError
 
     with pytest.raises(ConfigError, match="scene folders, a .mcap file"):
         open_training_data(str(tmp_path))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from edge.errors import InvalidDataError
-from edge.types import DepthResult, LidarScan, StereoFrame
+from edge_depth.errors import InvalidDataError
+from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
 
 def _img(h=4, w=6, dtype=np.uint8):

@@ -49,8 +49,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--only", default=None, help="comma-separated run folder names")
     args = p.parse_args(argv)
-    from edge.sim.folder import list_scene_folders
-    from tools.evaluate import evaluate, markdown_table
+    from edge_depth.sim.folder import list_scene_folders
+    from edge_depth.tools.evaluate import evaluate, markdown_table
 
     folders = list_scene_folders(args.data)[: args.scenes]
     if not folders:

@@ -38,10 +38,10 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.atomic import atomic_write
-from edge.runtime.engine import DEFAULT_BUNDLE, Engine
-from tools.adapt_check import check, format_report, is_better, picture
-from tools.adapt_frames import Frame, load_frames, split_by_time
+from edge_depth.calibration.atomic import atomic_write
+from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
+from edge_depth.tools.adapt_check import check, format_report, is_better, picture
+from edge_depth.tools.adapt_frames import Frame, load_frames, split_by_time
 
 log = logging.getLogger(__name__)
 DEFAULT_CHECKPOINT = Path(DEFAULT_BUNDLE).parent / "sparse_stereo.pt"
@@ -90,10 +90,10 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     import torch
     from tqdm import tqdm
 
-    from edge.model.data import to_tensors
-    from edge.model.losses import sequence_loss
-    from tools.export import load_checkpoint
-    from tools.train import self_supervised_step
+    from edge_depth.model.data import to_tensors
+    from edge_depth.model.losses import sequence_loss
+    from edge_depth.tools.export import load_checkpoint
+    from edge_depth.tools.train import self_supervised_step
 
     if not frames:
         raise ValueError("no adapt frames")
@@ -184,8 +184,8 @@ def bundle_size(frames: list[Frame], multiple: int = 8) -> tuple[int, int]:
 def build_bundle(checkpoint: Path, bundle: Path, size: tuple[int, int], frames: list[Frame],
                  calib_frames: int = 16, node_search: bool = True) -> dict:
     """Export at `size`, then int8 quantization calibrated on up to `calib_frames` frames."""
-    from tools.export import export
-    from tools.quantize import quantize_bundle
+    from edge_depth.tools.export import export
+    from edge_depth.tools.quantize import quantize_bundle
 
     if bundle.exists():
         shutil.rmtree(bundle)
@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch  # noqa: F401  (the train extra: said in one line before any work)
     import tqdm  # noqa: F401
 
-    from edge.cli import load_topic_map
+    from edge_depth.cli import load_topic_map
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("recordings", type=Path, nargs="+",

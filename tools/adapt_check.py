@@ -8,10 +8,10 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge import selfcheck
-from edge.compare import accuracy
-from edge.runtime.engine import Engine
-from tools.adapt_frames import Frame
+from edge_depth import selfcheck
+from edge_depth.compare import accuracy
+from edge_depth.runtime.engine import Engine
+from edge_depth.tools.adapt_frames import Frame
 
 
 def check(engines: dict[str, Engine], frames: list[Frame], seed: int = 0

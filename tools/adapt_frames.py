@@ -48,8 +48,8 @@ def _compact(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def folder_frames(root: Path) -> list[Frame]:
     """Scene folders (left.png, right.png, sparse.pfm, disp.pfm as GT if there) as frames, in
     name order (one a "second")."""
-    from edge.model.datasets import scene_folder_arrays
-    from edge.sim.folder import list_scene_folders
+    from edge_depth.model.datasets import scene_folder_arrays
+    from edge_depth.sim.folder import list_scene_folders
 
     frames = []
     for i, folder in enumerate(list_scene_folders(root)):
@@ -65,9 +65,9 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
     """A recording's synced frames in time order, at most `max_frames` evenly spread (the
     stride doubles whenever the kept frames pass the limit, so memory stays bounded). A
     directory is read as scene folders (`folder_frames`)."""
-    from calibration.projection import project_to_disparity
-    from edge.capture.replay import McapSource, TopicMap, synced_frames
-    from edge.commands import replay_calibration
+    from edge_depth.calibration.projection import project_to_disparity
+    from edge_depth.capture.replay import McapSource, TopicMap, synced_frames
+    from edge_depth.commands import replay_calibration
 
     if Path(recording).is_dir():
         return folder_frames(Path(recording))[:max_frames]

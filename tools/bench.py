@@ -34,12 +34,12 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.model import StereoCalibration
-from calibration.projection import project_to_disparity
-from edge.baselines import make_sgbm, sgbm_disparity
-from edge.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
-from edge.sim import RigConfig, make_sample
-from edge.types import LidarScan
+from edge_depth.baselines import make_sgbm, sgbm_disparity
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.types import LidarScan
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_SEED0 = 1_000_000
@@ -55,7 +55,7 @@ def _timed(fn, args_list, out: list[float]) -> None:
 
 def replay_peak_rss_mb(frames: int, size: tuple[int, int], bundle: Path) -> float:
     """Peak RSS (MB) of `edge-depth replay` over a synthetic recording, in a subprocess."""
-    from edge.sim_recording import write_sim_recording
+    from edge_depth.sim_recording import write_sim_recording
 
     with tempfile.TemporaryDirectory() as tmp:
         rec = Path(tmp) / "rec.mcap"
@@ -146,9 +146,9 @@ def compare_runtimes(specs: list[str], scenes: int, rounds: int, threads: int, b
 
 def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle: Path,
           rss_frames: int = 5, runtime: str = "auto", bf16: bool | None = None) -> dict:
-    from edge.capture.sim import SimSource
-    from edge.daemon import Pipeline
-    from edge.mcap_log import McapLogger
+    from edge_depth.capture.sim import SimSource
+    from edge_depth.daemon import Pipeline
+    from edge_depth.mcap_log import McapLogger
 
     meta = load_bundle_meta(bundle)
     w, h = meta["size"]

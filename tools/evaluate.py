@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.baselines import (
+from edge_depth.baselines import (
     fill_row_nearest,
     lidar_linear,
     lidar_nearest,
@@ -40,9 +40,9 @@ from edge.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
-from edge.metrics import confidence_calibration, depth_metrics, disparity_metrics
-from edge.runtime.engine import DEFAULT_BUNDLE
-from edge.sim.folder import list_scene_folders, read_scene_folder
+from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
+from edge_depth.runtime.engine import DEFAULT_BUNDLE
+from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
 ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")
@@ -54,8 +54,8 @@ class TorchNet:
     def __init__(self, path: Path) -> None:
         import torch
 
-        from edge.model.config import ModelConfig
-        from edge.model.network import SparseStereoNet
+        from edge_depth.model.config import ModelConfig
+        from edge_depth.model.network import SparseStereoNet
 
         ckpt = torch.load(path, map_location="cpu", weights_only=False)
         self.net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
@@ -85,7 +85,7 @@ class BundleNet:
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None) -> None:
-        from edge.runtime.engine import Engine
+        from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16)
 

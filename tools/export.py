@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.cli import parse_size
+from edge_depth.cli import parse_size
 
 ENCODER_INPUTS = ["left", "right", "sparse", "valid"]
 STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
@@ -36,7 +36,7 @@ def build_graphs(net):
     """Wrap a SparseStereoNet (gru_levels 1) in the three exportable modules."""
     import torch
 
-    from edge.model.network import convex_upsample
+    from edge_depth.model.network import convex_upsample
 
     if net.config.gru_levels != 1:
         raise SystemExit("export supports gru_levels 1 (the deployed configuration)")
@@ -102,8 +102,8 @@ def count_flops(module, args) -> float:
 def load_checkpoint(path: Path):
     import torch
 
-    from edge.model.config import ModelConfig
-    from edge.model.network import SparseStereoNet
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
 
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
     net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
@@ -113,7 +113,7 @@ def load_checkpoint(path: Path):
 
 def reference_inputs(size: tuple[int, int], seed: int = 1_000_000) -> dict[str, np.ndarray]:
     """A synthetic test-split scene at `size` (the export check's input)."""
-    from edge.sim import RigConfig, make_sample
+    from edge_depth.sim import RigConfig, make_sample
 
     w, h = size
     sample = make_sample(seed, RigConfig(width=w, height=h), "beams16")
@@ -182,7 +182,7 @@ def check_export(net, bundle: Path, meta: dict, size: tuple[int, int]) -> dict:
     """Max |ONNX Runtime - PyTorch| disparity (px) at 4 iterations on a synthetic scene."""
     import torch
 
-    from edge.runtime.engine import Engine
+    from edge_depth.runtime.engine import Engine
 
     inputs = reference_inputs(size)
     with torch.no_grad():

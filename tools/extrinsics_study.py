@@ -35,8 +35,8 @@ def perturbed(T: np.ndarray, degrees: float, metres: float, seed: int = 0) -> np
 
 
 def main(argv: list[str] | None = None) -> int:
-    from calibration.extrinsics import pose_difference, refine_extrinsics
-    from edge.sim import make_sample
+    from edge_depth.calibration.extrinsics import pose_difference, refine_extrinsics
+    from edge_depth.sim import make_sample
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--sets", type=int, default=3)

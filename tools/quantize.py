@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.metrics import disparity_metrics
-from edge.runtime.engine import Engine, load_bundle_meta
-from edge.sim.folder import list_scene_folders, read_scene_folder
+from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime.engine import Engine, load_bundle_meta
+from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 CALIB_SEED0 = 500_000  # synthetic calibration frames come from the training seeds
 PARTS = ("encoder", "step", "upsample")
@@ -38,7 +38,7 @@ RUNTIME = "onnxruntime"  # the quantizer is ONNX Runtime's: its choices are meas
 def calibration_frames(spec: str, size: tuple[int, int]):
     """Yield (left, right, sparse) from scene folders or `synthetic:N` rig scenes."""
     if spec.startswith("synthetic:"):
-        from edge.sim import RigConfig, make_sample
+        from edge_depth.sim import RigConfig, make_sample
 
         count = int(spec.split(":", 1)[1])
         rig = RigConfig(width=size[0], height=size[1])

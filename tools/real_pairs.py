@@ -24,9 +24,9 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge.sim.folder import write_pfm
-from edge.sim.gt_lidar import GtLidarPattern
-from edge.sim.textures import OPENCV_DOC_PHOTOS
+from edge_depth.sim.folder import write_pfm
+from edge_depth.sim.gt_lidar import GtLidarPattern
+from edge_depth.sim.textures import OPENCV_DOC_PHOTOS
 
 DATA_IN_DEB = "usr/share/doc/opencv-doc/examples/data"
 SIZE = (640, 400)

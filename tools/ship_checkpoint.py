@@ -15,7 +15,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from calibration.atomic import atomic_write
+from edge_depth.calibration.atomic import atomic_write
 
 STAGE_KEYS = ("mode", "steps", "batch", "crop", "iters", "patterns", "lr", "seed", "data",
               "refine", "no_half_res_block", "split", "stereo_only_share")

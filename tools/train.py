@@ -27,15 +27,15 @@ from pathlib import Path
 import torch
 from torch.utils.data import DataLoader
 
-from calibration.atomic import atomic_write
-from edge.model.config import ModelConfig
-from edge.model.data import (
+from edge_depth.calibration.atomic import atomic_write
+from edge_depth.model.config import ModelConfig
+from edge_depth.model.data import (
     VAL_SEED0,
     FixedSplit,
     RecordedTrainSet,
     SyntheticTrainSet,
 )
-from edge.model.losses import (
+from edge_depth.model.losses import (
     CONFIDENCE_WEIGHT,
     confidence_loss,
     self_supervised_loss,
@@ -43,7 +43,7 @@ from edge.model.losses import (
     split_sparse,
     view_loss,
 )
-from edge.model.network import SparseStereoNet
+from edge_depth.model.network import SparseStereoNet
 
 
 def parse_args(argv):
@@ -238,7 +238,7 @@ def _train(argv: list[str] | None) -> int:
         net = torch.nn.parallel.DistributedDataParallel(net)
     model = net.module if world > 1 else net
     if args.data is not None and args.data.startswith("things:"):
-        from edge.model.things_data import ThingsTrainSet
+        from edge_depth.model.things_data import ThingsTrainSet
 
         data = ThingsTrainSet(args.data[len("things:"):], (cw, ch),
                               seed=(args.seed * 1000 + step) * world + rank,

@@ -18,8 +18,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge.metrics import disparity_metrics
-from edge.sim.folder import list_scene_folders, read_scene_folder
+from edge_depth.metrics import disparity_metrics
+from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 FACTOR = 8
 
@@ -40,7 +40,7 @@ def up(low: np.ndarray, size: tuple[int, int], interpolation: int) -> np.ndarray
 def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
     import torch
 
-    from edge.model.network import convex_upsample
+    from edge_depth.model.network import convex_upsample
 
     t = lambda a: torch.from_numpy(a.astype(np.float32))[None, None]  # noqa: E731
     sparse = np.where(np.isfinite(scene.sparse) & (scene.sparse > 0), scene.sparse, 0)
@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    from tools.export import load_checkpoint
+    from edge_depth.tools.export import load_checkpoint
 
     net, _ = load_checkpoint(args.model)  # once, not per scene
     rows: dict[str, list[dict]] = {}

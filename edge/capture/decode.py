@@ -149,7 +149,7 @@ def camera_info_dict(msg) -> dict:
 
 
 def static_transforms(msg) -> list[tuple[str, str, np.ndarray]]:
-    from calibration.ros import transform_matrix
+    from edge_depth.calibration.ros import transform_matrix
 
     out = []
     for t in msg.transforms:

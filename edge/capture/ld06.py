@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from edge.types import LidarScan
+from edge_depth.types import LidarScan
 
 HEADER, VER_LEN = 0x54, 0x2C
 PACKET_SIZE = 47

@@ -17,9 +17,9 @@ from collections import Counter
 
 import numpy as np
 
-from edge.capture import Backoff, Source
-from edge.errors import InvalidDataError
-from edge.types import StereoFrame
+from edge_depth.capture import Backoff, Source
+from edge_depth.errors import InvalidDataError
+from edge_depth.types import StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -93,7 +93,7 @@ class OakSource(Source):
     def _build(self):
         import depthai as dai
 
-        from calibration.oak import stereo_from_handler
+        from edge_depth.calibration.oak import stereo_from_handler
 
         device = dai.Device(dai.DeviceInfo(self.device_id)) if self.device_id else dai.Device()
         pipeline = dai.Pipeline(device)

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.capture import Source
-from edge.capture.decode import (
+from edge_depth.capture import Source
+from edge_depth.capture.decode import (
     camera_info,
     camera_info_dict,
     decode_image,
@@ -34,9 +34,9 @@ from edge.capture.decode import (
     static_transforms,
     toml_text,
 )
-from edge.errors import EdgeError
-from edge.topics import TOPICS
-from edge.types import Calibration, GroundTruth, LidarScan, StereoFrame
+from edge_depth.errors import EdgeError
+from edge_depth.topics import TOPICS
+from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ class TopicMap:
     @classmethod
     def ros2_profile(cls, prefix: str = "/") -> TopicMap:
         """The topics our ros2 profile writes (`edge.ros2_log`)."""
-        from edge.topics import ros2_topic
+        from edge_depth.topics import ros2_topic
 
         return cls(**{role: ros2_topic(key, prefix) for role, key in (
             ("left", "left"), ("right", "right"), ("lidar", "lidar"),
@@ -198,7 +198,7 @@ class McapSource(Source):
     def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
         """Read the recording's first messages for its calibration: /edge/calibration (ours,
         logged first), the mapped camera infos, /tf_static and the LiDAR's frame id."""
-        from edge.capture.mcap_tolerant import ReadReport, iter_messages
+        from edge_depth.capture.mcap_tolerant import ReadReport, iter_messages
 
         t, found = self.topics, RecordingCalibration()
         wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
@@ -254,7 +254,7 @@ class McapSource(Source):
             yield from self._one_file(path)
 
     def _one_file(self, path: Path):
-        from edge.capture.mcap_tolerant import ReadReport, iter_messages
+        from edge_depth.capture.mcap_tolerant import ReadReport, iter_messages
 
         report, seen = ReadReport(), 0
         first_time = last_time = None
@@ -415,9 +415,9 @@ def recording_calibration(source: McapSource):
     else the mapped CameraInfo pair with T_cam_lidar from /tf_static (the chain from the
     LiDAR's frame to the left camera's). (stereo, lidar or None, where it came from), or None
     when it carries neither."""
-    from calibration.io import loads_calibration
-    from calibration.model import LidarExtrinsics
-    from calibration.ros import chain_transform, stereo_from_camera_infos
+    from edge_depth.calibration.io import loads_calibration
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.calibration.ros import chain_transform, stereo_from_camera_infos
 
     found = source.scan_calibration()
     t = source.topics
@@ -458,7 +458,7 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
     (N, 3) of the revolution nearest in time among those received before it (0 rows if none),
     GT disparity or None). `stereo` rectifies frames the recording did not store rectified;
     `time_offset_ns` moves LiDAR stamps into the camera clock; `topics` maps a ROS 2 bag's."""
-    from edge.capture.sync import LidarSync, SyncConfig
+    from edge_depth.capture.sync import LidarSync, SyncConfig
 
     sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns))
     rectifier = stereo.rectifier()

@@ -22,9 +22,9 @@ from collections import Counter
 
 import numpy as np
 
-from edge.capture import Backoff, Source, ld06, rplidar
-from edge.errors import ConfigError, EdgeError
-from edge.types import LidarScan
+from edge_depth.capture import Backoff, Source, ld06, rplidar
+from edge_depth.errors import ConfigError, EdgeError
+from edge_depth.types import LidarScan
 
 log = logging.getLogger(__name__)
 

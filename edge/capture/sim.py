@@ -6,11 +6,11 @@ revolution that ended just before the exposure), the frame at `period_ms` interv
 
 from __future__ import annotations
 
-from calibration.model import LidarExtrinsics, StereoCalibration
-from edge.capture import Source
-from edge.sim import RigConfig, make_sample
-from edge.sim.lidar import default_T_cam_lidar
-from edge.types import GroundTruth, LidarScan
+from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.capture import Source
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim.lidar import default_T_cam_lidar
+from edge_depth.types import GroundTruth, LidarScan
 
 
 class SimSource(Source):

@@ -22,8 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge.errors import ConfigError
-from edge.types import LidarScan
+from edge_depth.errors import ConfigError
+from edge_depth.types import LidarScan
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 
-from edge.errors import ConfigError
+from edge_depth.errors import ConfigError
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 from torch.utils.data import Dataset, IterableDataset, get_worker_info
 
-from edge.sim import RigConfig, make_sample
+from edge_depth.sim import RigConfig, make_sample
 
 TEST_SEED0 = 1_000_000
 VAL_SEED0 = 2_000_000
@@ -96,7 +96,7 @@ class RecordedTrainSet(IterableDataset):
     def __init__(self, spec: str, crop: tuple[int, int] | None = (320, 192), seed: int = 0,
                  augment: bool = True, buffer: int = 16, shard: int = 0, shards: int = 1
                  ) -> None:
-        from edge.model.datasets import open_training_data
+        from edge_depth.model.datasets import open_training_data
 
         self.spec, self.crop, self.seed, self.augment = spec, crop, seed, augment
         self.buffer, self.shard, self.shards = buffer, shard, shards

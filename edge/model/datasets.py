@@ -30,8 +30,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge.errors import ConfigError
-from edge.sim.folder import list_scene_folders, read_grey, read_pfm, read_scene_folder
+from edge_depth.errors import ConfigError
+from edge_depth.sim.folder import list_scene_folders, read_grey, read_pfm, read_scene_folder
 
 log = logging.getLogger(__name__)
 
@@ -52,8 +52,8 @@ def _arrays(left, right, gt=None, gt_right=None, sparse=None, sparse_right=None)
 
 # -- scene folders ---------------------------------------------------------------------------
 def scene_folder_arrays(folder: Path) -> dict:
-    from calibration.model import StereoCalibration
-    from calibration.projection import project_to_disparity
+    from edge_depth.calibration.model import StereoCalibration
+    from edge_depth.calibration.projection import project_to_disparity
 
     scene = read_scene_folder(folder)
     sparse_right = None
@@ -71,8 +71,8 @@ def scene_folder_arrays(folder: Path) -> dict:
 def mcap_arrays(path: Path):
     """Frames of a recording with their LiDAR projected into both views (calibration from the
     recording); GT where the recording carries /sim/gt_disparity."""
-    from calibration.projection import project_to_disparity
-    from edge.capture.replay import McapSource, recording_calibration, synced_frames
+    from edge_depth.calibration.projection import project_to_disparity
+    from edge_depth.capture.replay import McapSource, recording_calibration, synced_frames
 
     found = recording_calibration(McapSource(path))
     if found is None:

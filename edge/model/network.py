@@ -12,17 +12,17 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from edge.model.config import ModelConfig
-from edge.model.corr import (
+from edge_depth.model.config import ModelConfig
+from edge_depth.model.corr import (
     correlation_pyramid,
     correlation_volume,
     flatten_pyramid,
     lookup_flat,
 )
-from edge.model.cspn import cspn, normalise_affinity, patches_3x3
-from edge.model.extractor import Encoders
-from edge.model.refine import GuidedSelection, Refinement
-from edge.model.update import UpdateBlock
+from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
+from edge_depth.model.extractor import Encoders
+from edge_depth.model.refine import GuidedSelection, Refinement
+from edge_depth.model.update import UpdateBlock
 
 
 def downsample_sparse(sparse: torch.Tensor, valid: torch.Tensor, factor: int

@@ -21,8 +21,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from edge.model.cspn import patches_3x3
-from edge.model.losses import warp_horizontal
+from edge_depth.model.cspn import patches_3x3
+from edge_depth.model.losses import warp_horizontal
 
 RESIDUAL_INIT_STD = 1e-2  # version 2: ~the identity at the start (residuals of ~0.1 px), not zero
 CONFIDENCE_TRUNK_GRAD = 0.1  # how much of the confidence's gradient reaches the shared trunk

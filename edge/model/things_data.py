@@ -15,10 +15,10 @@ import numpy as np
 import torch
 from torch.utils.data import IterableDataset, get_worker_info
 
-from edge.model.data import TRAIN_SEED_LIMIT, sample_to_arrays, to_tensors
-from edge.sim import RigConfig, make_sample
-from edge.sim.gt_lidar import GtLidarPattern
-from edge.sim.things_store import list_things, read_things
+from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays, to_tensors
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim.gt_lidar import GtLidarPattern
+from edge_depth.sim.things_store import list_things, read_things
 
 
 def spatial(arrays: dict, rng: np.random.Generator, crop: tuple[int, int]) -> dict:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.errors import ConfigError
+from edge_depth.errors import ConfigError
 
 RUNTIMES = ("auto", "onnxruntime", "openvino")
 BF16_GRAPHS = ("encoder",)  # parts whose bf16 run was measured to agree (README)

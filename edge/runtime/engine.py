@@ -16,10 +16,10 @@ from pathlib import Path
 
 import numpy as np
 
-from edge.errors import ConfigError, InvalidDataError
-from edge.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
-from edge.runtime.fit import FitPlan
-from edge.types import DepthResult
+from edge_depth.errors import ConfigError, InvalidDataError
+from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
+from edge_depth.runtime.fit import FitPlan
+from edge_depth.types import DepthResult
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
 MIN_DISPARITY = 0.5  # px: below this the depth is reported invalid (beyond f·B/0.5)

@@ -10,7 +10,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from calibration.stereo import Board
+from edge_depth.calibration.stereo import Board
 
 PX_PER_M = 4000.0  # board texture resolution
 

@@ -7,10 +7,10 @@ import shutil
 import sys
 from pathlib import Path
 
-from edge.errors import EdgeError
-from edge.sim.folder import write_scene_folder
-from edge.sim.rig import make_sample
-from edge.sim.scene import RigConfig
+from edge_depth.errors import EdgeError
+from edge_depth.sim.folder import write_scene_folder
+from edge_depth.sim.rig import make_sample
+from edge_depth.sim.scene import RigConfig
 
 
 class OutputError(EdgeError):
@@ -59,9 +59,9 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
     import cv2
     import numpy as np
 
-    from edge.sim.folder import write_pfm
-    from edge.sim.gt_lidar import GtLidarPattern
-    from edge.sim.world import WorldConfig, make_things_sample
+    from edge_depth.sim.folder import write_pfm
+    from edge_depth.sim.gt_lidar import GtLidarPattern
+    from edge_depth.sim.world import WorldConfig, make_things_sample
 
     cfg = WorldConfig(width=size[0], height=size[1])
     _writable(out)
@@ -93,8 +93,8 @@ def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
     interrupted run continues; `workers` processes render in parallel."""
     from concurrent.futures import ProcessPoolExecutor
 
-    from edge.sim.things_store import generate
-    from edge.sim.world import WorldConfig
+    from edge_depth.sim.things_store import generate
+    from edge_depth.sim.world import WorldConfig
 
     cfg = WorldConfig(width=size[0], height=size[1])
     _writable(out)

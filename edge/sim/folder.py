@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge.errors import EdgeError
+from edge_depth.errors import EdgeError
 
 
 class SceneFolderError(EdgeError):

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge.errors import ConfigError
-from edge.sim.scene import Scene
-from edge.types import LidarScan
+from edge_depth.errors import ConfigError
+from edge_depth.sim.scene import Scene
+from edge_depth.types import LidarScan
 
 # Rotation taking LiDAR axes (x fwd, y left, z up) to camera axes (x right, y down, z fwd).
 R_CAM_LIDAR = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])

@@ -7,12 +7,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calibration.model import StereoCalibration
-from calibration.projection import project_to_disparity, transform_points
-from edge.sim.lidar import PATTERNS, LidarPattern, default_T_cam_lidar, simulate_scan
-from edge.sim.scene import LEFT, RIGHT, Layer, RigConfig, Scene
-from edge.sim.textures import photo_textures, procedural_texture
-from edge.types import LidarScan, StereoFrame
+from edge_depth.calibration.model import StereoCalibration
+from edge_depth.calibration.projection import project_to_disparity, transform_points
+from edge_depth.sim.lidar import PATTERNS, LidarPattern, default_T_cam_lidar, simulate_scan
+from edge_depth.sim.scene import LEFT, RIGHT, Layer, RigConfig, Scene
+from edge_depth.sim.textures import photo_textures, procedural_texture
+from edge_depth.types import LidarScan, StereoFrame
 
 
 @dataclass(frozen=True)

@@ -18,8 +18,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calibration.sampling import sample_bilinear
-from edge.errors import ConfigError
+from edge_depth.calibration.sampling import sample_bilinear
+from edge_depth.errors import ConfigError
 
 LEFT, RIGHT = "left", "right"
 

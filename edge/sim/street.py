@@ -16,9 +16,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge.sim.gt_lidar import GtLidarPattern
-from edge.sim.primitives import Cylinder, PlanePatch, box_faces
-from edge.sim.world import ThingsScene, WorldConfig
+from edge_depth.sim.gt_lidar import GtLidarPattern
+from edge_depth.sim.primitives import Cylinder, PlanePatch, box_faces
+from edge_depth.sim.world import ThingsScene, WorldConfig
 
 STREET_CAMERA = WorldConfig(width=1242, height=375, focal_px=720.0, baseline_m=0.54)
 # LiDAR 0.3 m above the left camera, axes aligned with it: p_cam = p_lidar + t

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-from calibration.atomic import atomic_write
-from edge.sim.world import ThingsSample, WorldConfig, make_things_sample
+from edge_depth.calibration.atomic import atomic_write
+from edge_depth.sim.world import ThingsSample, WorldConfig, make_things_sample
 
 DISPARITY_SCALE = 64.0
 

@@ -20,9 +20,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from calibration.sampling import sample_bilinear
-from edge.sim.photometry import CameraResponse, apply_camera
-from edge.sim.primitives import (
+from edge_depth.calibration.sampling import sample_bilinear
+from edge_depth.sim.photometry import CameraResponse, apply_camera
+from edge_depth.sim.primitives import (
     Cylinder,
     PlanePatch,
     Primitive,
@@ -30,7 +30,7 @@ from edge.sim.primitives import (
     box_faces,
     projected_window,
 )
-from edge.sim.textures import texture_pyramids
+from edge_depth.sim.textures import texture_pyramids
 
 MIP_LEVELS = 5
 
