@@ -1,21 +1,27 @@
 # The README's two commands: `make demo` and `make test`. Both install into ./.venv when it is
-# missing or older than pyproject.toml.
+# missing or older than pyproject.toml: the demo only the robot-side base install (no torch,
+# no test tools), the tests every extra on top of it.
 PYTHON ?= python3
 TORCH_VERSION ?= 2.13.0
 VENV := .venv
 BIN := $(VENV)/bin
+BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
 
 .PHONY: demo test lint bench bundle clean
 
-$(STAMP): pyproject.toml Makefile constraints/robot.txt
+$(BASE): pyproject.toml Makefile constraints/robot.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -c constraints/robot.txt -e .
+	touch $(BASE)
+
+$(STAMP): $(BASE)
 	$(BIN)/pip install --quiet torch==$(TORCH_VERSION)
 	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino]'
 	touch $(STAMP)
 
-demo: $(STAMP)
+demo: $(BASE)
 	$(BIN)/edge-depth demo
 
 test: $(STAMP)
