@@ -98,8 +98,14 @@ def test_replay_command_writes_results_and_scores_against_gt(recording, tmp_path
     assert sum(isinstance(e, StereoFrame) for e in events) == 3
 
 
-def test_faults_in_a_recording_are_counted_and_skipped(tmp_path, engine):
-    sample = make_sample(SEED)
+@pytest.fixture(scope="module")
+def rig_sample():
+    """One 640x400 rig scene for the tests that only need frames (rendered once)."""
+    return make_sample(SEED)
+
+
+def test_faults_in_a_recording_are_counted_and_skipped(tmp_path, engine, rig_sample):
+    sample = rig_sample
     stereo, lidar = SimSource(1).calibration
     path = tmp_path / "faulty.mcap"
     t = 1_000_000_000
@@ -154,12 +160,12 @@ def test_pipeline_logs_diagnostics_and_notifies_systemd(tmp_path, engine, notify
     assert diags[-1]["latency_ms"]["engine"]["median"] > 0
 
 
-def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine):
+def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine, rig_sample):
     class Burst:
         """Frames arrive all at once: the queue of 2 must drop."""
 
         def __init__(self) -> None:
-            self.sample = make_sample(SEED)
+            self.sample = rig_sample
 
         def close(self) -> None:
             pass
@@ -179,9 +185,9 @@ def test_a_live_source_that_outpaces_inference_drops_the_oldest_frames(engine):
 
 
 @pytest.mark.parametrize("pipelined", [False, True])
-def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined):
+def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined, rig_sample):
     class Burst:
-        sample = make_sample(SEED)
+        sample = rig_sample
 
         def close(self) -> None:
             pass
@@ -377,8 +383,8 @@ def test_truncation_at_random_offsets_never_raises_past_the_warning(recording, t
         assert len(frames) <= 3 and source.stats.truncated
 
 
-def test_an_engine_failure_costs_one_frame_and_a_dying_source_is_reported(engine,
-                                                                         monkeypatch):
+def test_an_engine_failure_costs_one_frame_and_a_dying_source_is_reported(engine, monkeypatch,
+                                                                         rig_sample):
     source = SimSource(3, SEED)
     pipeline = Pipeline(engine, *source.calibration)
     real = engine.infer
@@ -399,7 +405,7 @@ def test_an_engine_failure_costs_one_frame_and_a_dying_source_is_reported(engine
             pass
 
         def __iter__(self):
-            yield make_sample(SEED).frame(1_000_000_000, 0)
+            yield rig_sample.frame(1_000_000_000, 0)
             raise OSError("USB gone")
 
     monkeypatch.setattr(engine, "infer", real)
