@@ -1,7 +1,7 @@
 """The paper's ablation in miniature, at equal training budgets, on the synthetic rig.
 
     python tools/ablation.py --out runs/ablation --data data/test16 [--steps 500]
-        [--scenes 10] [--threads 1]
+        [--scenes 10] [--threads 1] [--train-args "--refine 3 --data things:data/things"]
 
 Runs (each `tools/train.py` with the same batch, crop, seed and LiDAR pattern; the supervised
 runs share --steps, the self-supervised ones --self-steps):
@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -48,6 +49,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--scenes", type=int, default=10)
     p.add_argument("--threads", type=int, default=1)
     p.add_argument("--only", default=None, help="comma-separated run folder names")
+    p.add_argument("--train-args", default="",
+                   help="more tools/train.py arguments for every run (the shipped model's "
+                        "architecture, its training data), e.g. \"--refine 3 "
+                        "--no-half-res-block --data things:data/things\"")
     args = p.parse_args(argv)
     from edge_depth.sim.folder import list_scene_folders
     from edge_depth.tools.evaluate import evaluate, markdown_table
@@ -68,7 +73,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"== training {name} -> {out}", flush=True)
             steps = args.self_steps if "self" in extra and args.self_steps else args.steps
             subprocess.run([sys.executable, str(ROOT / "tools" / "train.py"), "--out", str(out),
-                            "--resume", "--steps", str(steps), *common, *extra], check=True)
+                            "--resume", "--steps", str(steps), *common, *extra,
+                            *shlex.split(args.train_args)], check=True)
         result = evaluate(folders, ["net"], [4, 16], out / "final.pt")
         summary[f"{name} @4"] = result["net@4"]
         summary[f"{name} @16"] = result["net@16"]
