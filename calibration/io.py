@@ -18,10 +18,10 @@
 
 from __future__ import annotations
 
+import tomllib
 from pathlib import Path
 
 import numpy as np
-import tomllib
 
 from edge_depth.calibration.atomic import atomic_write
 from edge_depth.calibration.errors import CalibrationError, CalibrationFileError

@@ -51,10 +51,9 @@ types are errors that name the file and the key.
 from __future__ import annotations
 
 import math
+import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-
-import tomllib
 
 from edge_depth.errors import ConfigError
 
