@@ -9,6 +9,7 @@ by their writers the same way.
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -25,6 +26,9 @@ def atomic_write(path: Path | str, suffix: str = ".tmp") -> Iterator[Path]:
     os.close(fd)
     tmp = Path(name)
     try:
+        # mkstemp's file is private (0600); the result gets the mode a plain open() would
+        # give, or the replaced file's own (a daemon user must still read the calibration)
+        os.chmod(tmp, stat.S_IMODE(path.stat().st_mode) if path.exists() else _new_file_mode())
         yield tmp
         with open(tmp, "rb+") as f:
             os.fsync(f.fileno())
@@ -32,3 +36,15 @@ def atomic_write(path: Path | str, suffix: str = ".tmp") -> Iterator[Path]:
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
+
+
+def _new_file_mode() -> int:
+    """0666 less the process's umask (read without changing it, unlike os.umask)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return 0o666 & ~int(line.split()[1], 8)
+    except OSError:
+        pass
+    return 0o644

@@ -132,3 +132,14 @@ def test_atomic_write_replaces_whole_or_leaves_the_old_file(tmp_path):
     with atomic_write(target) as tmp:
         tmp.write_text("new")
     assert target.read_text() == "new" and sorted(tmp_path.iterdir()) == [target]
+    # permissions: a new file's are a plain open()'s, a replaced file keeps its own
+    fresh = tmp_path / "fresh.toml"
+    with atomic_write(fresh) as tmp:
+        tmp.write_text("x")
+    plain = tmp_path / "plain"
+    plain.write_text("x")
+    assert fresh.stat().st_mode & 0o777 == plain.stat().st_mode & 0o777
+    target.chmod(0o640)
+    with atomic_write(target) as tmp:
+        tmp.write_text("newer")
+    assert target.stat().st_mode & 0o777 == 0o640
