@@ -149,9 +149,10 @@ def filter_occluded(sparse: np.ndarray, valid: np.ndarray, lidar_offset_m: np.nd
             idx = np.nonzero(~occluded & (reach >= cfg.step_px) & (nearby > threshold))[0]
             p_flat, p_d, p_thr, p_reach = flat[idx], d[idx], threshold[idx], reach[idx]
             steps = np.arange(cfg.step_px, cfg.max_search_px + 1, cfg.step_px)
-            # probes in blocks of 8 steps, one gather each (the per-step loop spent most of
-            # its time in numpy's per-call overhead); a probe past a point's reach cannot
-            # hit (it would need a nearer point than its box holds), so none is masked
+            # probes in blocks of 8 steps, one gather each (fewer numpy calls: the whole
+            # projection 4.98 against 5.43 ms median for one step at a time, interleaved on
+            # 6 scenes); a probe past a point's reach cannot hit (it would need a nearer
+            # point than its box holds), so none is masked
             for start in range(0, steps.size, 8):
                 k = steps[start:start + 8]
                 offsets = (np.rint(sign * k * direction[1]).astype(np.int64) * pw
