@@ -38,7 +38,7 @@ def imported_modules(path: Path) -> set[str]:
 def as_folder(module: str) -> str:
     """An installed name in the repository's terms: edge_depth.calibration.io -> calibration.io,
     edge_depth.tools.train -> tools.train, edge_depth.cli -> edge.cli."""
-    for folder in ("calibration", "tools"):
+    for folder in FOLDERS[1:]:  # the two mapped under edge_depth
         if module == f"edge_depth.{folder}" or module.startswith(f"edge_depth.{folder}."):
             return module[len("edge_depth."):]
     if module == "edge_depth" or module.startswith("edge_depth."):
