@@ -6,8 +6,8 @@ Three graphs (opset 17, static shapes) so the iteration count stays a runtime ch
 encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
-the refinement stage it also takes the images (version 2: and the LiDAR) and returns the
-confidence 0-1 as well),
+the refinement stage it also takes the images (versions 2-3: and the LiDAR; version 4, the
+1/4 stage: the encoder's 1/4 features and the LiDAR) and returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
 summary). The export is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
 """
@@ -27,8 +27,9 @@ STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
+QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alone reads
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
-                 3: ["left", "right", "sparse", "valid"]}
+                 3: ["left", "right", "sparse", "valid"], 4: [*QUARTER, "sparse", "valid"]}
 OPSET = 17
 
 
@@ -49,7 +50,8 @@ def build_graphs(net):
         def forward(self, left, right, sparse, valid):
             s = self.net.encode(left, right, sparse, valid)
             return (s["disparity"], s["hidden"], s["corr"], s["context"], s["weights"],
-                    s["centre"], s["sparse"], s["valid"])
+                    s["centre"], s["sparse"], s["valid"],
+                    *[s[k] for k in QUARTER if k in s])
 
     class Step(torch.nn.Module):
         def __init__(self):
@@ -86,7 +88,21 @@ def build_graphs(net):
             full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid)
             return full, torch.sigmoid(logit)
 
-    upsample = UpsampleRefine() if net.config.refine else Upsample()
+    class UpsampleQuarter(torch.nn.Module):
+        """The 1/4 stage (refinement version 4) on the encoder's 1/4 features."""
+
+        def __init__(self):
+            super().__init__()
+            self.net = net
+
+        def forward(self, disparity, hidden, quarter_left, quarter_right, sparse, valid):
+            mask = self.net.update.upsampling_mask(hidden)
+            full, logit = self.net.upsample(None, None, disparity, mask, sparse, valid,
+                                            (quarter_left, quarter_right))
+            return full, torch.sigmoid(logit)
+
+    refine = net.config.refine
+    upsample = UpsampleQuarter() if refine == 4 else UpsampleRefine() if refine else Upsample()
     return Encoder().eval(), Step().eval(), upsample.eval()
 
 
@@ -137,16 +153,17 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
     x = torch.zeros(1, 1, h, w)
     with torch.no_grad():
         enc_out = encoder(x, x, x, x)
-        d, hidden, corr, context, weights, centre, sparse_low, valid_low = enc_out
+        d, hidden, corr, context, weights, centre, sparse_low, valid_low, *quarter = enc_out
         step_args = (d, hidden, corr, context, weights, centre, sparse_low, valid_low)
         graphs = [
             ("encoder.onnx", encoder, (x, x, x, x), ENCODER_INPUTS,
-             ["disparity", "hidden", *STATE]),
+             ["disparity", "hidden", *STATE, *QUARTER[:len(quarter)]]),
             ("step.onnx", step, step_args, STEP_INPUTS, STEP_OUTPUTS),
         ]
         if cfg.refine:
             refine_inputs = REFINE_INPUTS[cfg.refine]
-            up_args = (d, hidden, *[x] * len(refine_inputs))
+            known = dict(zip(QUARTER, quarter, strict=False))
+            up_args = (d, hidden, *[known.get(k, x) for k in refine_inputs])
             graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS + refine_inputs,
                            ["disparity_full", "confidence"]))
         else:

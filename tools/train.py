@@ -60,9 +60,11 @@ def parse_args(argv):
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
-    p.add_argument("--refine", type=int, nargs="?", const=2, default=0, choices=(0, 1, 2, 3),
-                   help="add the half-resolution refinement + confidence stage: version 2 "
-                        "(images and LiDAR, the default with a bare --refine) or 1 (images)")
+    p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
+                   choices=(0, 1, 2, 3, 4),
+                   help="the refinement + confidence stage (edge.model.config.ModelConfig): "
+                        "2 (the default with a bare --refine) half resolution, images and "
+                        "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")
     p.add_argument("--patterns", default="beams16")

@@ -17,7 +17,9 @@ class ModelConfig:
     goes from the stem straight to 1/4); refine: the half-resolution image-guided refinement
     with its confidence output (`edge.model.refine`): 0 none, 1 the images only (stage 4),
     2 the images and the LiDAR, with separate residual and confidence heads, 3 a choice
-    among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR."""
+    among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR, 4 the
+    1/4 stage (`edge.model.quarter`: local correlation at the backbone's 1/4 features, a
+    residual, its own 4× convex upsampling; downsample 8 only)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -37,8 +39,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
-        if self.refine not in (0, 1, 2, 3):
-            raise ConfigError("refine", "0, 1, 2 or 3", self.refine)
+        if self.refine not in (0, 1, 2, 3, 4):
+            raise ConfigError("refine", "0, 1, 2, 3 or 4", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if len(self.widths) != 3 or min(self.widths) < 1:

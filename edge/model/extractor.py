@@ -32,7 +32,8 @@ class ResidualBlock(nn.Module):
 
 
 class Backbone(nn.Module):
-    """Grey image (B, 1, H, W) in [0, 255] -> features at 1/downsample, (B, widths[-1], h, w)."""
+    """Grey image (B, 1, H, W) in [0, 255] -> features at 1/4, (B, widths[1], H/4, W/4), and
+    at 1/downsample, (B, widths[-1], h, w)."""
 
     def __init__(self, widths: tuple[int, int, int], downsample: int,
                  half_res_block: bool = True) -> None:
@@ -45,11 +46,14 @@ class Backbone(nn.Module):
 
     def forward(self, image: torch.Tensor) -> torch.Tensor:
         x = image / 127.5 - 1.0
-        return self.layer3(self.layer2(self.layer1(self.stem(x))))
+        quarter = self.layer2(self.layer1(self.stem(x)))
+        return quarter, self.layer3(quarter)
 
 
 class Encoders(nn.Module):
-    """Shared backbone + feature, context and affinity heads."""
+    """Shared backbone + feature, context and affinity heads. Also returns the backbone's 1/4
+    features of both images (2B, widths[1], H/4, W/4), for the 1/4 stage (`edge.model.quarter`).
+    """
 
     def __init__(self, widths, downsample: int, feature_dim: int, hidden_dim: int,
                  context_dim: int, half_res_block: bool = True) -> None:
@@ -63,11 +67,11 @@ class Encoders(nn.Module):
         self.hidden_dim = hidden_dim
 
     def forward(self, left: torch.Tensor, right: torch.Tensor):
-        both = self.backbone(torch.cat([left, right], 0))
+        quarter, both = self.backbone(torch.cat([left, right], 0))
         f_left, f_right = self.feature_head(both).chunk(2, 0)
         trunk = both[: left.shape[0]]
         ctx = self.context_head(trunk)
         hidden = torch.tanh(ctx[:, : self.hidden_dim])
         context = F.relu(ctx[:, self.hidden_dim:])
         affinity = self.affinity_head(self.affinity_block(trunk))
-        return f_left, f_right, hidden, context, affinity
+        return f_left, f_right, hidden, context, affinity, quarter

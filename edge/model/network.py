@@ -12,6 +12,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from edge_depth.errors import ConfigError
 from edge_depth.model.config import ModelConfig
 from edge_depth.model.corr import (
     correlation_pyramid,
@@ -21,6 +22,8 @@ from edge_depth.model.corr import (
 )
 from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge_depth.model.extractor import Encoders
+from edge_depth.model.quarter import SCALE as QUARTER_SCALE
+from edge_depth.model.quarter import QuarterStage
 from edge_depth.model.refine import GuidedSelection, Refinement
 from edge_depth.model.update import UpdateBlock
 
@@ -60,7 +63,11 @@ class SparseStereoNet(nn.Module):
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels)
         self.refine = None
-        if cfg.refine == 3:
+        if cfg.refine == 4:
+            if cfg.downsample != 8:
+                raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
+            self.refine = QuarterStage(cfg.widths[1])
+        elif cfg.refine == 3:
             self.refine = GuidedSelection(cfg.downsample)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
@@ -69,7 +76,7 @@ class SparseStereoNet(nn.Module):
                valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
         """Images (B, 1, H, W) grey 0-255; sparse (B, 1, H, W) px, valid (B, 1, H, W) 0/1."""
         cfg = self.config
-        f_l, f_r, hidden, context, affinity = self.encoders(left, right)
+        f_l, f_r, hidden, context, affinity, quarter = self.encoders(left, right)
         corr = flatten_pyramid(correlation_pyramid(correlation_volume(f_l, f_r),
                                                    cfg.corr_levels))
         weights, centre = normalise_affinity(affinity)
@@ -77,9 +84,13 @@ class SparseStereoNet(nn.Module):
         disparity = torch.zeros_like(sparse_low)
         disparity = self._propagate(disparity, weights, centre, sparse_low, valid_low)
         hidden_low = F.avg_pool2d(hidden, 2) if cfg.gru_levels == 2 else hidden[:, :0]
-        return dict(corr=corr, hidden=hidden, hidden_low=hidden_low, context=context,
-                    weights=weights, centre=centre, sparse=sparse_low, valid=valid_low,
-                    disparity=disparity)
+        state = dict(corr=corr, hidden=hidden, hidden_low=hidden_low, context=context,
+                     weights=weights, centre=centre, sparse=sparse_low, valid=valid_low,
+                     disparity=disparity)
+        if cfg.refine == 4:
+            state["quarter_left"], state["quarter_right"] = \
+                self.refine.head(quarter).chunk(2, 0)
+        return state
 
     def _propagate(self, d, weights, centre, sparse, valid):
         cfg = self.config
@@ -102,12 +113,20 @@ class SparseStereoNet(nn.Module):
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask
 
-    def upsample(self, left, right, disparity, mask, sparse=None, valid=None):
+    def upsample(self, left, right, disparity, mask, sparse=None, valid=None,
+                 quarter: tuple[torch.Tensor, torch.Tensor] | None = None):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
         (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
-        `valid` (full resolution) reach the refinement only if the model uses the LiDAR."""
+        `valid` (full resolution) reach the refinement only if the model uses the LiDAR;
+        `quarter` is the encoder's (quarter_left, quarter_right), for version 4."""
         if not self.config.use_sparse:
             sparse = valid = None
+        if self.config.refine == 4:  # re-estimated at 1/4, then upsampled by 4
+            full = convex_upsample(disparity, mask, self.config.downsample)
+            d4, mask4, logit = self.refine(*quarter, full, sparse, valid)
+            logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
+                                  align_corners=False)
+            return convex_upsample(d4, mask4, QUARTER_SCALE), logit
         if self.config.refine == 3:  # chooses among the convex upsampling's candidates
             return self.refine(left, right, disparity, mask, sparse, valid)
         full = convex_upsample(disparity, mask, self.config.downsample)
@@ -131,6 +150,8 @@ class SparseStereoNet(nn.Module):
             if i < iters - 1:
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
-                full, logit = self.upsample(left, right, d, mask, sparse, valid)
+                quarter = (state["quarter_left"], state["quarter_right"]) \
+                    if self.config.refine == 4 else None
+                full, logit = self.upsample(left, right, d, mask, sparse, valid, quarter)
                 outputs.append(full)
         return (outputs, logit) if with_confidence else outputs

@@ -78,10 +78,15 @@ class Engine:
                                   "(re-export with tools/export.py)",
                                   f"{type(exc).__name__}: {first}") from None
         self._enc_outputs = self.sessions["encoder"].output_names
+        self._step_state = [n for n in self.sessions["step"].input_names
+                            if n not in ("disparity", "hidden")]
         upsample = self.sessions["upsample"]
-        # a refining upsample graph also takes the images (and, versions 2-3, the LiDAR)
-        self._upsample_extra = [n for n in upsample.input_names
-                                if n in ("left", "right", "sparse", "valid")]
+        # a refining upsample graph also takes the images (and, versions 2-3, the LiDAR;
+        # version 4: the encoder's 1/4 features and the LiDAR)
+        self._upsample_inputs = [n for n in upsample.input_names
+                                 if n in ("left", "right", "sparse", "valid")]
+        self._upsample_state = [n for n in upsample.input_names if n in self._enc_outputs
+                                and n not in ("disparity", "hidden")]
         self.has_confidence = len(upsample.output_names) > 1
         shape = (1, 1, self.height, self.width)
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
@@ -149,7 +154,7 @@ class Engine:
         outputs = self.sessions["encoder"].run(feed("encoder", buf))
         enc = dict(zip(self._enc_outputs, outputs, strict=True))
         timings["encoder"] = (time.perf_counter() - t) * 1000
-        state = {k: v for k, v in enc.items() if k not in ("disparity", "hidden")}
+        state = {k: enc[k] for k in self._step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
         step_ms: list[float] = []
         step = self.sessions["step"]
@@ -167,7 +172,8 @@ class Engine:
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
         feeds = dict(disparity=disparity, hidden=hidden)
-        feeds.update({k: buf[k] for k in self._upsample_extra})
+        feeds.update({k: buf[k] for k in self._upsample_inputs})
+        feeds.update({k: enc[k] for k in self._upsample_state})
         full, *rest = self.sessions["upsample"].run(feed("upsample", feeds))
         up_ms = (time.perf_counter() - t) * 1000
         timings["upsample"] = up_ms
