@@ -249,7 +249,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=4)
+        ModelConfig(refine=5)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
@@ -320,7 +320,7 @@ def _two_plane_cell_edge():
     g = torch.Generator().manual_seed(3)
     texture = torch.rand(1, 1, 32, 112, generator=g) * 255
     left = texture[..., 16:96].clone()
-    right = torch.empty_like(left)
+    right = texture[..., 18:98].clone()  # the 2 px plane's right view everywhere
     gt = torch.full_like(left, 2.0)
     gt[..., 44:] = 10.0
     for x in range(80):
@@ -366,3 +366,56 @@ def test_guided_selection_starts_as_the_convex_upsampling_and_learns_the_edge():
         errors.append(float(loss.detach()))
     convex_error = float((convex_upsample(low, mask, 8) - gt)[inner].abs().mean())
     assert errors[-1] < 0.5 * convex_error  # the images decide the edge, not the 1/8 grid
+
+
+def test_local_correlation_reads_the_right_features_around_the_centre():
+    from edge_depth.model.quarter import local_correlation
+
+    torch.manual_seed(4)
+    f_left, f_right = torch.randn(1, 4, 3, 12), torch.randn(1, 4, 3, 12)
+    centre = torch.randint(0, 6, (1, 1, 3, 12)).float()
+    got = local_correlation(f_left, f_right, centre, 2)
+    assert got.shape == (1, 5, 3, 12)
+    for k in range(-2, 3):
+        for y in range(3):
+            for x in range(12):
+                j = min(max(x - int(centre[0, 0, y, x]) - k, 0), 11)
+                expected = float((f_left[0, :, y, x] * f_right[0, :, y, j]).sum()) / 2.0
+                assert float(got[0, k + 2, y, x]) == pytest.approx(expected, abs=1e-5)
+
+
+def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
+    """Version 4 adds a residual found at 1/4 to the 8× convex estimate: with its residual
+    weights at zero it is that estimate exactly; the LiDAR reaches it; the 4× mask, the
+    trunk and the encoder-side head all get a gradient from the disparity loss; the
+    confidence says 0.5 until trained."""
+    from edge_depth.model.quarter import QuarterStage
+
+    torch.manual_seed(0)
+    net = SparseStereoNet(ModelConfig(refine=4))
+    assert isinstance(net.refine, QuarterStage)
+    with pytest.raises(ConfigError):
+        SparseStereoNet(ModelConfig(refine=4, downsample=4))
+    left, right, gt, _ = _two_plane_cell_edge()
+    sparse, valid = torch.zeros_like(left), torch.zeros_like(left)
+    sparse[..., ::4, ::2], valid[..., ::4, ::2] = gt[..., ::4, ::2], 1.0
+    state = net.encode(left, right, sparse, valid)
+    assert state["quarter_left"].shape == (1, 16, 8, 20)
+    d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
+    d, h, hl, mask = net.step(state, d, h, hl)
+    quarter = (state["quarter_left"], state["quarter_right"])
+    with torch.no_grad():
+        plain = convex_upsample(d, mask, 8)
+        seen, logit = net.upsample(left, right, d, mask, sparse, valid, quarter)
+        blind = net.upsample(left, right, d, mask, None, None, quarter)[0]
+        assert float((seen - blind).abs().max()) > 0  # the LiDAR reaches the stage
+        assert logit.shape == left.shape and float(logit.abs().max()) == 0.0
+        torch.nn.init.zeros_(net.refine.residual.weight)
+        start = net.upsample(left, right, d, mask, sparse, valid, quarter)[0]
+    torch.testing.assert_close(start, plain)
+    torch.nn.init.normal_(net.refine.residual.weight, std=0.01)
+    out = net(left, right, sparse, valid, 2)[-1]
+    (out - gt).abs().mean().backward()
+    for name in ("head", "inp", "mask", "residual"):
+        grad = getattr(net.refine, name).weight.grad
+        assert grad is not None and float(grad.abs().sum()) > 0, name

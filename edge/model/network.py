@@ -121,12 +121,12 @@ class SparseStereoNet(nn.Module):
         `quarter` is the encoder's (quarter_left, quarter_right), for version 4."""
         if not self.config.use_sparse:
             sparse = valid = None
-        if self.config.refine == 4:  # re-estimated at 1/4, then upsampled by 4
+        if self.config.refine == 4:  # + a residual found at 1/4, upsampled by its own mask
             full = convex_upsample(disparity, mask, self.config.downsample)
-            d4, mask4, logit = self.refine(*quarter, full, sparse, valid)
+            residual, mask4, logit = self.refine(*quarter, full, sparse, valid)
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
-            return convex_upsample(d4, mask4, QUARTER_SCALE), logit
+            return full + convex_upsample(residual, mask4, QUARTER_SCALE), logit
         if self.config.refine == 3:  # chooses among the convex upsampling's candidates
             return self.refine(left, right, disparity, mask, sparse, valid)
         full = convex_upsample(disparity, mask, self.config.downsample)

@@ -13,7 +13,7 @@ where the images put it, and hands a 4× convex mask of its own to the final ups
 Inputs at 1/4 (h4 × w4): the left features (context), the correlation f_l(x)·f_r(x − k)/√C
 at the 2r + 1 integer disparities k around round(d4), d4 − round(d4), and the LiDAR's
 disagreement with d4 where a 4×4 cell has a point. d4 is the 8× convex upsampling of the last
-GRU step, average-pooled to 1/4 (the same disparity the stage-8 model would output there).
+GRU step, read at one pixel of each 4×4 block.
 """
 
 from __future__ import annotations
@@ -26,6 +26,9 @@ from edge_depth.model.refine import CONFIDENCE_TRUNK_GRAD, RESIDUAL_INIT_STD, Re
 
 SCALE = 4
 RADIUS = 4  # ±4 px at 1/4 = ±16 px at full resolution: two 1/8 cells either side
+MASK_SCALE = 0.25  # as the GRU's mask head (RAFT's)
+SAMPLE = 1  # d4 is the convex estimate at this pixel of each 4×4 block: an average would mix
+#             the two sides of an edge into a value neither has
 
 
 def local_correlation(f_left: torch.Tensor, f_right: torch.Tensor, centre: torch.Tensor,
@@ -76,7 +79,7 @@ class QuarterStage(nn.Module):
             nn.init.zeros_(head.bias)
 
     def forward(self, f_left, f_right, full, sparse=None, valid=None):
-        d4 = F.avg_pool2d(full, SCALE) / SCALE
+        d4 = full[..., SAMPLE::SCALE, SAMPLE::SCALE] / SCALE
         centre = torch.round(d4).detach()
         corr = local_correlation(f_left, f_right, centre, RADIUS)
         if sparse is None or valid is None:
@@ -88,4 +91,4 @@ class QuarterStage(nn.Module):
         # the confidence's larger, steadier gradient would otherwise decide what the trunk
         # learns (refinement version 2's lesson)
         to_confidence = x.detach() + CONFIDENCE_TRUNK_GRAD * (x - x.detach())
-        return d4 + self.residual(x), 0.25 * self.mask(x), self.confidence(to_confidence)
+        return self.residual(x), MASK_SCALE * self.mask(x), self.confidence(to_confidence)
