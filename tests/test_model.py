@@ -403,7 +403,7 @@ def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
     assert state["quarter_left"].shape == (1, 16, 8, 20)
     d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
     d, h, hl, mask = net.step(state, d, h, hl)
-    quarter = (state["quarter_left"], state["quarter_right"])
+    quarter = net.quarter_features(state)
     with torch.no_grad():
         plain = convex_upsample(d, mask, 8)
         seen, logit = net.upsample(left, right, d, mask, sparse, valid, quarter)

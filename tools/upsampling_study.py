@@ -55,7 +55,8 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
         out = {"net 1/8, bilinear": up(d[0, 0].numpy(), size, cv2.INTER_LINEAR),
                "net 1/8, convex": convex_upsample(d, mask, FACTOR)[0, 0].numpy()}
         if net.refine is not None:
-            refined, _ = net.upsample(left, right, d, mask, sparse, valid)
+            refined, _ = net.upsample(left, right, d, mask, sparse, valid,
+                                      net.quarter_features(state))
             out["net 1/8, convex + refinement"] = refined[0, 0].numpy()
     return out
 

@@ -113,6 +113,12 @@ class SparseStereoNet(nn.Module):
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask
 
+    def quarter_features(self, state: dict) -> tuple[torch.Tensor, torch.Tensor] | None:
+        """The encoder's 1/4 features (left, right) for `upsample`; None below version 4."""
+        if self.config.refine != 4:
+            return None
+        return state["quarter_left"], state["quarter_right"]
+
     def upsample(self, left, right, disparity, mask, sparse=None, valid=None,
                  quarter: tuple[torch.Tensor, torch.Tensor] | None = None):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
@@ -150,8 +156,7 @@ class SparseStereoNet(nn.Module):
             if i < iters - 1:
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
-                quarter = (state["quarter_left"], state["quarter_right"]) \
-                    if self.config.refine == 4 else None
-                full, logit = self.upsample(left, right, d, mask, sparse, valid, quarter)
+                full, logit = self.upsample(left, right, d, mask, sparse, valid,
+                                            self.quarter_features(state))
                 outputs.append(full)
         return (outputs, logit) if with_confidence else outputs
