@@ -18,6 +18,7 @@ from edge_depth.model.corr import (
 from edge_depth.model.cspn import cspn, neighbours, normalise_affinity
 from edge_depth.model.losses import (
     occlusion_from_range_map,
+    offset_loss,
     sequence_loss,
     split_sparse,
     ssim,
@@ -385,11 +386,11 @@ def test_local_correlation_reads_the_right_features_around_the_centre():
 
 
 def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
-    """Version 4 adds a residual found at 1/4 to the 8× convex estimate: with its residual
-    weights at zero it is that estimate exactly; the LiDAR reaches it; the 4× mask, the
-    trunk and the encoder-side head all get a gradient from the disparity loss; the
-    confidence says 0.5 until trained."""
-    from edge_depth.model.quarter import QuarterStage
+    """Version 4 adds a per-pixel residual found at 1/4 to the 8× convex estimate: with its
+    residual weights at zero it is that estimate exactly; the LiDAR reaches it; the trunk,
+    the offsets head and the encoder-side head get a gradient; the confidence says 0.5
+    until trained; `aux` receives the offset logits for `offset_loss`."""
+    from edge_depth.model.quarter import RADIUS, QuarterStage
 
     torch.manual_seed(0)
     net = SparseStereoNet(ModelConfig(refine=4))
@@ -414,8 +415,52 @@ def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
         start = net.upsample(left, right, d, mask, sparse, valid, quarter)[0]
     torch.testing.assert_close(start, plain)
     torch.nn.init.normal_(net.refine.residual.weight, std=0.01)
-    out = net(left, right, sparse, valid, 2)[-1]
-    (out - gt).abs().mean().backward()
-    for name in ("head", "inp", "mask", "residual"):
+    aux: dict = {}
+    out = net(left, right, sparse, valid, 2, aux=aux)[-1]
+    assert aux["offsets"].shape == (1, 2 * RADIUS + 1, 8, 20)
+    loss = (out - gt).abs().mean() + offset_loss(aux["offsets"], aux["centre"], gt,
+                                                 torch.ones_like(gt), 4, 1)
+    loss.backward()
+    for name in ("head", "inp", "offsets", "residual"):
         grad = getattr(net.refine, name).weight.grad
         assert grad is not None and float(grad.abs().sum()) > 0, name
+
+
+def test_offset_loss_is_the_cross_entropy_of_the_gt_offset_where_it_is_in_range():
+    logits = torch.zeros(1, 5, 1, 3)  # offsets -2..2
+    logits[0, 3, 0, 0] = 2.0          # pixel 0 prefers +1
+    centre = torch.tensor([[[[4.0, 4.0, 4.0]]]])
+    gt = torch.zeros(1, 1, 4, 12)     # read at rows/columns 1, 5, 9 (scale 4, sample 1)
+    gt[0, 0, 1, 1], gt[0, 0, 1, 5], gt[0, 0, 1, 9] = 20.0, 16.0, 40.0  # +1, 0, +6 (out)
+    valid = torch.ones_like(gt)
+    p0 = np.exp(2.0) / (np.exp(2.0) + 4)
+    expected = (-np.log(p0) - np.log(1 / 5)) / 2
+    got = float(offset_loss(logits, centre, gt, valid, 4, 1))
+    assert got == pytest.approx(expected, rel=1e-5)
+    valid[0, 0, 1, 5] = 0.0           # no GT there: only pixel 0 counts
+    assert float(offset_loss(logits, centre, gt, valid, 4, 1)) == pytest.approx(-np.log(p0))
+
+
+def test_quarter_stage_learns_an_edge_inside_a_cell_from_the_offset_supervision():
+    """The two-plane edge inside a 1/8 cell, the convex estimate uniform (blurred): trained
+    with L1 + the offsets' cross-entropy the stage puts the edge where the images put it."""
+    from edge_depth.model.quarter import SAMPLE, SCALE, QuarterStage
+
+    torch.manual_seed(0)
+    stage = QuarterStage(backbone=1)
+    left, right, gt, low = _two_plane_cell_edge()
+    full = convex_upsample(low, torch.zeros(1, 9 * 64, 4, 10), 8)
+    pairs = torch.cat([left, right])
+    opt = torch.optim.Adam(stage.parameters(), lr=3e-3)
+    inner = (slice(None), slice(None), slice(4, 28), slice(12, 76))  # away from borders
+    for _ in range(150):
+        feats = stage.head(torch.nn.functional.avg_pool2d(pairs, SCALE) / 127.5 - 1.0)
+        residual, _, offsets, centre = stage(*feats.chunk(2, 0), full)
+        error = (full + torch.nn.functional.pixel_shuffle(residual, SCALE) - gt)[inner]
+        loss = error.abs().mean() + offset_loss(offsets, centre, gt, torch.ones_like(gt),
+                                                SCALE, SAMPLE)
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    convex_error = float((full - gt)[inner].abs().mean())
+    assert float(error.abs().mean()) < 0.3 * convex_error

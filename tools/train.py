@@ -37,13 +37,17 @@ from edge_depth.model.data import (
 )
 from edge_depth.model.losses import (
     CONFIDENCE_WEIGHT,
+    OFFSET_WEIGHT,
     confidence_loss,
+    offset_loss,
     self_supervised_loss,
     sequence_loss,
     split_sparse,
     view_loss,
 )
 from edge_depth.model.network import SparseStereoNet
+from edge_depth.model.quarter import SAMPLE as QUARTER_SAMPLE
+from edge_depth.model.quarter import SCALE as QUARTER_SCALE
 
 
 def parse_args(argv):
@@ -253,9 +257,8 @@ def _train(argv: list[str] | None) -> int:
                                 shard=rank, shards=world)
     loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
     log_path = args.out / "metrics.csv"
-    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "epe",
-              "val_epe",
-              "val_bad3", "lr_now", "seconds"]
+    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
+              "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
     new_log = not log_path.exists() or step == 0
     log = open(log_path if main_rank else os.devnull, "w" if new_log else "a", newline="")
     writer = csv.DictWriter(log, fieldnames=fields)
@@ -278,8 +281,9 @@ def _train(argv: list[str] | None) -> int:
     while step < args.steps:
         batch = next(loader)
         if args.mode == "supervised":
+            aux: dict = {}
             preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
-                               args.iters, with_confidence=True)
+                               args.iters, with_confidence=True, aux=aux)
             has_gt = (batch["gt"] > 0).float()
             loss = sequence_loss(preds, batch["gt"], has_gt)
             terms, final = {}, preds[-1]
@@ -287,6 +291,11 @@ def _train(argv: list[str] | None) -> int:
                 conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
                 loss = loss + CONFIDENCE_WEIGHT * conf
                 terms = dict(confidence=float(conf.detach()))
+            if "offsets" in aux:  # the 1/4 stage's matching, supervised directly
+                off = offset_loss(aux["offsets"], aux["centre"], batch["gt"], has_gt,
+                                  QUARTER_SCALE, QUARTER_SAMPLE)
+                loss = loss + OFFSET_WEIGHT * off
+                terms["offsets"] = float(off.detach())
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0)

@@ -117,6 +117,24 @@ def confidence_loss(logit: torch.Tensor, disparity: torch.Tensor, gt: torch.Tens
     return _masked_mean(bce, valid)
 
 
+OFFSET_WEIGHT = 1.0
+
+
+def offset_loss(logits: torch.Tensor, centre: torch.Tensor, gt: torch.Tensor,
+                valid: torch.Tensor, scale: int, sample: int) -> torch.Tensor:
+    """Cross-entropy of the 1/4 stage's offset logits (B, 2r + 1, h, w) against the GT's
+    offset from `centre` (B, 1, h, w), 1/scale px: the GT (B, 1, H, W) px read at the pixel
+    the stage reads its estimate at, rounded; pixels without GT or whose GT lies beyond ±r
+    are left out."""
+    k = logits.shape[1]
+    radius = (k - 1) // 2
+    target = torch.round(gt[..., sample::scale, sample::scale] / scale - centre)
+    use = (valid[..., sample::scale, sample::scale] > 0) & (target.abs() <= radius)
+    index = (target.clamp(-radius, radius) + radius).long()[:, 0]
+    ce = F.cross_entropy(logits, index, reduction="none")
+    return _masked_mean(ce[:, None], use.to(logits.dtype))
+
+
 def split_sparse(valid: torch.Tensor, strategy: str, generator: torch.Generator | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """(input mask, supervision mask) for the split strategies: "all" (every point in, every

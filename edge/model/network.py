@@ -120,19 +120,23 @@ class SparseStereoNet(nn.Module):
         return state["quarter_left"], state["quarter_right"]
 
     def upsample(self, left, right, disparity, mask, sparse=None, valid=None,
-                 quarter: tuple[torch.Tensor, torch.Tensor] | None = None):
+                 quarter: tuple[torch.Tensor, torch.Tensor] | None = None,
+                 aux: dict | None = None):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
         (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
         `valid` (full resolution) reach the refinement only if the model uses the LiDAR;
-        `quarter` is the encoder's (quarter_left, quarter_right), for version 4."""
+        `quarter` is the encoder's (quarter_left, quarter_right), for version 4, which also
+        puts its offset logits and their centre into `aux` if given (`offset_loss`)."""
         if not self.config.use_sparse:
             sparse = valid = None
-        if self.config.refine == 4:  # + a residual found at 1/4, upsampled by its own mask
+        if self.config.refine == 4:  # + a residual per pixel, found by matching at 1/4
             full = convex_upsample(disparity, mask, self.config.downsample)
-            residual, mask4, logit = self.refine(*quarter, full, sparse, valid)
+            residual, logit, offsets, centre = self.refine(*quarter, full, sparse, valid)
+            if aux is not None:
+                aux.update(offsets=offsets, centre=centre)
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
-            return full + convex_upsample(residual, mask4, QUARTER_SCALE), logit
+            return full + F.pixel_shuffle(residual, QUARTER_SCALE), logit
         if self.config.refine == 3:  # chooses among the convex upsampling's candidates
             return self.refine(left, right, disparity, mask, sparse, valid)
         full = convex_upsample(disparity, mask, self.config.downsample)
@@ -141,7 +145,7 @@ class SparseStereoNet(nn.Module):
         return self.refine(left, right, full, sparse, valid)
 
     def forward(self, left, right, sparse, valid, iters: int | None = None,
-                with_confidence: bool = False):
+                with_confidence: bool = False, aux: dict | None = None):
         """Full-resolution disparity (B, 1, H, W) px after each of `iters` GRU steps; with
         `with_confidence`, also the confidence logits of the last one (None without the
         refinement stage). Only the last step goes through the refinement (as the engine
@@ -157,6 +161,6 @@ class SparseStereoNet(nn.Module):
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
                 full, logit = self.upsample(left, right, d, mask, sparse, valid,
-                                            self.quarter_features(state))
+                                            self.quarter_features(state), aux)
                 outputs.append(full)
         return (outputs, logit) if with_confidence else outputs

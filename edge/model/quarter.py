@@ -1,19 +1,19 @@
 """The 1/4-resolution stage (refinement version 4): matching at the backbone's 1/4 features
-around the 1/8 estimate, a residual, its own convex upsampling by 4 and the confidence.
+around the 1/8 estimate, supervised as a distribution over offsets, and a residual for every
+full-resolution pixel, with the confidence.
 
 Why: at 1/8 every edge inside a cell is invented by the upsampling mask. On Aloe the exact
 GT brought to 1/8 and back scores bad-3 10.6 % at best (nearest), at 1/4 4.9 %; every bad-3
 pixel of stage 8 lies within 16 px of a depth edge. Version 3 (`edge.model.refine`) only
-re-weighted the 1/8 cell's nine candidates and gained ~0.01 px for ~13 ms. This stage instead
-re-estimates the disparity at 1/4 from a local correlation of the backbone's own 1/4 features
-(computed by the encoder anyway; the stage's 1×1 `head`, run in the encoder, makes them
-16 channels), so it can put an edge
-where the images put it, and hands a 4× convex mask of its own to the final upsampling.
+re-weights the 1/8 cell's nine candidates and gained ~0.01 px for ~13 ms. This stage matches
+again at 1/4 with the backbone's own 1/4 features (computed by the encoder anyway; the
+stage's 1×1 `head`, run in the encoder, makes them 16 channels), so it can put an edge where
+the images put it.
 
-Inputs at 1/4 (h4 × w4): the left features (context), the correlation f_l(x)·f_r(x − k)/√C
-at the 2r + 1 integer disparities k around round(d4), d4 − round(d4), and the LiDAR's
-disagreement with d4 where a 4×4 cell has a point. d4 is the 8× convex upsampling of the last
-GRU step, read at one pixel of each 4×4 block.
+Inputs at 1/4: the left features (context), the correlation f_l(x)·f_r(x − k)/√C at the
+2r + 1 integer disparities k around round(d4), d4 − round(d4), and the LiDAR's disagreement
+with d4 where a 4×4 cell has a point. d4 is the 8× convex upsampling of the last GRU step,
+read at one pixel of each 4×4 block. The output is that convex estimate + the residual.
 """
 
 from __future__ import annotations
@@ -26,7 +26,6 @@ from edge_depth.model.refine import CONFIDENCE_TRUNK_GRAD, RESIDUAL_INIT_STD, Re
 
 SCALE = 4
 RADIUS = 4  # ±4 px at 1/4 = ±16 px at full resolution: two 1/8 cells either side
-MASK_SCALE = 0.25  # as the GRU's mask head (RAFT's)
 SAMPLE = 1  # d4 is the convex estimate at this pixel of each 4×4 block: an average would mix
 #             the two sides of an edge into a value neither has
 
@@ -61,27 +60,53 @@ def lidar_at(sparse: torch.Tensor, valid: torch.Tensor, scale: int
     return mean, (count > 0).to(sparse.dtype)
 
 
+def offset_distribution(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,
+                                                       torch.Tensor]:
+    """(B, 2r + 1, h, w) logits over the offsets −r..r → the expected offset, its variance and
+    the largest probability, each (B, 1, h, w). exp / sum rather than a softmax over axis 1
+    (~20× slower in ONNX Runtime); logits clipped to ±30 as in the convex upsampling."""
+    k = logits.shape[1]
+    radius = (k - 1) // 2
+    offsets = torch.arange(-radius, radius + 1, dtype=logits.dtype,
+                           device=logits.device).view(1, k, 1, 1)
+    weights = torch.exp(logits.clamp(-30.0, 30.0))
+    p = weights / weights.sum(1, keepdim=True)
+    mean = (p * offsets).sum(1, keepdim=True)
+    variance = (p * (offsets - mean) ** 2).sum(1, keepdim=True)
+    return mean, variance, p.amax(1, keepdim=True)
+
+
 class QuarterStage(nn.Module):
     """(1/4 features left and right (B, C, H/4, W/4), the 8× convex-upsampled disparity
-    (B, 1, H, W) px[, sparse px, valid 0/1 (B, 1, H, W)]) → the 1/4 disparity in 1/4 px,
-    the logits of its 4× convex mask (B, 144, H/4, W/4) and the confidence logits at 1/4.
-    ~1 GFLOP at 640×400."""
+    (B, 1, H, W) px[, sparse px, valid 0/1 (B, 1, H, W)]) → the residual for each full-
+    resolution pixel as (B, 16, H/4, W/4) full-res px (pixel-shuffled by the caller), the
+    confidence logits at 1/4, the offset logits (B, 2r + 1, H/4, W/4) and the integer centre
+    they are relative to (B, 1, H/4, W/4), 1/4 px — the last two for `offset_loss`.
+
+    The trunk (24 channels, two residual blocks) sees the local correlation, the left
+    features, d4 − centre and the LiDAR; an offsets head turns it into a distribution over
+    the 2r + 1 disparities around the centre, trained by cross-entropy against the GT's
+    offset (`edge.model.losses.offset_loss`). Its expected value minus d4 is a direct
+    estimate of the correction at 1/4; the residual head reads it (with the distribution's
+    spread and peak) beside the trunk and writes one residual per full-resolution pixel of
+    the 4×4 block. Trained by the disparity's L1 alone the stage did not learn (run stage9q,
+    `docs/experiments.md`): the loss's ±1 per pixel cancels across an edge."""
 
     def __init__(self, backbone: int = 32, features: int = 16, channels: int = 24) -> None:
         super().__init__()
+        k = 2 * RADIUS + 1
         self.head = nn.Conv2d(backbone, features, 1)  # run by the encoder, on both images
-        self.inp = nn.Conv2d(2 * RADIUS + 1 + features + 3, channels, 3, 1, 1)
+        self.inp = nn.Conv2d(k + features + 3, channels, 3, 1, 1)
         self.blocks = nn.Sequential(ResidualDilated(channels, 1), ResidualDilated(channels, 2))
-        self.residual = nn.Conv2d(channels, 1, 3, 1, 1)
-        self.mask = nn.Conv2d(channels, 9 * SCALE * SCALE, 1)
-        self.confidence = nn.Conv2d(channels, 1, 3, 1, 1)
-        # starts near "the 1/8 estimate, upsampled by 4 with equal weights"; small rather than
-        # zero residual weights so the trunk gets a gradient at once (refinement version 1)
+        self.offsets = nn.Conv2d(channels, k, 3, 1, 1)
+        self.residual = nn.Conv2d(channels + 3, SCALE * SCALE, 3, 1, 1)
+        self.confidence = nn.Conv2d(channels + 3, 1, 3, 1, 1)
+        # starts as the 8× convex estimate: small rather than zero residual weights so the
+        # trunk gets a gradient at once (refinement version 1); the confidence says 0.5
         nn.init.normal_(self.residual.weight, std=RESIDUAL_INIT_STD)
         nn.init.zeros_(self.residual.bias)
-        for head in (self.mask, self.confidence):
-            nn.init.zeros_(head.weight)
-            nn.init.zeros_(head.bias)
+        nn.init.zeros_(self.confidence.weight)
+        nn.init.zeros_(self.confidence.bias)
 
     def forward(self, f_left, f_right, full, sparse=None, valid=None):
         d4 = full[..., SAMPLE::SCALE, SAMPLE::SCALE] / SCALE
@@ -93,7 +118,14 @@ class QuarterStage(nn.Module):
         to_lidar = has * ((lidar - d4) / 4.0).clamp(-2.0, 2.0)
         x = torch.cat([corr, f_left, d4 - centre, to_lidar, has], 1)
         x = self.blocks(F.relu(self.inp(x)))
+        logits = self.offsets(x)
+        mean, variance, peak = offset_distribution(logits)
+        # in full-resolution px: the residual head copies it with weight 1
+        estimate = SCALE * (centre + mean - d4)
+        seen = torch.cat([estimate.clamp(-4 * SCALE, 4 * SCALE), variance, peak], 1)
         # the confidence's larger, steadier gradient would otherwise decide what the trunk
         # learns (refinement version 2's lesson)
         to_confidence = x.detach() + CONFIDENCE_TRUNK_GRAD * (x - x.detach())
-        return self.residual(x), MASK_SCALE * self.mask(x), self.confidence(to_confidence)
+        residual = self.residual(torch.cat([x, seen], 1))
+        logit = self.confidence(torch.cat([to_confidence, seen.detach()], 1))
+        return residual, logit, logits, centre
