@@ -259,9 +259,12 @@ class Pipeline:
         return FrameOutput(result, p.sparse, p.left, metrics, p.gt)
 
 def lidar_summary(pipeline: Pipeline) -> str:
-    """The closing line about the LiDAR: how many frames had it, or why none did."""
+    """The closing line about the LiDAR: how many frames had it, or why none did. Counted
+    over the frames that were paired with scans (pipelined, some of those are dropped before
+    the engine: the frames processed are fewer)."""
     counters, stats = pipeline.sync.counters(), pipeline.stats
-    paired, frames = counters["frames_with_lidar"], stats.frames
+    paired = counters["frames_with_lidar"]
+    frames = paired + counters["frames_without_lidar"]
     if pipeline.lidar is None:
         return "no LiDAR extrinsics: stereo only (add a [lidar] section to the calibration)"
     if stats.scans == 0:

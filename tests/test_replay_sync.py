@@ -219,3 +219,20 @@ def test_duplicated_stamps_and_a_missing_partner_are_counted_not_silent(tmp_path
                   "back)"] == 1
     assert errors["unpaired image"] == 1  # the lone left image the file ended on
     assert caplog.text.count("is not after the previous one") == 1
+
+
+def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_processed():
+    """Pipelined, frames are paired with scans and then some are dropped before the engine:
+    the closing line must not say "293 of 135"."""
+    from types import SimpleNamespace
+
+    from edge_depth.daemon import lidar_summary
+
+    sync = SimpleNamespace(counters=lambda: dict(frames_with_lidar=293, frames_without_lidar=7,
+                                                 frames_gone_before_their_scans=0),
+                           median_gap_ms=lambda: 40.0)
+    pipeline = SimpleNamespace(sync=sync, lidar=object(),
+                               stats=SimpleNamespace(frames=135, scans=300))
+    line = lidar_summary(pipeline)
+    assert line.startswith("frames with LiDAR: 293 of 300")
+    assert "+40 ms" in line
