@@ -19,7 +19,8 @@ class ModelConfig:
     2 the images and the LiDAR, with separate residual and confidence heads, 3 a choice
     among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR, 4 the
     1/4 stage (`edge.model.quarter`: local correlation at the backbone's 1/4 features, a
-    residual, its own 4× convex upsampling; downsample 8 only)."""
+    distribution over offsets trained by cross-entropy, a residual per full-resolution
+    pixel; downsample 8 only)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64

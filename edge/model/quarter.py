@@ -22,7 +22,12 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from edge_depth.model.refine import CONFIDENCE_TRUNK_GRAD, RESIDUAL_INIT_STD, ResidualDilated
+from edge_depth.model.refine import (
+    CONFIDENCE_TRUNK_GRAD,
+    RESIDUAL_INIT_STD,
+    ResidualDilated,
+    lidar_at,
+)
 
 SCALE = 4
 RADIUS = 4  # ±4 px at 1/4 = ±16 px at full resolution: two 1/8 cells either side
@@ -49,15 +54,6 @@ def local_correlation(f_left: torch.Tensor, f_right: torch.Tensor, centre: torch
     read = rows.index_select(0, (row + column).long().reshape(-1)).view(b * h * w, k, c)
     dots = torch.matmul(read, f_left.permute(0, 2, 3, 1).reshape(b * h * w, c, 1))
     return dots.view(b, h, w, k).permute(0, 3, 1, 2) / c**0.5
-
-
-def lidar_at(sparse: torch.Tensor, valid: torch.Tensor, scale: int
-             ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Full-resolution sparse disparity (px) and validity → the mean of each scale × scale
-    cell's points in 1/scale px (0 where none) and the cell's 0/1 mask."""
-    count = F.avg_pool2d(valid, scale)
-    mean = F.avg_pool2d(sparse * valid, scale) / count.clamp(min=1.0 / (scale * scale)) / scale
-    return mean, (count > 0).to(sparse.dtype)
 
 
 def offset_distribution(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor,

@@ -47,6 +47,15 @@ def sparse_at_half(sparse: torch.Tensor, valid: torch.Tensor, disparity2: torch.
     return has * (mean - disparity2) / 8.0, has
 
 
+def lidar_at(sparse: torch.Tensor, valid: torch.Tensor, scale: int
+             ) -> tuple[torch.Tensor, torch.Tensor]:
+    """Full-resolution sparse disparity (px) and validity → the mean of each scale × scale
+    cell's points in 1/scale px (0 where none) and the cell's 0/1 mask."""
+    count = F.avg_pool2d(valid, scale)
+    mean = F.avg_pool2d(sparse * valid, scale) / count.clamp(min=1.0 / (scale * scale)) / scale
+    return mean, (count > 0).to(sparse.dtype)
+
+
 class Refinement(nn.Module):
     """(left, right (B, 1, H, W) grey 0-255, disparity (B, 1, H, W) px[, sparse px, valid 0/1
     (B, 1, H, W), version 2]) → refined disparity (B, 1, H, W) px and confidence logits."""
@@ -173,9 +182,7 @@ class GuidedSelection(nn.Module):
                              torch.cat([right_s, feats[b:]], 1), candidates)
         if sparse is None or valid is None:
             sparse = valid = torch.zeros_like(left)
-        count = F.avg_pool2d(valid, s)
-        has = (count > 0).to(left.dtype)
-        lidar = F.avg_pool2d(sparse * valid, s) / count.clamp(min=1.0 / (s * s)) / s
+        lidar, has = lidar_at(sparse, valid, s)
         to_lidar = has * ((lidar - candidates) / 4.0).clamp(-2.0, 2.0)
         offset = ((candidates - candidates[:, 4:5]) / 4.0).clamp(-2.0, 2.0)
         per_candidate = [cost, F.avg_pool2d(cost, 3, 1, 1, count_include_pad=False),
