@@ -142,3 +142,26 @@ def test_training_the_quarter_stage_adds_and_logs_its_offset_loss(tmp_path):
     offsets = [float(r["offsets"]) for r in rows]
     assert len(offsets) == 2 and all(0.5 < v < 5.0 for v in offsets)
     assert torch.load(run / "final.pt", weights_only=False)["config"]["refine"] == 4
+
+
+def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
+    """A metrics.csv written before a column was added keeps its layout when the run is
+    resumed: the appended row's loss lands under "loss", not one column off."""
+    out = tmp_path / "run"
+    args = ["--out", str(out), "--batch", "1", "--crop", "64x64", "--iters", "2",
+            "--workers", "0", "--ckpt-every", "1"]
+    assert train.main(args + ["--steps", "1"]) == 0
+    with open(out / "metrics.csv", newline="") as f:
+        rows = list(csv.reader(f))
+    old = [c for c in rows[0] if c != "offsets"]  # the header before "offsets" existed
+    with open(out / "metrics.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(old)
+        writer.writerow([dict(zip(rows[0], rows[1], strict=True))[c] for c in old])
+    assert train.main(args + ["--steps", "2", "--resume"]) == 0
+    with open(out / "metrics.csv", newline="") as f:
+        resumed = list(csv.DictReader(f))
+    assert list(resumed[0]) == old
+    assert [int(r["step"]) for r in resumed] == [1, 2]
+    assert None not in resumed[1]  # no value beyond the header's columns
+    assert float(resumed[1]["loss"]) > 0 and float(resumed[1]["seconds"]) >= 0

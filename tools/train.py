@@ -260,8 +260,11 @@ def _train(argv: list[str] | None) -> int:
     fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
               "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
     new_log = not log_path.exists() or step == 0
+    if not new_log and main_rank:  # resumed: append in the columns the file already has
+        with open(log_path, newline="") as f:
+            fields = next(csv.reader(f), None) or fields
     log = open(log_path if main_rank else os.devnull, "w" if new_log else "a", newline="")
-    writer = csv.DictWriter(log, fieldnames=fields)
+    writer = csv.DictWriter(log, fieldnames=fields, extrasaction="ignore")
     if new_log:
         writer.writeheader()
 
