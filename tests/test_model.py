@@ -17,6 +17,7 @@ from edge_depth.model.corr import (
 )
 from edge_depth.model.cspn import cspn, neighbours, normalise_affinity
 from edge_depth.model.losses import (
+    gate_loss,
     occlusion_from_range_map,
     offset_loss,
     sequence_loss,
@@ -390,7 +391,7 @@ def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
     residual weights at zero it is that estimate exactly; the LiDAR reaches it; the trunk,
     the offsets head and the encoder-side head get a gradient; the confidence says 0.5
     until trained; `aux` receives the offset logits for `offset_loss`."""
-    from edge_depth.model.quarter import RADIUS, QuarterStage
+    from edge_depth.model.quarter import GATE_START, RADIUS, QuarterStage
 
     torch.manual_seed(0)
     net = SparseStereoNet(ModelConfig(refine=4))
@@ -412,21 +413,30 @@ def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
         assert float((seen - blind).abs().max()) > 0  # the LiDAR reaches the stage
         assert logit.shape == left.shape and float(logit.abs().max()) == 0.0
         torch.nn.init.zeros_(net.refine.residual.weight)
+        start_gate = net.refine.gate.bias
+        assert float(start_gate.min()) == float(start_gate.max()) == GATE_START
+        torch.nn.init.constant_(start_gate, -30.0)  # the gate shut
         start = net.upsample(left, right, d, mask, sparse, valid, quarter)[0]
     torch.testing.assert_close(start, plain)
     torch.nn.init.normal_(net.refine.residual.weight, std=0.01)
+    torch.nn.init.constant_(start_gate, GATE_START)
     aux: dict = {}
     out = net(left, right, sparse, valid, 2, aux=aux)[-1]
     assert aux["offsets"].shape == (1, 2 * RADIUS + 1, 8, 20)
+    assert aux["gate"].shape == aux["quarter"].shape == aux["convex"].shape == gt.shape
+    # the 1/4 estimate is constant over each 4×4 block
+    torch.testing.assert_close(aux["quarter"][..., ::4, ::4].repeat_interleave(4, -1)
+                               .repeat_interleave(4, -2), aux["quarter"])
     loss = (out - gt).abs().mean() + offset_loss(aux["offsets"], aux["centre"], gt,
-                                                 torch.ones_like(gt), 4, 1)
+                                                 torch.ones_like(gt), 4, 1) \
+        + gate_loss(aux["gate"], aux["convex"], aux["quarter"], gt, torch.ones_like(gt))
     loss.backward()
-    for name in ("head", "inp", "offsets", "residual"):
+    for name in ("head", "inp", "offsets", "residual", "gate"):
         grad = getattr(net.refine, name).weight.grad
         assert grad is not None and float(grad.abs().sum()) > 0, name
 
 
-def test_offset_loss_is_the_cross_entropy_of_the_gt_offset_where_it_is_in_range():
+def test_offset_loss_is_the_two_hot_cross_entropy_of_the_gt_offset_in_range():
     logits = torch.zeros(1, 5, 1, 3)  # offsets -2..2
     logits[0, 3, 0, 0] = 2.0          # pixel 0 prefers +1
     centre = torch.tensor([[[[4.0, 4.0, 4.0]]]])
@@ -439,11 +449,38 @@ def test_offset_loss_is_the_cross_entropy_of_the_gt_offset_where_it_is_in_range(
     assert got == pytest.approx(expected, rel=1e-5)
     valid[0, 0, 1, 5] = 0.0           # no GT there: only pixel 0 counts
     assert float(offset_loss(logits, centre, gt, valid, 4, 1)) == pytest.approx(-np.log(p0))
+    # between two offsets, the target is two-hot: 17 px is +0.25 → 3/4 on 0, 1/4 on +1
+    gt[0, 0, 1, 1], valid[0, 0, 1, 5] = 17.0, 0.0
+    p_plus1, p_other = p0, 1 / (np.exp(2.0) + 4)
+    expected = -(0.75 * np.log(p_other) + 0.25 * np.log(p_plus1))
+    assert float(offset_loss(logits, centre, gt, valid, 4, 1)) == pytest.approx(expected)
+    gt[0, 0, 1, 1] = 24.0             # +2, the last offset: all on it
+    assert float(offset_loss(logits, centre, gt, valid, 4, 1)) == pytest.approx(
+        -np.log(p_other))
+
+
+def test_gate_loss_weights_each_pixel_by_how_much_the_choice_matters():
+    gt = torch.tensor([[[[10.0, 10.0, 10.0, 10.0]]]])
+    convex = torch.tensor([[[[12.0, 10.0, 20.0, 10.5]]]])
+    quarter = torch.tensor([[[[10.5, 11.0, 10.0, 10.5]]]])  # closer, farther, closer, a tie
+    logit = torch.tensor([[[[0.0, 1.0, 2.0, 3.0]]]])
+    valid = torch.ones_like(gt)
+    bce = torch.nn.functional.binary_cross_entropy_with_logits
+    # weights: 1.5, 1, 10 capped at 4, 0 — the tie counts for nothing
+    expected = (1.5 * bce(logit[..., 0], torch.ones(1, 1, 1))
+                + bce(logit[..., 1], torch.zeros(1, 1, 1))
+                + 4.0 * bce(logit[..., 2], torch.ones(1, 1, 1))) / 4
+    assert float(gate_loss(logit, convex, quarter, gt, valid)) == pytest.approx(float(expected))
+    valid[..., 2] = 0.0  # no GT there
+    expected = (1.5 * bce(logit[..., 0], torch.ones(1, 1, 1))
+                + bce(logit[..., 1], torch.zeros(1, 1, 1))) / 3
+    assert float(gate_loss(logit, convex, quarter, gt, valid)) == pytest.approx(float(expected))
 
 
 def test_quarter_stage_learns_an_edge_inside_a_cell_from_the_offset_supervision():
     """The two-plane edge inside a 1/8 cell, the convex estimate uniform (blurred): trained
-    with L1 + the offsets' cross-entropy the stage puts the edge where the images put it."""
+    with L1, the offsets' cross-entropy and the gate's target, the stage puts the edge where
+    the images put it."""
     from edge_depth.model.quarter import SAMPLE, SCALE, QuarterStage
 
     torch.manual_seed(0)
@@ -455,12 +492,14 @@ def test_quarter_stage_learns_an_edge_inside_a_cell_from_the_offset_supervision(
     inner = (slice(None), slice(None), slice(4, 28), slice(12, 76))  # away from borders
     for _ in range(150):
         feats = stage.head(torch.nn.functional.avg_pool2d(pairs, SCALE) / 127.5 - 1.0)
-        residual, _, offsets, centre = stage(*feats.chunk(2, 0), full)
-        error = (full + torch.nn.functional.pixel_shuffle(residual, SCALE) - gt)[inner]
-        loss = error.abs().mean() + offset_loss(offsets, centre, gt, torch.ones_like(gt),
-                                                SCALE, SAMPLE)
+        refined, _, extras = stage(*feats.chunk(2, 0), full, image=left)
+        error = (refined - gt)[inner]
+        ones = torch.ones_like(gt)
+        loss = error.abs().mean() \
+            + offset_loss(extras["offsets"], extras["centre"], gt, ones, SCALE, SAMPLE) \
+            + gate_loss(extras["gate"], full, extras["quarter"], gt, ones)
         opt.zero_grad()
         loss.backward()
         opt.step()
     convex_error = float((full - gt)[inner].abs().mean())
-    assert float(error.abs().mean()) < 0.3 * convex_error
+    assert float(error.detach().abs().mean()) < 0.3 * convex_error

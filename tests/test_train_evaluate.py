@@ -130,10 +130,10 @@ def test_evaluate_reports_the_confidence_calibration_of_a_refining_model(tmp_pat
     assert 0 <= net["bad1@0.5"] <= 100
 
 
-def test_training_the_quarter_stage_adds_and_logs_its_offset_loss(tmp_path):
-    """Refinement version 4 is trained with the offsets' cross-entropy beside the L1: it
-    reaches the loss and the metrics log (~ln 9 at the start: the offsets head starts near
-    uniform)."""
+def test_training_the_quarter_stage_adds_and_logs_its_offset_and_gate_losses(tmp_path):
+    """Refinement version 4 is trained with the offsets' cross-entropy and the gate's beside
+    the L1: both reach the loss and the metrics log (the offsets' ~ln 9 at the start: the
+    head starts near uniform)."""
     run = tmp_path / "run"
     assert train.main(["--out", str(run), "--steps", "2", "--batch", "1", "--crop", "64x64",
                        "--iters", "2", "--workers", "0", "--refine", "4"]) == 0
@@ -141,6 +141,7 @@ def test_training_the_quarter_stage_adds_and_logs_its_offset_loss(tmp_path):
         rows = list(csv.DictReader(f))
     offsets = [float(r["offsets"]) for r in rows]
     assert len(offsets) == 2 and all(0.5 < v < 5.0 for v in offsets)
+    assert all(0.0 <= float(r["gate"]) < 20.0 for r in rows)
     assert torch.load(run / "final.pt", weights_only=False)["config"]["refine"] == 4
 
 

@@ -29,7 +29,8 @@ STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
 QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alone reads
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
-                 3: ["left", "right", "sparse", "valid"], 4: [*QUARTER, "sparse", "valid"]}
+                 3: ["left", "right", "sparse", "valid"],
+                 4: ["left", *QUARTER, "sparse", "valid"]}
 OPSET = 17
 
 
@@ -95,9 +96,9 @@ def build_graphs(net):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, quarter_left, quarter_right, sparse, valid):
+        def forward(self, disparity, hidden, left, quarter_left, quarter_right, sparse, valid):
             mask = self.net.update.upsampling_mask(hidden)
-            full, logit = self.net.upsample(None, None, disparity, mask, sparse, valid,
+            full, logit = self.net.upsample(left, None, disparity, mask, sparse, valid,
                                             (quarter_left, quarter_right))
             return full, torch.sigmoid(logit)
 

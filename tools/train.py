@@ -37,8 +37,10 @@ from edge_depth.model.data import (
 )
 from edge_depth.model.losses import (
     CONFIDENCE_WEIGHT,
+    GATE_WEIGHT,
     OFFSET_WEIGHT,
     confidence_loss,
+    gate_loss,
     offset_loss,
     self_supervised_loss,
     sequence_loss,
@@ -232,7 +234,8 @@ def _train(argv: list[str] | None) -> int:
         result = net.load_state_dict(weights, strict=False)
         new = [k for k in result.missing_keys if k.startswith("refine.")]
         if new and args.refine:  # a stage the checkpoint lacks starts as the identity
-            print(f"--init {args.init}: the refinement stage starts fresh ({len(new)} tensors)")
+            print(f"--init {args.init}: {len(new)} tensors of the refinement stage start "
+                  f"fresh ({', '.join(sorted(new)[:4])}{', ...' if len(new) > 4 else ''})")
             result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
         if result.missing_keys:
             raise SystemExit(f"--init {args.init}: the model needs weights the checkpoint "
@@ -258,7 +261,7 @@ def _train(argv: list[str] | None) -> int:
     loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
     log_path = args.out / "metrics.csv"
     fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
-              "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
+              "gate", "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
     new_log = not log_path.exists() or step == 0
     if not new_log and main_rank:  # resumed: append in the columns the file already has
         with open(log_path, newline="") as f:
@@ -299,6 +302,10 @@ def _train(argv: list[str] | None) -> int:
                                   QUARTER_SCALE, QUARTER_SAMPLE)
                 loss = loss + OFFSET_WEIGHT * off
                 terms["offsets"] = float(off.detach())
+            if "gate" in aux:  # and its choice between the convex and the 1/4 estimate
+                gate = gate_loss(aux["gate"], aux["convex"], aux["quarter"], batch["gt"], has_gt)
+                loss = loss + GATE_WEIGHT * gate
+                terms["gate"] = float(gate.detach())
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0)

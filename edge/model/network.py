@@ -22,7 +22,6 @@ from edge_depth.model.corr import (
 )
 from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge_depth.model.extractor import Encoders
-from edge_depth.model.quarter import SCALE as QUARTER_SCALE
 from edge_depth.model.quarter import QuarterStage
 from edge_depth.model.refine import GuidedSelection, Refinement
 from edge_depth.model.update import UpdateBlock
@@ -126,17 +125,17 @@ class SparseStereoNet(nn.Module):
         (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
         `valid` (full resolution) reach the refinement only if the model uses the LiDAR;
         `quarter` is the encoder's (quarter_left, quarter_right), for version 4, which also
-        puts its offset logits and their centre into `aux` if given (`offset_loss`)."""
+        puts what its losses need into `aux` if given (`offset_loss`, `gate_loss`)."""
         if not self.config.use_sparse:
             sparse = valid = None
-        if self.config.refine == 4:  # + a residual per pixel, found by matching at 1/4
+        if self.config.refine == 4:  # gated towards an estimate found by matching at 1/4
             full = convex_upsample(disparity, mask, self.config.downsample)
-            residual, logit, offsets, centre = self.refine(*quarter, full, sparse, valid)
+            refined, logit, extras = self.refine(*quarter, full, sparse, valid, left)
             if aux is not None:
-                aux.update(offsets=offsets, centre=centre)
+                aux.update(extras, convex=full)
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
-            return full + F.pixel_shuffle(residual, QUARTER_SCALE), logit
+            return refined, logit
         if self.config.refine == 3:  # chooses among the convex upsampling's candidates
             return self.refine(left, right, disparity, mask, sparse, valid)
         full = convex_upsample(disparity, mask, self.config.downsample)

@@ -13,7 +13,14 @@ the images put it.
 Inputs at 1/4: the left features (context), the correlation f_l(x)·f_r(x − k)/√C at the
 2r + 1 integer disparities k around round(d4), d4 − round(d4), and the LiDAR's disagreement
 with d4 where a 4×4 cell has a point. d4 is the 8× convex upsampling of the last GRU step,
-read at one pixel of each 4×4 block. The output is that convex estimate + the residual.
+read at one pixel of each 4×4 block.
+
+The output, for each full-resolution pixel: the convex estimate moved towards the 1/4 estimate
+(centre + the offsets' expected value, constant over its 4×4 block) by a gate, + the residual.
+The gate is trained by its own target, "the 1/4 estimate is closer to the GT than the convex
+one here" (`edge.model.losses.gate_loss`): a residual trained by L1 alone never learned to copy
+the 1/4 estimate (run stage10q), because in smooth regions that estimate is the noisier one and
+nothing said where to trust it.
 """
 
 from __future__ import annotations
@@ -31,6 +38,7 @@ from edge_depth.model.refine import (
 
 SCALE = 4
 RADIUS = 4  # ±4 px at 1/4 = ±16 px at full resolution: two 1/8 cells either side
+GATE_START = -4.0  # the gate's bias at the start: sigmoid(−4) ≈ 0.02, ~the convex estimate
 SAMPLE = 1  # d4 is the convex estimate at this pixel of each 4×4 block: an average would mix
 #             the two sides of an edge into a value neither has
 
@@ -74,10 +82,11 @@ def offset_distribution(logits: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
 
 class QuarterStage(nn.Module):
     """(1/4 features left and right (B, C, H/4, W/4), the 8× convex-upsampled disparity
-    (B, 1, H, W) px[, sparse px, valid 0/1 (B, 1, H, W)]) → the residual for each full-
-    resolution pixel as (B, 16, H/4, W/4) full-res px (pixel-shuffled by the caller), the
-    confidence logits at 1/4, the offset logits (B, 2r + 1, H/4, W/4) and the integer centre
-    they are relative to (B, 1, H/4, W/4), 1/4 px — the last two for `offset_loss`.
+    (B, 1, H, W) px[, sparse px, valid 0/1, the left image grey 0–255, each (B, 1, H, W)]) →
+    the refined disparity (B, 1, H, W) px, the confidence logits at 1/4, and for the losses a
+    dict: `offsets` (B, 2r + 1, H/4, W/4) logits and the integer `centre` they are relative
+    to (B, 1, H/4, W/4), 1/4 px (`offset_loss`); `gate` logits and the 1/4 estimate
+    `quarter` px, both (B, 1, H, W) (`gate_loss`).
 
     The trunk (24 channels, two residual blocks) sees the local correlation, the left
     features, d4 − centre and the LiDAR; an offsets head turns it into a distribution over
@@ -86,7 +95,9 @@ class QuarterStage(nn.Module):
     estimate of the correction at 1/4; the residual head reads it (with the distribution's
     spread and peak) beside the trunk and writes one residual per full-resolution pixel of
     the 4×4 block. Trained by the disparity's L1 alone the stage did not learn (run stage9q,
-    `docs/experiments.md`): the loss's ±1 per pixel cancels across an edge."""
+    `docs/experiments.md`): the loss's ±1 per pixel cancels across an edge. The gate head sees
+    the trunk, the distribution's summary, each pixel's convex value relative to the 1/4
+    estimate and the left image's pixels of the block (where inside the block the edge is)."""
 
     def __init__(self, backbone: int = 32, features: int = 16, channels: int = 24) -> None:
         super().__init__()
@@ -97,14 +108,17 @@ class QuarterStage(nn.Module):
         self.offsets = nn.Conv2d(channels, k, 3, 1, 1)
         self.residual = nn.Conv2d(channels + 3, SCALE * SCALE, 3, 1, 1)
         self.confidence = nn.Conv2d(channels + 3, 1, 3, 1, 1)
+        self.gate = nn.Conv2d(channels + 3 + 2 * SCALE * SCALE, SCALE * SCALE, 3, 1, 1)
         # starts as the 8× convex estimate: small rather than zero residual weights so the
         # trunk gets a gradient at once (refinement version 1); the confidence says 0.5
         nn.init.normal_(self.residual.weight, std=RESIDUAL_INIT_STD)
         nn.init.zeros_(self.residual.bias)
         nn.init.zeros_(self.confidence.weight)
         nn.init.zeros_(self.confidence.bias)
+        nn.init.normal_(self.gate.weight, std=RESIDUAL_INIT_STD)
+        nn.init.constant_(self.gate.bias, GATE_START)
 
-    def forward(self, f_left, f_right, full, sparse=None, valid=None):
+    def forward(self, f_left, f_right, full, sparse=None, valid=None, image=None):
         d4 = full[..., SAMPLE::SCALE, SAMPLE::SCALE] / SCALE
         centre = torch.round(d4).detach()
         corr = local_correlation(f_left, f_right, centre, RADIUS)
@@ -124,4 +138,14 @@ class QuarterStage(nn.Module):
         to_confidence = x.detach() + CONFIDENCE_TRUNK_GRAD * (x - x.detach())
         residual = self.residual(torch.cat([x, seen], 1))
         logit = self.confidence(torch.cat([to_confidence, seen.detach()], 1))
-        return residual, logit, logits, centre
+        # the 1/4 estimate, full-res px, and the block's pixels: convex values and image
+        quarter = SCALE * (centre + mean)
+        blocks = F.pixel_unshuffle(full, SCALE)
+        apart = ((blocks - quarter) / SCALE).clamp(-4.0, 4.0)
+        grey = (F.pixel_unshuffle(image, SCALE) / 127.5 - 1.0 if image is not None
+                else torch.zeros_like(blocks))
+        gate = self.gate(torch.cat([x, seen, apart, grey], 1))
+        moved = blocks + torch.sigmoid(gate) * (quarter - blocks) + residual
+        extras = dict(offsets=logits, centre=centre, gate=F.pixel_shuffle(gate, SCALE),
+                      quarter=F.interpolate(quarter, scale_factor=SCALE, mode="nearest"))
+        return F.pixel_shuffle(moved, SCALE), logit, extras
