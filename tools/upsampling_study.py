@@ -6,7 +6,10 @@ For each scene folder: the ground truth taken to 1/8 (mean of each 8x8 cell's kn
 and brought back bilinearly or by nearest neighbour (the ceiling of any 1/8 output upsampled
 without the image); then the network's own 1/8 estimate after `--iters` steps, upsampled
 bilinearly, by its convex upsampling, and by convex upsampling + the refinement stage (when
-the checkpoint has one). EPE / bad-1 / bad-3 over GT-valid pixels, means over scenes.
+the checkpoint has one). For refinement version 4 also its 1/4 estimate alone, and an oracle
+that takes whichever of the convex and the 1/4 estimate is closer to the GT at each pixel (the
+ceiling of its gate; it reads the GT, so it is a diagnosis, not a method). EPE / bad-1 / bad-3
+over GT-valid pixels, means over scenes.
 """
 
 from __future__ import annotations
@@ -55,9 +58,16 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
         out = {"net 1/8, bilinear": up(d[0, 0].numpy(), size, cv2.INTER_LINEAR),
                "net 1/8, convex": convex_upsample(d, mask, FACTOR)[0, 0].numpy()}
         if net.refine is not None:
+            aux: dict = {}
             refined, _ = net.upsample(left, right, d, mask, sparse, valid,
-                                      net.quarter_features(state))
+                                      net.quarter_features(state), aux)
             out["net 1/8, convex + refinement"] = refined[0, 0].numpy()
+            if "quarter" in aux:  # version 4: its 1/4 estimate, and what a perfect gate would do
+                quarter, convex = aux["quarter"][0, 0].numpy(), aux["convex"][0, 0].numpy()
+                out["net 1/4 stage's estimate alone"] = quarter
+                gt = np.nan_to_num(scene.disp)
+                out["oracle gate: the closer of convex and 1/4"] = np.where(
+                    np.abs(quarter - gt) < np.abs(convex - gt), quarter, convex)
     return out
 
 
