@@ -377,7 +377,7 @@ class McapLogger:
         return image_message(result.disparity, result.stamp_ns)
 
     def _depth(self, result: DepthResult):
-        depth = np.where(result.valid, result.depth, np.nan).astype(np.float32)  # REP 118
+        depth = np.where(result.valid, result.depth, np.float32(np.nan))  # REP 118, float32
         return self._image(depth, result.stamp_ns)
 
     # -- what gets logged --------------------------------------------------------------------
@@ -412,7 +412,8 @@ class McapLogger:
                   scan.stamp_ns)
 
     def log_gt(self, stamp_ns: int, disparity: np.ndarray) -> None:
-        self._log("gt_disparity", self._image(disparity.astype(np.float32), stamp_ns),
+        self._log("gt_disparity", self._image(disparity.astype(np.float32, copy=False),
+                                              stamp_ns),
                   stamp_ns)
 
     def log_result(self, result: DepthResult, sparse: np.ndarray | None = None,
@@ -426,7 +427,7 @@ class McapLogger:
             return
         self._maybe_rotate(t)
         if sparse is not None:
-            self._log("sparse", self._image(sparse.astype(np.float32), t), t)
+            self._log("sparse", self._image(sparse.astype(np.float32, copy=False), t), t)
         self._log("disparity", self._disparity(result), t)
         self._log("depth", self._depth(result), t)
         if result.confidence is not None:
