@@ -211,11 +211,12 @@ def logger_options(lg: LogConfig, profile: str | None = None) -> dict:
 def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                 max_frames: int | None = None, profile: str | None = None) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
-    from edge_depth.config import load_robot_config
+    from edge_depth.config import load_robot_config, sync_mode
     from edge_depth.mcap_log import RESULT_TOPICS, TOPICS
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     config = load_robot_config(config_path)
+    mode = sync_mode(config)
     source, stereo, lidar = open_sources(config, max_frames)
     e = config.engine
     engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
@@ -231,10 +232,11 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
             options.update(live=True, live_host=live[0], live_port=live[1])
         with open_logger(out or lg.out, topics=topics, **options) as logger:
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
-                                SyncConfig(config.sync.mode, config.sync.window_ms,
+                                SyncConfig(mode, config.sync.window_ms,
                                            max_wait_ms=config.sync.max_wait_ms),
                                 log_raw=lg.raw)
-            print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model},"
+            print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model}"
+                  f" (sync {mode}{' by the model' if config.sync.mode == 'auto' else ''}),"
                   f" {engine.describe()} engine, logging to {logger.files[0]}"
                   + (f" (live on ws://{live[0]}:{logger.server.port})" if live else ""),
                   flush=True)

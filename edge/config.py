@@ -17,7 +17,8 @@
                                 # LiDAR model other than "none" is an error)
 
     [sync]
-    mode = "accumulate"         # "nearest" (spinning 3-D) | "accumulate" (2-D scanner)
+    mode = "auto"               # "nearest" (spinning 3-D) | "accumulate" (2-D scanner) |
+                                # "auto": by lidar.model (sim: nearest; the others: accumulate)
     window_ms = 100.0
     max_wait_ms = 200.0         # a frame waits this long for the scans that cover it
 
@@ -80,9 +81,23 @@ class CalibrationConfig:
 
 @dataclass(frozen=True)
 class SyncSection:
-    mode: str = "accumulate"
+    mode: str = "auto"
     window_ms: float = 100.0
     max_wait_ms: float = 200.0  # how long a frame waits for the scans that cover it
+
+
+# sync.mode "auto": the sim LiDAR is a spinning 3-D one with a revolution per frame; the
+# serial ones (LD06/LD19, RPLIDAR) are 2-D scanners slower than the camera, whose points
+# are gathered over the window. Accumulating a spinning LiDAR's revolutions instead made
+# every frame wait for the next one (~20 ms on the sim robot) and project three of them.
+SYNC_MODE_BY_LIDAR = {"sim": "nearest"}
+
+
+def sync_mode(config: RobotConfig) -> str:
+    """The sync mode the daemon runs: the config's, or for "auto" the LiDAR model's."""
+    if config.sync.mode != "auto":
+        return config.sync.mode
+    return SYNC_MODE_BY_LIDAR.get(config.lidar.model, "accumulate")
 
 
 @dataclass(frozen=True)
@@ -130,7 +145,7 @@ class RobotConfig:
 CHOICES = {
     ("camera", "source"): ("oak", "sim"),
     ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
-    ("sync", "mode"): ("nearest", "accumulate"),
+    ("sync", "mode"): ("auto", "nearest", "accumulate"),
     ("engine", "precision"): ("int8", "fp32"),
     ("engine", "runtime"): ("auto", "onnxruntime", "openvino"),
     ("engine", "bf16"): ("auto", "on", "off"),

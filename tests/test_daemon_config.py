@@ -26,6 +26,7 @@ mode = "nearest"
 [log]
 out = "{out}"
 rotate_mb = 0.0
+queue = 8                      # a loaded host drops no frame of the few a test asks for
 """
 
 
@@ -137,6 +138,26 @@ def test_sync_max_wait_reaches_the_config_and_is_validated(tmp_path):
     assert load_robot_config(path).sync.max_wait_ms == 50.0
     path.write_text("[sync]\nmax_wait_ms = 'long'\n")
     with pytest.raises(ConfigError, match="max_wait_ms"):
+        load_robot_config(path)
+
+
+def test_sync_mode_auto_follows_the_lidar_model(tmp_path):
+    """A spinning 3-D LiDAR (the sim's) pairs by its nearest revolution, a 2-D scanner by
+    accumulating its points; an explicit mode wins."""
+    from edge_depth.config import sync_mode
+
+    path = tmp_path / "robot.toml"
+    for model, mode in (("sim", "nearest"), ("ld06", "accumulate"), ("ld19", "accumulate"),
+                        ("rplidar-a1", "accumulate"), ("none", "accumulate")):
+        camera = "sim" if model == "sim" else "oak"
+        path.write_text(f"[camera]\nsource = '{camera}'\n[lidar]\nmodel = '{model}'\n")
+        config = load_robot_config(path)
+        assert config.sync.mode == "auto" and sync_mode(config) == mode, model
+    path.write_text("[camera]\nsource = 'sim'\n[lidar]\nmodel = 'sim'\n[sync]\n"
+                    "mode = 'accumulate'\n")
+    assert sync_mode(load_robot_config(path)) == "accumulate"
+    path.write_text("[sync]\nmode = 'closest'\n")
+    with pytest.raises(ConfigError, match="sync.mode"):
         load_robot_config(path)
 
 
