@@ -172,6 +172,23 @@ def test_deadline_stops_before_the_step_that_would_miss_it(monkeypatch, deadline
     assert result.iterations == expected
 
 
+def test_the_deadline_counts_from_started_and_the_engine_time_is_its_own(monkeypatch):
+    """The daemon starts the deadline's clock when it begins preparing the frame: 20 ms of
+    preparation leave a 47 ms deadline room for one step, not two; the engine's timing is
+    still its own 10 + 10 + 5 ms, not the frame's."""
+    clock = FakeClock()
+    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
+    engine = Engine(precision="fp32", threads=1)
+    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
+        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
+    engine._upsample_ms = 5.0
+    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    clock.now = 0.020
+    result = engine.infer(left, right, sparse, iters=6, deadline_ms=47.0, started=0.0)
+    assert result.iterations == 1  # 20 + 10 + 10 + 10 + 5 > 47
+    assert result.timings_ms["engine"] == pytest.approx(25.0)
+
+
 def test_depth_is_zero_and_invalid_below_the_minimum_disparity():
     d = np.array([[0.0, 0.2, 0.5, 10.0, np.nan]], np.float32)
     depth, valid = disparity_to_depth(d, 400.0, 0.1)
