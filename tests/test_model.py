@@ -436,6 +436,34 @@ def test_quarter_stage_starts_as_the_convex_upsampling_and_every_part_learns():
         assert grad is not None and float(grad.abs().sum()) > 0, name
 
 
+def test_the_auxiliary_offsets_head_trains_the_backbone_and_changes_no_output():
+    """aux_offsets: in training the 1/4 matching's logits reach `aux` and its loss reaches
+    the backbone; in evaluation it is not run, and the output is the plain model's."""
+    torch.manual_seed(0)
+    net = SparseStereoNet(ModelConfig(refine=3, aux_offsets=True))
+    with pytest.raises(ConfigError, match="aux_offsets"):
+        ModelConfig(refine=4, aux_offsets=True)
+    left, right, gt, _ = _two_plane_cell_edge()
+    sparse, valid = torch.zeros_like(left), torch.zeros_like(left)
+    aux: dict = {}
+    net.train()
+    net(left, right, sparse, valid, 2, aux=aux)
+    assert aux["offsets"].shape == (1, 9, 8, 20) and "gate" not in aux
+    offset_loss(aux["offsets"], aux["centre"], gt, torch.ones_like(gt), 4, 1).backward()
+    stem = next(net.encoders.parameters()).grad
+    assert stem is not None and float(stem.abs().sum()) > 0  # it reaches the backbone
+    net.eval()
+    plain = SparseStereoNet(ModelConfig(refine=3))
+    plain.load_state_dict({k: v for k, v in net.state_dict().items()
+                           if not k.startswith("aux_offsets.")})
+    plain.eval()
+    aux = {}
+    with torch.no_grad():
+        out = net(left, right, sparse, valid, 2, aux=aux)[-1]
+        torch.testing.assert_close(out, plain(left, right, sparse, valid, 2)[-1])
+    assert "offsets" not in aux
+
+
 def test_offset_loss_is_the_two_hot_cross_entropy_of_the_gt_offset_in_range():
     logits = torch.zeros(1, 5, 1, 3)  # offsets -2..2
     logits[0, 3, 0, 0] = 2.0          # pixel 0 prefers +1

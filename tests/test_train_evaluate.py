@@ -145,6 +145,30 @@ def test_training_the_quarter_stage_adds_and_logs_its_offset_and_gate_losses(tmp
     assert torch.load(run / "final.pt", weights_only=False)["config"]["refine"] == 4
 
 
+def test_the_auxiliary_offsets_head_is_trained_and_left_out_of_what_deploys(tmp_path):
+    """--aux-offsets logs the offsets' loss; loading the checkpoint for export or evaluation
+    drops the head, so the deployed model is the plain one, parameter for parameter."""
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+    from edge_depth.tools.export import load_checkpoint
+
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "2", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "3",
+                       "--aux-offsets"]) == 0
+    with open(run / "metrics.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert all(0.5 < float(r["offsets"]) < 5.0 for r in rows)
+    ckpt = torch.load(run / "final.pt", weights_only=False)
+    assert ckpt["config"]["aux_offsets"] and any(k.startswith("aux_offsets.")
+                                                 for k in ckpt["model"])
+    net, _ = load_checkpoint(run / "final.pt")
+    assert net.aux_offsets is None and not net.config.aux_offsets
+    plain = SparseStereoNet(ModelConfig.from_dict({**ckpt["config"], "aux_offsets": False}))
+    assert sum(p.numel() for p in net.parameters()) == \
+        sum(p.numel() for p in plain.parameters())
+
+
 def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
     """A metrics.csv written before a column was added keeps its layout when the run is
     resumed: the appended row's loss lands under "loss", not one column off."""

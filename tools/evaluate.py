@@ -54,13 +54,9 @@ class TorchNet:
     def __init__(self, path: Path) -> None:
         import torch
 
-        from edge_depth.model.config import ModelConfig
-        from edge_depth.model.network import SparseStereoNet
+        from edge_depth.tools.export import load_checkpoint
 
-        ckpt = torch.load(path, map_location="cpu", weights_only=False)
-        self.net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
-        self.net.load_state_dict(ckpt["model"])
-        self.net.eval()
+        self.net, _ = load_checkpoint(path)
         self.torch = torch
 
     def __call__(self, left, right, sparse, iters: int):

@@ -123,8 +123,11 @@ def load_checkpoint(path: Path):
     from edge_depth.model.network import SparseStereoNet
 
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
-    net.load_state_dict(ckpt["model"])
+    # the training-only auxiliary head is left out: what is loaded is what deploys
+    config = ModelConfig.from_dict({**ckpt["config"], "aux_offsets": False})
+    net = SparseStereoNet(config)
+    net.load_state_dict({k: v for k, v in ckpt["model"].items()
+                         if not k.startswith("aux_offsets.")})
     return net.eval(), ckpt
 
 

@@ -71,6 +71,9 @@ def parse_args(argv):
                    help="the refinement + confidence stage (edge.model.config.ModelConfig): "
                         "2 (the default with a bare --refine) half resolution, images and "
                         "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage")
+    p.add_argument("--aux-offsets", action="store_true",
+                   help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
+                        "(training only: not exported; refine 0-3)")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")
     p.add_argument("--patterns", default="beams16")
@@ -198,7 +201,8 @@ def _train(argv: list[str] | None) -> int:
     cw, ch = (int(v) for v in args.crop.split("x"))
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse,
-                         half_res_block=not args.no_half_res_block, refine=args.refine)
+                         half_res_block=not args.no_half_res_block, refine=args.refine,
+                         aux_offsets=args.aux_offsets)
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change
@@ -208,10 +212,13 @@ def _train(argv: list[str] | None) -> int:
             changes["half_res_block"] = False
         if args.refine:
             changes["refine"] = args.refine
+        if args.aux_offsets:
+            changes["aux_offsets"] = True
         config = ModelConfig.from_dict({**init["config"], **changes})
     net = SparseStereoNet(config)
-    stage = [p for n, p in net.named_parameters() if n.startswith("refine.")]
-    rest = [p for n, p in net.named_parameters() if not n.startswith("refine.")]
+    heads = ("refine.", "aux_offsets.")  # the stages that may start fresh, at their own LR
+    stage = [p for n, p in net.named_parameters() if n.startswith(heads)]
+    rest = [p for n, p in net.named_parameters() if not n.startswith(heads)]
     lrs = [args.lr, args.lr * args.refine_lr_mult][:1 + bool(stage)]
     opt = torch.optim.AdamW([dict(params=rest), dict(params=stage)][:len(lrs)], lr=args.lr,
                             weight_decay=1e-5)
@@ -232,9 +239,9 @@ def _train(argv: list[str] | None) -> int:
             # another version of the stage: its tensors do not fit, it starts fresh
             weights = {k: v for k, v in weights.items() if not k.startswith("refine.")}
         result = net.load_state_dict(weights, strict=False)
-        new = [k for k in result.missing_keys if k.startswith("refine.")]
-        if new and args.refine:  # a stage the checkpoint lacks starts as the identity
-            print(f"--init {args.init}: {len(new)} tensors of the refinement stage start "
+        new = [k for k in result.missing_keys if k.startswith(heads)]
+        if new and (args.refine or args.aux_offsets):  # a stage the checkpoint lacks: fresh
+            print(f"--init {args.init}: {len(new)} tensors of the refinement stages start "
                   f"fresh ({', '.join(sorted(new)[:4])}{', ...' if len(new) > 4 else ''})")
             result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
         if result.missing_keys:

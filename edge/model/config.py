@@ -20,7 +20,9 @@ class ModelConfig:
     among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR, 4 the
     1/4 stage (`edge.model.quarter`: local correlation at the backbone's 1/4 features, a
     distribution over offsets trained by cross-entropy, a residual per full-resolution
-    pixel; downsample 8 only)."""
+    pixel; downsample 8 only); aux_offsets: while training only, the 1/4 stage's matching
+    (its offsets head on the backbone's 1/4 features) as an auxiliary loss — not exported,
+    no cost at inference; for refine 0–3 with downsample 8."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -36,6 +38,7 @@ class ModelConfig:
     use_sparse: bool = True
     half_res_block: bool = True
     refine: int = 0
+    aux_offsets: bool = False
 
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
@@ -44,6 +47,9 @@ class ModelConfig:
             raise ConfigError("refine", "0, 1, 2, 3 or 4", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
+        if self.aux_offsets and (self.refine == 4 or self.downsample != 8):
+            raise ConfigError("aux_offsets", "refine 0-3 and downsample 8 (version 4 has the "
+                              "offsets head itself)", (self.refine, self.downsample))
         if len(self.widths) != 3 or min(self.widths) < 1:
             raise ConfigError("widths", "three positive channel counts", self.widths)
         if self.gru_levels not in (1, 2):

@@ -70,6 +70,8 @@ class SparseStereoNet(nn.Module):
             self.refine = GuidedSelection(cfg.downsample)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
+        # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
+        self.aux_offsets = QuarterStage(cfg.widths[1]) if cfg.aux_offsets else None
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
                valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
@@ -89,6 +91,8 @@ class SparseStereoNet(nn.Module):
         if cfg.refine == 4:
             state["quarter_left"], state["quarter_right"] = \
                 self.refine.head(quarter).chunk(2, 0)
+        elif self.aux_offsets is not None and self.training:
+            state["aux_left"], state["aux_right"] = self.aux_offsets.head(quarter).chunk(2, 0)
         return state
 
     def _propagate(self, d, weights, centre, sparse, valid):
@@ -162,4 +166,9 @@ class SparseStereoNet(nn.Module):
                 full, logit = self.upsample(left, right, d, mask, sparse, valid,
                                             self.quarter_features(state), aux)
                 outputs.append(full)
+                if aux is not None and "aux_left" in state:  # the auxiliary matching's loss
+                    convex = convex_upsample(d, mask, self.config.downsample).detach()
+                    extras = self.aux_offsets(state["aux_left"], state["aux_right"], convex,
+                                              sparse, valid, left)[2]
+                    aux.update(offsets=extras["offsets"], centre=extras["centre"])
         return (outputs, logit) if with_confidence else outputs
