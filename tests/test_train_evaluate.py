@@ -167,6 +167,15 @@ def test_the_auxiliary_offsets_head_is_trained_and_left_out_of_what_deploys(tmp_
     plain = SparseStereoNet(ModelConfig.from_dict({**ckpt["config"], "aux_offsets": False}))
     assert sum(p.numel() for p in net.parameters()) == \
         sum(p.numel() for p in plain.parameters())
+    # shipping leaves the head out too, and records that the stage trained with it
+    from edge_depth.tools import ship_checkpoint
+    out = tmp_path / "shipped.pt"
+    assert ship_checkpoint.main([str(run / "final.pt"), "--note", "aux", "--previous",
+                                 str(tmp_path / "none.pt"), "--out", str(out)]) == 0
+    shipped = torch.load(out, weights_only=False)
+    assert not shipped["config"]["aux_offsets"]
+    assert set(shipped["model"]) == set(plain.state_dict())
+    assert shipped["training"]["stages"][-1]["aux_offsets"] is True
 
 
 def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
