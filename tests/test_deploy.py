@@ -212,7 +212,7 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert json.loads(out.read_text())["net"]["density"] > 99
 
 
-@pytest.mark.parametrize("version", [2, 3, 4])
+@pytest.mark.parametrize("version", [2, 3, 4, 5])
 def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, version):
     from mcap.reader import make_reader
 

@@ -366,3 +366,36 @@ def test_guided_selection_starts_as_the_convex_upsampling_and_learns_the_edge():
         errors.append(float(loss.detach()))
     convex_error = float((convex_upsample(low, mask, 8) - gt)[inner].abs().mean())
     assert errors[-1] < 0.5 * convex_error  # the images decide the edge, not the 1/8 grid
+
+
+def test_guided_selection_v5_starts_as_version_3_and_its_quarter_features_reach_the_choice():
+    """Version 5 carried over from version 3's weights gives version 3's output exactly (the
+    new inputs' weights are zero); once they are not, the 1/4 features move the choice;
+    without them it says what it needs. The network hands it the backbone's 1/4 features."""
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+    from edge_depth.model.refine import GuidedSelection, widen_from_version3
+
+    torch.manual_seed(0)
+    v3, v5 = GuidedSelection(8), GuidedSelection(8, quarter=4)
+    for p in v3.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    result = v5.load_state_dict(widen_from_version3(v3.state_dict(), v5, prefix=""),
+                                strict=False)
+    assert sorted(result.missing_keys) == ["project.bias", "project.weight"]
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    with torch.no_grad():
+        out3, logit3 = v3(left, right, low, mask)
+        out5, logit5 = v5(left, right, low, mask, quarter=quarter)
+        torch.testing.assert_close(out5, out3, rtol=0, atol=0)
+        torch.testing.assert_close(logit5, logit3, rtol=0, atol=0)
+        torch.nn.init.normal_(v5.score[0].weight[:, 6:], std=3.0)
+        moved = v5(left, right, low, mask, quarter=quarter)[0]
+    assert float((moved - out3).abs().max()) > 0.1
+    with pytest.raises(ValueError, match="1/4 features"):
+        v5(left, right, low, mask)
+    net = SparseStereoNet(ModelConfig(refine=5, half_res_block=False))
+    state = net.encode(left, right, torch.zeros_like(left), torch.zeros_like(left))
+    assert state["quarter_left"].shape == (1, net.config.widths[1], 8, 20)

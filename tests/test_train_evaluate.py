@@ -199,3 +199,23 @@ def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
     assert [int(r["step"]) for r in resumed] == [1, 2]
     assert None not in resumed[1]  # no value beyond the header's columns
     assert float(resumed[1]["loss"]) > 0 and float(resumed[1]["seconds"]) >= 0
+
+
+def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, capsys):
+    """--refine 5 --init <version 3>: the scorer is carried over (widened with zeros), only
+    the 1/4 projection starts fresh, and the run trains."""
+    v3 = tmp_path / "v3"
+    assert train.main(["--out", str(v3), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "3"]) == 0
+    v5 = tmp_path / "v5"
+    capsys.readouterr()
+    assert train.main(["--out", str(v5), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "5",
+                       "--init", str(v3 / "final.pt")]) == 0
+    assert "2 tensors of the refinement stages start fresh (refine.project.bias" in \
+        capsys.readouterr().out
+    before = torch.load(v3 / "final.pt", weights_only=False)["model"]
+    after = torch.load(v5 / "final.pt", weights_only=False)
+    assert after["config"]["refine"] == 5
+    assert after["model"]["refine.score.0.weight"].shape[1] == \
+        before["refine.score.0.weight"].shape[1] + 2

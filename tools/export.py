@@ -7,7 +7,8 @@ encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
 the refinement stage it also takes the images (versions 2-3: and the LiDAR; version 4, the
-1/4 stage: the encoder's 1/4 features and the LiDAR) and returns the confidence 0-1 as well),
+1/4 stage: the encoder's 1/4 features and the LiDAR; version 5: the LiDAR and the encoder's
+1/4 features) and returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
 summary). The export is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
 """
@@ -30,7 +31,8 @@ UPSAMPLE_INPUTS = ["disparity", "hidden"]
 QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alone reads
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
                  3: ["left", "right", "sparse", "valid"],
-                 4: ["left", *QUARTER, "sparse", "valid"]}
+                 4: ["left", *QUARTER, "sparse", "valid"],
+                 5: ["left", "right", "sparse", "valid", *QUARTER]}
 OPSET = 17
 
 
@@ -84,9 +86,12 @@ def build_graphs(net):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, left, right, sparse=None, valid=None):
+        def forward(self, disparity, hidden, left, right, sparse=None, valid=None,
+                    quarter_left=None, quarter_right=None):
             mask = self.net.update.upsampling_mask(hidden)
-            full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid)
+            quarter = None if quarter_left is None else (quarter_left, quarter_right)
+            full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid,
+                                            quarter)
             return full, torch.sigmoid(logit)
 
     class UpsampleQuarter(torch.nn.Module):

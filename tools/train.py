@@ -67,10 +67,12 @@ def parse_args(argv):
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
-                   choices=(0, 1, 2, 3, 4),
+                   choices=(0, 1, 2, 3, 4, 5),
                    help="the refinement + confidence stage (edge.model.config.ModelConfig): "
                         "2 (the default with a bare --refine) half resolution, images and "
-                        "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage")
+                        "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage; 5 guided "
+                        "selection also matching on the backbone's 1/4 features (from a "
+                        "version 3 checkpoint it starts as exactly version 3)")
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; refine 0-3)")
@@ -235,7 +237,12 @@ def _train(argv: list[str] | None) -> int:
         print(f"resumed from {last} at step {step}")
     elif init is not None:
         weights = init["model"]
-        if args.refine and ModelConfig.from_dict(init["config"]).refine != args.refine:
+        before = ModelConfig.from_dict(init["config"]).refine
+        if args.refine == 5 and before == 3:  # version 5 extends 3: it starts as exactly 3
+            from edge_depth.model.refine import widen_from_version3
+
+            weights = widen_from_version3(weights, net.refine)
+        elif args.refine and before != args.refine:
             # another version of the stage: its tensors do not fit, it starts fresh
             weights = {k: v for k, v in weights.items() if not k.startswith("refine.")}
         result = net.load_state_dict(weights, strict=False)

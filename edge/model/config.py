@@ -17,10 +17,11 @@ class ModelConfig:
     goes from the stem straight to 1/4); refine: the half-resolution image-guided refinement
     with its confidence output (`edge.model.refine`): 0 none, 1 the images only (stage 4),
     2 the images and the LiDAR, with separate residual and confidence heads, 3 a choice
-    among the convex upsampling's candidates scored by matching at 1/2 and by the LiDAR, 4 the
+    among the convex upsampling's candidates scored by matching at 1/4 and by the LiDAR, 4 the
     1/4 stage (`edge.model.quarter`: local correlation at the backbone's 1/4 features, a
     distribution over offsets trained by cross-entropy, a residual per full-resolution
-    pixel; downsample 8 only); aux_offsets: while training only, the 1/4 stage's matching
+    pixel; downsample 8 only), 5 version 3 whose candidates are also scored by matching on
+    the backbone's 1/4 features; aux_offsets: while training only, the 1/4 stage's matching
     (its offsets head on the backbone's 1/4 features) as an auxiliary loss — not exported,
     no cost at inference; for refine 0–3 with downsample 8."""
 
@@ -43,8 +44,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
-        if self.refine not in (0, 1, 2, 3, 4):
-            raise ConfigError("refine", "0, 1, 2, 3 or 4", self.refine)
+        if self.refine not in (0, 1, 2, 3, 4, 5):
+            raise ConfigError("refine", "0, 1, 2, 3, 4 or 5", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if self.aux_offsets and (self.refine == 4 or self.downsample != 8):

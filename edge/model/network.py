@@ -66,8 +66,9 @@ class SparseStereoNet(nn.Module):
             if cfg.downsample != 8:
                 raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
             self.refine = QuarterStage(cfg.widths[1])
-        elif cfg.refine == 3:
-            self.refine = GuidedSelection(cfg.downsample)
+        elif cfg.refine in (3, 5):
+            self.refine = GuidedSelection(cfg.downsample,
+                                          quarter=cfg.widths[1] if cfg.refine == 5 else 0)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
         # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
@@ -91,7 +92,9 @@ class SparseStereoNet(nn.Module):
         if cfg.refine == 4:
             state["quarter_left"], state["quarter_right"] = \
                 self.refine.head(quarter).chunk(2, 0)
-        elif self.aux_offsets is not None and self.training:
+        elif cfg.refine == 5:  # the guided selection also matches on the backbone's 1/4
+            state["quarter_left"], state["quarter_right"] = quarter.chunk(2, 0)
+        if self.aux_offsets is not None and self.training:
             state["aux_left"], state["aux_right"] = self.aux_offsets.head(quarter).chunk(2, 0)
         return state
 
@@ -117,8 +120,9 @@ class SparseStereoNet(nn.Module):
         return disparity, hidden, hidden_low, mask
 
     def quarter_features(self, state: dict) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """The encoder's 1/4 features (left, right) for `upsample`; None below version 4."""
-        if self.config.refine != 4:
+        """The encoder's 1/4 features (left, right) for `upsample`; None but for versions 4
+        (its own head's) and 5 (the backbone's)."""
+        if self.config.refine not in (4, 5):
             return None
         return state["quarter_left"], state["quarter_right"]
 
@@ -140,8 +144,8 @@ class SparseStereoNet(nn.Module):
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
             return refined, logit
-        if self.config.refine == 3:  # chooses among the convex upsampling's candidates
-            return self.refine(left, right, disparity, mask, sparse, valid)
+        if self.config.refine in (3, 5):  # chooses among the convex upsampling's candidates
+            return self.refine(left, right, disparity, mask, sparse, valid, quarter)
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:
             return full, None

@@ -148,16 +148,30 @@ class GuidedSelection(nn.Module):
     inside a 1/8 cell are then placed by the images at 1/4 (where the exact GT's own
     nearest-neighbour ceiling on Aloe is bad-3 4.9 % against 10.3 % at 1/8) instead of by
     the 1/8 hidden state alone. The confidence comes from a few convolutions at 1/4 on what
-    the choice saw. ~0.1 GFLOP at 640x400 beyond the convex upsampling."""
+    the choice saw. ~0.1 GFLOP at 640x400 beyond the convex upsampling.
+
+    Version 5 (`quarter` = the backbone's 1/4 channel count) also scores each candidate by
+    the backbone's own 1/4 features (the ones the correlation's features come from, trained
+    to match), projected to `QUARTER_FEATURES` channels: their matching cost, raw and 3×3
+    averaged, two more inputs of the scorer. Its weights for them start at zero, so a version
+    3 checkpoint carried over (`widen_from_version3`) starts as exactly version 3."""
 
     SCALE = 4  # the resolution the candidates are scored at; 1/2 cost ~45 ms in ONNX Runtime
+    QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (its GatherElements is a reference kernel)
 
-    def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16) -> None:
+    def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
+                 quarter: int = 0) -> None:
         super().__init__()
         self.factor = factor
         self.features = nn.Sequential(nn.Conv2d(1, 8, 3, 1, 1), nn.ReLU(),
                                       nn.Conv2d(8, features, 3, 1, 1))
-        self.score = nn.Sequential(nn.Conv2d(6, hidden, 1), nn.ReLU(), nn.Conv2d(hidden, 1, 1))
+        inputs = 6
+        self.project = None
+        if quarter:
+            self.project = nn.Conv2d(quarter, self.QUARTER_FEATURES, 1)
+            inputs += 2
+        self.score = nn.Sequential(nn.Conv2d(inputs, hidden, 1), nn.ReLU(),
+                                   nn.Conv2d(hidden, 1, 1))
         self.confidence = nn.Sequential(nn.Conv2d(6, hidden, 3, 1, 1), nn.ReLU(),
                                         nn.Conv2d(hidden, hidden, 3, 1, 1), nn.ReLU(),
                                         nn.Conv2d(hidden, 1, 3, 1, 1))
@@ -167,8 +181,11 @@ class GuidedSelection(nn.Module):
         nn.init.zeros_(self.score[-1].bias)
         nn.init.zeros_(self.confidence[-1].weight)  # says 0.5 until trained
         nn.init.zeros_(self.confidence[-1].bias)
+        if quarter:
+            with torch.no_grad():
+                self.score[0].weight[:, 6:] = 0.0
 
-    def forward(self, left, right, disparity, mask, sparse=None, valid=None):
+    def forward(self, left, right, disparity, mask, sparse=None, valid=None, quarter=None):
         f, s = self.factor, self.SCALE
         b, _, h, w = disparity.shape
         left_s = F.avg_pool2d(left, s) / 127.5 - 1.0
@@ -188,6 +205,12 @@ class GuidedSelection(nn.Module):
         per_candidate = [cost, F.avg_pool2d(cost, 3, 1, 1, count_include_pad=False),
                          F.avg_pool2d(cost, 7, 1, 3, count_include_pad=False),
                          to_lidar, to_lidar.abs(), offset]
+        if self.project is not None:
+            if quarter is None:
+                raise ValueError("refinement version 5 needs the encoder's 1/4 features")
+            q_left, q_right = self.project(torch.cat(quarter, 0)).chunk(2, 0)
+            q_cost = matching_cost(q_left, q_right, candidates)
+            per_candidate += [q_cost, F.avg_pool2d(q_cost, 3, 1, 1, count_include_pad=False)]
         x = torch.stack(per_candidate, 2).view(b * 9, len(per_candidate), hs, ws)
         correction = self.score(x).view(b, 9, hs, ws).clamp(-30.0, 30.0)
         # what the evidence alone prefers (exp and sum: a softmax over axis 1 is ~20x
@@ -205,3 +228,17 @@ class GuidedSelection(nn.Module):
         logit = F.interpolate(self.confidence(seen), size=left.shape[-2:], mode="bilinear",
                               align_corners=False)
         return F.pixel_shuffle(up, f), logit
+
+
+def widen_from_version3(weights: dict, module: GuidedSelection, prefix: str = "refine."
+                        ) -> dict:
+    """A version 3 state dict made loadable into version 5 (`module`): the scorer's first
+    layer gets zero weights for the new inputs; `project` is left for a fresh start."""
+    key = prefix + "score.0.weight"
+    old = weights.get(key)
+    new = module.score[0].weight
+    if old is None or old.shape == new.shape:
+        return weights
+    wide = torch.zeros_like(new)
+    wide[:, :old.shape[1]] = old
+    return {**weights, key: wide}
