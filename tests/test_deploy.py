@@ -240,6 +240,12 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
     engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
     assert engine.has_confidence
+    if version in (3, 5):  # the graph returns it at 1/4 (cheaper); the engine resizes it
+        import onnx
+
+        dims = onnx.load(tmp_path / "bundle" / "upsample.onnx").graph.output[1].type
+        assert [d.dim_value for d in dims.tensor_type.shape.dim][-2:] == \
+            [SMALL[1] // 4, SMALL[0] // 4]
     result = engine.infer(left, right, sparse, iters=2)
     np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)
     np.testing.assert_allclose(result.confidence, torch.sigmoid(logit)[0, 0].numpy(),

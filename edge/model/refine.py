@@ -157,7 +157,7 @@ class GuidedSelection(nn.Module):
     3 checkpoint carried over (`widen_from_version3`) starts as exactly version 3."""
 
     SCALE = 4  # the resolution the candidates are scored at; 1/2 cost ~45 ms in ONNX Runtime
-    QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (its GatherElements is a reference kernel)
+    QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
                  quarter: int = 0) -> None:
@@ -184,6 +184,9 @@ class GuidedSelection(nn.Module):
         if quarter:
             with torch.no_grad():
                 self.score[0].weight[:, 6:] = 0.0
+        # False: the confidence logit stays at 1/SCALE (the export: the engine resizes the
+        # confidence to full resolution, cheaper than in OpenVINO's graph)
+        self.confidence_full_resolution = True
 
     def forward(self, left, right, disparity, mask, sparse=None, valid=None, quarter=None):
         f, s = self.factor, self.SCALE
@@ -225,8 +228,10 @@ class GuidedSelection(nn.Module):
         weights = torch.exp(logits.clamp(-30.0, 30.0))
         patches = patches_3x3(disparity * f).view(b, 9, 1, h, w)
         up = (weights * patches).sum(1) / weights.sum(1)  # (B, f², h, w)
-        logit = F.interpolate(self.confidence(seen), size=left.shape[-2:], mode="bilinear",
-                              align_corners=False)
+        logit = self.confidence(seen)
+        if self.confidence_full_resolution:
+            logit = F.interpolate(logit, size=left.shape[-2:], mode="bilinear",
+                                  align_corners=False)
         return F.pixel_shuffle(up, f), logit
 
 

@@ -14,6 +14,7 @@ import json
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
@@ -182,6 +183,10 @@ class Engine:
             0.2 * up_ms
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         confidence = np.ascontiguousarray(rest[0][0, 0], dtype=np.float32) if rest else None
+        if confidence is not None and confidence.shape != disp.shape:
+            # bundles since stage 11 return it at the refinement's 1/4 resolution
+            confidence = cv2.resize(confidence, disp.shape[::-1],
+                                    interpolation=cv2.INTER_LINEAR)
         if not plan.identity:
             disp = plan.restore(disp, disparity=True)
             confidence = None if confidence is None else plan.restore(confidence, False)
