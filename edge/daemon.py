@@ -273,6 +273,8 @@ def lidar_summary(pipeline: Pipeline) -> str:
     if stats.scans == 0:
         return f"frames with LiDAR: 0 of {frames} (no scan arrived: stereo only)"
     line = f"frames with LiDAR: {paired} of {frames}"
+    if frames > stats.frames:  # pipelined: say why this is more than the frames processed
+        line += f" paired ({frames - stats.frames} of them dropped before the engine)"
     if paired < frames and pipeline.sync.median_gap_ms() is not None:
         line += (f" (unpaired frames: median nearest-scan minus frame stamp "
                  f"{pipeline.sync.median_gap_ms():+.0f} ms)")

@@ -234,5 +234,6 @@ def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_proces
     pipeline = SimpleNamespace(sync=sync, lidar=object(),
                                stats=SimpleNamespace(frames=135, scans=300))
     line = lidar_summary(pipeline)
-    assert line.startswith("frames with LiDAR: 293 of 300")
+    assert line.startswith("frames with LiDAR: 293 of 300 paired (165 of them dropped before "
+                           "the engine)")
     assert "+40 ms" in line
