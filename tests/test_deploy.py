@@ -99,6 +99,31 @@ def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, 
     assert not list(bundle.glob("*.int8.onnx"))
 
 
+def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
+        small_bundle, tmp_path, monkeypatch):
+    """Every graph passes alone (the speed test forced: a busy machine can pass it by
+    chance); with a total cap of 0 px they all go back to float, the one that moved the
+    disparity most alone first; with a loose cap they stay int8."""
+    import shutil
+
+    from edge_depth.tools import quantize
+
+    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters: (10.0, 5.0))
+    bundle = tmp_path / "b"
+    shutil.copytree(small_bundle[0], bundle)
+    q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,
+                                 node_search=False, max_total_px=0.0)
+    assert not any(g["int8"] for g in q["graphs"].values())
+    assert all(g["float_for_the_total"] for g in q["graphs"].values())
+    assert q["mean_abs_px_vs_fp32"] == 0.0 and not list(bundle.glob("*.int8.onnx"))
+    shutil.rmtree(bundle)
+    shutil.copytree(small_bundle[0], bundle)
+    q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,
+                                 node_search=False, max_total_px=10.0)
+    assert all(g["int8"] for g in q["graphs"].values())
+    assert 0.0 < q["mean_abs_px_vs_fp32"] <= 10.0
+
+
 def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
     meta = json.loads((DEFAULT_BUNDLE / "model.json").read_text())
     assert meta["size"] == [640, 400]
