@@ -303,3 +303,19 @@ def test_an_engine_scale_beyond_the_bundle_is_a_config_error():
     engine = Engine(precision="int8", threads=1, scale=1.0)
     with pytest.raises(ConfigError, match="at most 0.500"):
         engine.plan_for((1280, 800))
+
+
+def test_graph_ab_times_graphs_in_turn_on_their_declared_shapes(small_bundle, tmp_path):
+    from edge_depth.tools import graph_ab
+
+    bundle = small_bundle[0]
+    feeds = graph_ab.random_feeds(bundle / "upsample.onnx")
+    assert feeds["disparity"].shape == (1, 1, SMALL[1] // 8, SMALL[0] // 8)
+    assert feeds["left"].shape == (1, 1, SMALL[1], SMALL[0])
+    graphs = [bundle / "upsample.onnx", bundle / "step.onnx"]
+    result = graph_ab.interleaved_ms(graphs, "onnxruntime", rounds=3, warmup=1, threads=1)
+    assert list(result) == [str(g) for g in graphs]
+    for r in result.values():
+        assert r["runtime"] == "onnxruntime" and 0 < r["p10_ms"] <= r["median_ms"]
+    with pytest.raises(SystemExit):
+        graph_ab.main([str(tmp_path / "missing.onnx")])
