@@ -108,11 +108,17 @@ def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
 
     from edge_depth.tools import quantize
 
-    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters: (10.0, 5.0))
+    timed = []
+    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters:
+                        timed.append([e.runtime for e in engines]) or (10.0, 5.0))
     bundle = tmp_path / "b"
     shutil.copytree(small_bundle[0], bundle)
     q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,
-                                 node_search=False, max_total_px=0.0)
+                                 node_search=False, max_total_px=0.0,
+                                 timing_runtime="onnxruntime")
+    # the speed test ran on the runtime asked for, once per graph
+    assert timed == [["onnxruntime", "onnxruntime"]] * 3
+    assert q["timing_runtime"] == "onnxruntime"
     assert not any(g["int8"] for g in q["graphs"].values())
     assert all(g["float_for_the_total"] for g in q["graphs"].values())
     assert q["mean_abs_px_vs_fp32"] == 0.0 and not list(bundle.glob("*.int8.onnx"))
