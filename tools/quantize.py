@@ -33,6 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime.backends import resolve_runtime
 from edge_depth.runtime.engine import Engine, load_bundle_meta
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -135,8 +136,10 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     meta = load_bundle_meta(bundle)
     fp32 = Engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
     # speed is measured on the runtime the engine will use (`auto`: OpenVINO on x86-64),
-    # agreement on ONNX Runtime's
-    fp32_timed = Engine(bundle, "fp32", threads, meta, runtime=timing_runtime)
+    # agreement on ONNX Runtime's; where they are the same, the same engines
+    timing = resolve_runtime(timing_runtime)
+    fp32_timed = fp32 if timing == RUNTIME else Engine(bundle, "fp32", threads, meta,
+                                                        runtime=timing)
     if isinstance(calib, str):
         frames = list(calibration_frames(calib, fp32.size))
     else:
@@ -154,7 +157,8 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         trial = dict(meta, precisions={"trial": dict(files, **{part: dst.name})})
         trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
         alone = mean_abs_difference(trial_engine, fp32, frames, iters)
-        timed = Engine(bundle, "trial", threads, trial, runtime=timing_runtime)
+        timed = trial_engine if timing == RUNTIME else Engine(bundle, "trial", threads, trial,
+                                                              runtime=timing)
         ms_fp32, ms_trial = median_ms([fp32_timed, timed], frames[:4], iters)
         faster = ms_trial < (1.0 - min_gain) * ms_fp32
         graphs[part] = dict(int8=alone <= max_graph_px and faster,
@@ -209,7 +213,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
                   "softmax: kept float (quantizing them cost agreement, gained no speed)",
         calibration=calib, calibration_frames=len(frames), iters=iters,
         max_graph_px=max_graph_px, max_total_px=max_total_px, graphs=graphs,
-        timing_runtime=fp32_timed.runtime, min_gain=min_gain,
+        timing_runtime=timing, min_gain=min_gain,
         mean_abs_px_vs_fp32=total,
     )
     if eval_dir is not None:
