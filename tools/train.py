@@ -75,7 +75,7 @@ def parse_args(argv):
                         "version 3 checkpoint it starts as exactly version 3)")
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
-                        "(training only: not exported; refine 0-3)")
+                        "(training only: not exported; any refine but 4)")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")
     p.add_argument("--patterns", default="beams16")

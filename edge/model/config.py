@@ -23,7 +23,7 @@ class ModelConfig:
     pixel; downsample 8 only), 5 version 3 whose candidates are also scored by matching on
     the backbone's 1/4 features; aux_offsets: while training only, the 1/4 stage's matching
     (its offsets head on the backbone's 1/4 features) as an auxiliary loss — not exported,
-    no cost at inference; for refine 0–3 with downsample 8."""
+    no cost at inference; for any refine but 4 (which has the head itself), with downsample 8."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -49,8 +49,8 @@ class ModelConfig:
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if self.aux_offsets and (self.refine == 4 or self.downsample != 8):
-            raise ConfigError("aux_offsets", "refine 0-3 and downsample 8 (version 4 has the "
-                              "offsets head itself)", (self.refine, self.downsample))
+            raise ConfigError("aux_offsets", "a refine other than 4 and downsample 8 (version "
+                              "4 has the offsets head itself)", (self.refine, self.downsample))
         if len(self.widths) != 3 or min(self.widths) < 1:
             raise ConfigError("widths", "three positive channel counts", self.widths)
         if self.gru_levels not in (1, 2):
