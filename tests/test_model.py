@@ -399,3 +399,43 @@ def test_guided_selection_v5_starts_as_version_3_and_its_quarter_features_reach_
     net = SparseStereoNet(ModelConfig(refine=5, half_res_block=False))
     state = net.encode(left, right, torch.zeros_like(left), torch.zeros_like(left))
     assert state["quarter_left"].shape == (1, net.config.widths[1], 8, 20)
+
+
+def test_guided_selection_v6_starts_as_version_5_and_its_context_spans_neighbours():
+    """Version 6 with version 5's weights gives version 5's output exactly (its context
+    scorer's output layer starts at zero); once trained, a change of the image at one 1/4
+    pixel moves the choice 7 1/4-pixels away, beyond version 5's reach (its features' two
+    3x3 layers and its 7x7 cost average: 5), within version 6's (3 more)."""
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+    from edge_depth.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    v5, v6 = GuidedSelection(8, quarter=4), GuidedSelection(8, quarter=4, context=8)
+    for p in v5.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    result = v6.load_state_dict(v5.state_dict(), strict=False)
+    assert sorted(result.missing_keys) == sorted(
+        f"context.{i}.{k}" for i in (0, 2, 4) for k in ("weight", "bias"))
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    poked = left.clone()
+    poked[..., 12:16] += 60.0  # the 1/4 column 3
+    with torch.no_grad():
+        out5, logit5 = v5(left, right, low, mask, quarter=quarter)
+        out6, logit6 = v6(left, right, low, mask, quarter=quarter)
+        torch.testing.assert_close(out6, out5, rtol=0, atol=0)
+        torch.testing.assert_close(logit6, logit5, rtol=0, atol=0)
+        torch.nn.init.normal_(v6.context[-1].weight, std=3.0)
+        moved = {name: (module(left, right, low, mask, quarter=quarter)[0]
+                        - module(poked, right, low, mask, quarter=quarter)[0]).abs()
+                 for name, module in (("v5", v5), ("v6", v6))}
+    # the candidates differ only near the edge cell (x 32..55): the choice matters there
+    assert float(moved["v5"][..., 32:36].max()) > 1e-3  # the 1/4 column 8: within reach
+    assert float(moved["v5"][..., 40:].max()) == 0.0  # from the 1/4 column 10 on
+    assert float(moved["v6"][..., 40:44].max()) > 1e-3
+    net = SparseStereoNet(ModelConfig(refine=6, half_res_block=False))
+    assert net.refine.context is not None
+    state = net.encode(left, right, torch.zeros_like(left), torch.zeros_like(left))
+    assert state["quarter_left"].shape == (1, net.config.widths[1], 8, 20)

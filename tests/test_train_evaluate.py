@@ -203,7 +203,8 @@ def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
 
 def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, capsys):
     """--refine 5 --init <version 3>: the scorer is carried over (widened with zeros), only
-    the 1/4 projection starts fresh, and the run trains."""
+    the 1/4 projection starts fresh, and the run trains; --refine 6 from that version 5
+    keeps all of it and starts only its context scorer."""
     v3 = tmp_path / "v3"
     assert train.main(["--out", str(v3), "--steps", "1", "--batch", "1", "--crop", "64x64",
                        "--iters", "2", "--workers", "0", "--refine", "3"]) == 0
@@ -219,3 +220,13 @@ def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, ca
     assert after["config"]["refine"] == 5
     assert after["model"]["refine.score.0.weight"].shape[1] == \
         before["refine.score.0.weight"].shape[1] + 2
+    v6 = tmp_path / "v6"  # version 6 extends 5: its context scorer alone starts fresh
+    assert train.main(["--out", str(v6), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "6",
+                       "--init", str(v5 / "final.pt")]) == 0
+    assert "6 tensors of the refinement stages start fresh (refine.context.0.bias" in \
+        capsys.readouterr().out
+    final6 = torch.load(v6 / "final.pt", weights_only=False)
+    assert final6["config"]["refine"] == 6
+    assert final6["model"]["refine.score.0.weight"].shape == \
+        after["model"]["refine.score.0.weight"].shape

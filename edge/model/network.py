@@ -66,9 +66,10 @@ class SparseStereoNet(nn.Module):
             if cfg.downsample != 8:
                 raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
             self.refine = QuarterStage(cfg.widths[1])
-        elif cfg.refine in (3, 5):
+        elif cfg.refine in (3, 5, 6):
             self.refine = GuidedSelection(cfg.downsample,
-                                          quarter=cfg.widths[1] if cfg.refine == 5 else 0)
+                                          quarter=cfg.widths[1] if cfg.refine >= 5 else 0,
+                                          context=16 if cfg.refine == 6 else 0)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
         # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
@@ -92,7 +93,7 @@ class SparseStereoNet(nn.Module):
         if cfg.refine == 4:
             state["quarter_left"], state["quarter_right"] = \
                 self.refine.head(quarter).chunk(2, 0)
-        elif cfg.refine == 5:  # the guided selection also matches on the backbone's 1/4
+        elif cfg.refine in (5, 6):  # the guided selection also matches on the backbone's 1/4
             state["quarter_left"], state["quarter_right"] = quarter.chunk(2, 0)
         if self.aux_offsets is not None and self.training:
             state["aux_left"], state["aux_right"] = self.aux_offsets.head(quarter).chunk(2, 0)
@@ -121,8 +122,8 @@ class SparseStereoNet(nn.Module):
 
     def quarter_features(self, state: dict) -> tuple[torch.Tensor, torch.Tensor] | None:
         """The encoder's 1/4 features (left, right) for `upsample`; None but for versions 4
-        (its own head's) and 5 (the backbone's)."""
-        if self.config.refine not in (4, 5):
+        (its own head's), 5 and 6 (the backbone's)."""
+        if self.config.refine not in (4, 5, 6):
             return None
         return state["quarter_left"], state["quarter_right"]
 
@@ -144,7 +145,7 @@ class SparseStereoNet(nn.Module):
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
             return refined, logit
-        if self.config.refine in (3, 5):  # chooses among the convex upsampling's candidates
+        if self.config.refine in (3, 5, 6):  # chooses among the convex upsampling's candidates
             return self.refine(left, right, disparity, mask, sparse, valid, quarter)
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:
