@@ -249,7 +249,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=6)
+        ModelConfig(refine=8)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
@@ -439,3 +439,49 @@ def test_guided_selection_v6_starts_as_version_5_and_its_context_spans_neighbour
     assert net.refine.context is not None
     state = net.encode(left, right, torch.zeros_like(left), torch.zeros_like(left))
     assert state["quarter_left"].shape == (1, net.config.widths[1], 8, 20)
+
+
+def test_guided_selection_v7_starts_as_version_5_and_places_an_edge_inside_a_quarter_pixel():
+    """Version 7 with version 5's weights gives version 5's output exactly (its gain starts
+    at zero); its affinity is, per pixel and candidate, the pixel's 1/2-resolution features
+    dotted with the mean features of the candidate's 1/8 cell; with the gain on, pixels on
+    either side of an image edge that runs inside a 4x4 block (where versions 5 and 6 apply
+    one correction) move apart."""
+    import torch.nn.functional as F
+
+    from edge_depth.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    v5, v7 = GuidedSelection(8, quarter=4), GuidedSelection(8, quarter=4, pixel=4)
+    for p in v5.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    result = v7.load_state_dict(v5.state_dict(), strict=False)
+    assert sorted(result.missing_keys) == ["pixel.0.bias", "pixel.0.weight", "pixel.2.bias",
+                                           "pixel.2.weight", "pixel_gain"]
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    with torch.no_grad():
+        out5, logit5 = v5(left, right, low, mask, quarter=quarter)
+        out7, logit7 = v7(left, right, low, mask, quarter=quarter)
+        torch.testing.assert_close(out7, out5, rtol=0, atol=0)
+        torch.testing.assert_close(logit7, logit5, rtol=0, atol=0)
+        affinity = v7.cell_affinity(left)  # (1, 9, 64, 4, 10)
+        feats = v7.pixel(F.avg_pool2d(left, 2) / 127.5 - 1.0)
+        cells = F.avg_pool2d(feats, 4)
+        for y, x, k in ((13, 45, 4), (13, 45, 3), (0, 0, 0), (31, 79, 8), (6, 33, 5)):
+            cy = min(max(y // 8 + k // 3 - 1, 0), 3)
+            cx = min(max(x // 8 + k % 3 - 1, 0), 9)
+            expected = float((feats[0, :, y // 2, x // 2] * cells[0, :, cy, cx]).sum())
+            assert float(affinity[0, k, (y % 8) * 8 + x % 8, y // 8, x // 8]) == \
+                pytest.approx(expected, abs=1e-5)
+        v7.pixel_gain.fill_(5.0)
+        edge = left.clone()
+        edge[..., 42:] = 250.0  # a bright region from x = 42: inside the 1/4 block 40..43
+        edge[..., :42] = 5.0
+        before = v5(edge, right, low, mask, quarter=quarter)[0]
+        after = v7(edge, right, low, mask, quarter=quarter)[0]
+    step5 = float((before[..., 41] - before[..., 42]).abs().max())
+    step7 = float((after[..., 41] - after[..., 42]).abs().max())
+    assert step5 == pytest.approx(0.0, abs=1e-4)  # one correction per 4x4 block
+    assert step7 > 0.05
