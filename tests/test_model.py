@@ -485,3 +485,39 @@ def test_guided_selection_v7_starts_as_version_5_and_places_an_edge_inside_a_qua
     step7 = float((after[..., 41] - after[..., 42]).abs().max())
     assert step5 == pytest.approx(0.0, abs=1e-4)  # one correction per 4x4 block
     assert step7 > 0.05
+
+
+def test_guided_selection_v8_starts_as_version_5_and_its_query_learns_from_the_first_step():
+    """Version 7's features get no gradient at the start (its gain is zero): it never
+    started. Version 8 starts as exactly version 5 too, but its query's weights get a
+    gradient at once, and a few steps on the cell-edge scene lower the loss."""
+    from edge_depth.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    v5 = GuidedSelection(8, quarter=4)
+    v7 = GuidedSelection(8, quarter=4, pixel=8)
+    v8 = GuidedSelection(8, quarter=4, pixel=8, query=True)
+    for p in v5.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    for module in (v7, v8):
+        module.load_state_dict(v5.state_dict(), strict=False)
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    with torch.no_grad():
+        out5 = v5(left, right, low, mask, quarter=quarter)[0]
+    for module in (v7, v8):
+        out = module(left, right, low, mask, quarter=quarter)[0]
+        torch.testing.assert_close(out, out5, rtol=0, atol=0)
+        (out - gt).abs().mean().backward()
+    assert float(v7.pixel[0].weight.grad.abs().max()) == 0.0
+    assert float(v8.query.weight.grad.abs().max()) > 0.0
+    opt = torch.optim.Adam([v8.query.weight, v8.query.bias, *v8.pixel.parameters()], lr=0.05)
+    losses = []
+    for _ in range(30):
+        opt.zero_grad()
+        loss = (v8(left, right, low, mask, quarter=quarter)[0] - gt).abs().mean()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss))
+    assert losses[-1] < 0.8 * losses[0]

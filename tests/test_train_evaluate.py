@@ -218,7 +218,7 @@ def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
 def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, capsys):
     """--refine 5 --init <version 3>: the scorer is carried over (widened with zeros), only
     the 1/4 projection starts fresh, and the run trains; --refine 6 from that version 5
-    keeps all of it and starts only its context scorer, --refine 7 only its pixel features."""
+    keeps all of it and starts only its context scorer, --refine 8 only its pixel features."""
     v3 = tmp_path / "v3"
     assert train.main(["--out", str(v3), "--steps", "1", "--batch", "1", "--crop", "64x64",
                        "--iters", "2", "--workers", "0", "--refine", "3"]) == 0
@@ -244,10 +244,10 @@ def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, ca
     assert final6["config"]["refine"] == 6
     assert final6["model"]["refine.score.0.weight"].shape == \
         after["model"]["refine.score.0.weight"].shape
-    v7 = tmp_path / "v7"  # so does version 7: its 1/2-resolution features alone start fresh
-    assert train.main(["--out", str(v7), "--steps", "1", "--batch", "1", "--crop", "64x64",
-                       "--iters", "2", "--workers", "0", "--refine", "7",
+    v8 = tmp_path / "v8"  # so do versions 7 and 8: their 1/2-resolution features start fresh
+    assert train.main(["--out", str(v8), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "8",
                        "--init", str(v5 / "final.pt")]) == 0
-    assert "5 tensors of the refinement stages start fresh (refine.pixel.0.bias" in \
+    assert "6 tensors of the refinement stages start fresh (refine.pixel.0.bias" in \
         capsys.readouterr().out
-    assert torch.load(v7 / "final.pt", weights_only=False)["config"]["refine"] == 7
+    assert torch.load(v8 / "final.pt", weights_only=False)["config"]["refine"] == 8

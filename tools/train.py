@@ -67,7 +67,7 @@ def parse_args(argv):
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
-                   choices=(0, 1, 2, 3, 4, 5, 6, 7),
+                   choices=range(9), metavar="{0-8}",
                    help="the refinement + confidence stage (edge.model.config.ModelConfig): "
                         "2 (the default with a bare --refine) half resolution, images and "
                         "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage; 5 guided "
@@ -75,8 +75,8 @@ def parse_args(argv):
                         "version 3 checkpoint it starts as exactly version 3); 6 version 5 "
                         "with a scorer over 3x3 neighbourhoods of all nine candidates (from "
                         "a version 5 checkpoint it starts as exactly version 5); 7 version 5 "
-                        "also scoring candidates by full-resolution image features (the "
-                        "same)")
+                        "also scoring candidates by 1/2-resolution image features (the same; "
+                        "it never started); 8 version 7 written so that it starts (the same)")
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; any refine but 4)")
@@ -242,8 +242,8 @@ def _train(argv: list[str] | None) -> int:
     elif init is not None:
         weights = init["model"]
         before = ModelConfig.from_dict(init["config"]).refine
-        # version 5 extends 3, 6 and 7 extend 5: each starts as exactly the one it extends
-        extends = {5: (3,), 6: (3, 5), 7: (3, 5)}.get(args.refine, ())
+        # version 5 extends 3, 6 to 8 extend 5: each starts as exactly the one it extends
+        extends = {5: (3,), 6: (3, 5), 7: (3, 5), 8: (3, 5)}.get(args.refine, ())
         if before in extends:
             from edge_depth.model.refine import widen_from_version3
 

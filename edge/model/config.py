@@ -24,7 +24,8 @@ class ModelConfig:
     the backbone's 1/4 features, 6 version 5 with a second scorer that sees all nine
     candidates over a 3×3 (then dilated) neighbourhood at 1/4, 7 version 5 whose choice
     also compares each full-resolution pixel's learned features with those of the 1/8 cells
-    its candidates come from; aux_offsets: while training
+    its candidates come from (never started), 8 version 7 written so that it starts;
+    aux_offsets: while training
     only, the 1/4 stage's matching (its offsets head on the backbone's 1/4 features) as an
     auxiliary loss — not exported, no cost at inference; for any refine but 4 (which has the
     head itself), with downsample 8."""
@@ -48,8 +49,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
-        if self.refine not in (0, 1, 2, 3, 4, 5, 6, 7):
-            raise ConfigError("refine", "0 to 7", self.refine)
+        if self.refine not in range(9):
+            raise ConfigError("refine", "0 to 8", self.refine)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if self.aux_offsets and (self.refine == 4 or self.downsample != 8):

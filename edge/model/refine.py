@@ -172,14 +172,23 @@ class GuidedSelection(nn.Module):
     So each 1/2-resolution pixel also scores each candidate by how its own learned features
     (one 3×3 and one 1×1 convolution on the left image) resemble the mean features of the
     1/8 cell the candidate comes from: a learned joint-bilateral upsampling. The term's gain
-    starts at zero: a version 5 checkpoint starts as exactly version 5."""
+    starts at zero: a version 5 checkpoint starts as exactly version 5. It never started (run
+    stage16): the term is a gain times a product of two small learned factors, and with the
+    gain at zero the features get no gradient, nor the gain a steady one (after 400 steps it
+    was −0.006 and the term moved the logits by ~3e-5) — version 1's lesson again.
+
+    Version 8 (`query=True`) is version 7 written so that it can start: the pixel side goes
+    through a 1×1 `query` convolution that starts at zero (so again a version 5 checkpoint
+    starts as exactly version 5) while the cells' side keeps its features, so the query's
+    weights get a gradient from the first step; no gain."""
 
     SCALE = 4  # the resolution the candidates are scored at; 1/2 cost ~45 ms in ONNX Runtime
     QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
     PIXEL_SCALE = 2  # version 7's features
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
-                 quarter: int = 0, context: int = 0, pixel: int = 0) -> None:
+                 quarter: int = 0, context: int = 0, pixel: int = 0,
+                 query: bool = False) -> None:
         super().__init__()
         self.factor = factor
         self.features = nn.Sequential(nn.Conv2d(1, 8, 3, 1, 1), nn.ReLU(),
@@ -215,7 +224,12 @@ class GuidedSelection(nn.Module):
         if pixel:
             self.pixel = nn.Sequential(nn.Conv2d(1, pixel, 3, 1, 1), nn.ReLU(),
                                        nn.Conv2d(pixel, pixel, 1))
-            # zero, not the features: with them at zero neither would get a gradient
+        self.query = None
+        if pixel and query:  # version 8: the pixel side's projection starts at zero
+            self.query = nn.Conv2d(pixel, pixel, 1)
+            nn.init.zeros_(self.query.weight)
+            nn.init.zeros_(self.query.bias)
+        elif pixel:  # version 7: a gain at zero (never started: see above)
             self.pixel_gain = nn.Parameter(torch.zeros(()))
         # False: the confidence logit stays at 1/SCALE (the export: the engine resizes the
         # confidence to full resolution, cheaper than in OpenVINO's graph)
@@ -264,7 +278,9 @@ class GuidedSelection(nn.Module):
                           chosen.amax(1, keepdim=True),
                           (chosen * to_lidar.abs()).sum(1, keepdim=True), has, left_s], 1)
         logits = mask.view(b, 9, f * f, h, w) + expand_to_cells(correction, f, s)
-        if self.pixel is not None:
+        if self.query is not None:
+            logits = logits + self.cell_affinity(left)
+        elif self.pixel is not None:
             logits = logits + self.pixel_gain * self.cell_affinity(left)
         weights = torch.exp(logits.clamp(-30.0, 30.0))
         patches = patches_3x3(disparity * f).view(b, 9, 1, h, w)
@@ -277,12 +293,12 @@ class GuidedSelection(nn.Module):
 
 
     def cell_affinity(self, left: torch.Tensor) -> torch.Tensor:
-        """Version 7: (B, 1, H, W) grey 0-255 → (B, 9, f², H/f, W/f), the dot product of each
-        1/2-resolution pixel's features with the mean features of each of the nine 1/8 cells
-        its candidates come from, in the convex upsampling's layout (each full-resolution
-        pixel takes its 1/2 pixel's). Computed per 1/8 cell, one channel at a time: at full
-        resolution, as one batched product per cell, or with the cell means resized to 1/2,
-        the graph ran 30–60 % slower in OpenVINO."""
+        """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, f², H/f, W/f), the dot product
+        of each 1/2-resolution pixel's features (version 8: their query) with the mean
+        features of each of the nine 1/8 cells its candidates come from, in the convex
+        upsampling's layout (each full-resolution pixel takes its 1/2 pixel's). Computed per
+        1/8 cell, one channel at a time: at full resolution, as one batched product per cell,
+        or with the cell means resized to 1/2, the graph ran 30–60 % slower in OpenVINO."""
         f, s = self.factor, self.PIXEL_SCALE
         per = f // s
         feats = self.pixel(F.avg_pool2d(left, s) / 127.5 - 1.0)  # (B, C, H/s, W/s)
@@ -290,6 +306,8 @@ class GuidedSelection(nn.Module):
         cells = F.avg_pool2d(feats, per)
         h, w = cells.shape[-2:]
         means = patches_3x3(cells.reshape(b * c, 1, h, w)).view(b, c, 9, 1, h, w)
+        if self.query is not None:  # version 8
+            feats = self.query(feats)
         pixels = F.pixel_unshuffle(feats, per).view(b, c, 1, per * per, h, w)
         affinity = means[:, 0] * pixels[:, 0]
         for i in range(1, c):
