@@ -249,7 +249,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=8)
+        ModelConfig(refine=9)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
