@@ -32,10 +32,7 @@ QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alo
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
                  3: ["left", "right", "sparse", "valid"],
                  4: ["left", *QUARTER, "sparse", "valid"],
-                 5: ["left", "right", "sparse", "valid", *QUARTER],
-                 6: ["left", "right", "sparse", "valid", *QUARTER],
-                 7: ["left", "right", "sparse", "valid", *QUARTER],
-                 8: ["left", "right", "sparse", "valid", *QUARTER]}
+                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8)}}
 OPSET = 17
 # versions whose upsample graph returns the confidence at its own 1/4 resolution; the engine
 # resizes it (bilinear resizing in OpenVINO's graph cost ~2.8 ms of the graph's ~14)

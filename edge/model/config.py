@@ -25,10 +25,9 @@ class ModelConfig:
     candidates over a 3×3 (then dilated) neighbourhood at 1/4, 7 version 5 whose choice
     also compares each full-resolution pixel's learned features with those of the 1/8 cells
     its candidates come from (never started), 8 version 7 written so that it starts;
-    aux_offsets: while training
-    only, the 1/4 stage's matching (its offsets head on the backbone's 1/4 features) as an
-    auxiliary loss — not exported, no cost at inference; for any refine but 4 (which has the
-    head itself), with downsample 8."""
+    aux_offsets: while training only, the 1/4 stage's matching (its offsets head on the
+    backbone's 1/4 features) as an auxiliary loss — not exported, no cost at inference; for
+    any refine but 4 (which has the head itself), with downsample 8."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64

@@ -23,7 +23,7 @@ from edge_depth.model.corr import (
 from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge_depth.model.extractor import Encoders
 from edge_depth.model.quarter import QuarterStage
-from edge_depth.model.refine import GuidedSelection, Refinement
+from edge_depth.model.refine import GUIDED_VERSIONS, GuidedSelection, Refinement
 from edge_depth.model.update import UpdateBlock
 
 
@@ -66,7 +66,7 @@ class SparseStereoNet(nn.Module):
             if cfg.downsample != 8:
                 raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
             self.refine = QuarterStage(cfg.widths[1])
-        elif cfg.refine in (3, 5, 6, 7, 8):
+        elif cfg.refine in GUIDED_VERSIONS:
             self.refine = GuidedSelection(cfg.downsample,
                                           quarter=cfg.widths[1] if cfg.refine >= 5 else 0,
                                           context=16 if cfg.refine == 6 else 0,
@@ -95,7 +95,7 @@ class SparseStereoNet(nn.Module):
         if cfg.refine == 4:
             state["quarter_left"], state["quarter_right"] = \
                 self.refine.head(quarter).chunk(2, 0)
-        elif cfg.refine in (5, 6, 7, 8):  # the guided selection also matches on the backbone's 1/4
+        elif cfg.refine >= 5:  # the guided selection also matches on the backbone's 1/4
             state["quarter_left"], state["quarter_right"] = quarter.chunk(2, 0)
         if self.aux_offsets is not None and self.training:
             state["aux_left"], state["aux_right"] = self.aux_offsets.head(quarter).chunk(2, 0)
@@ -125,7 +125,7 @@ class SparseStereoNet(nn.Module):
     def quarter_features(self, state: dict) -> tuple[torch.Tensor, torch.Tensor] | None:
         """The encoder's 1/4 features (left, right) for `upsample`; None but for versions 4
         (its own head's), 5 to 8 (the backbone's)."""
-        if self.config.refine not in (4, 5, 6, 7, 8):
+        if self.config.refine < 4:
             return None
         return state["quarter_left"], state["quarter_right"]
 
@@ -147,7 +147,7 @@ class SparseStereoNet(nn.Module):
             logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
                                   align_corners=False)
             return refined, logit
-        if self.config.refine in (3, 5, 6, 7, 8):  # chooses among the convex candidates
+        if self.config.refine in GUIDED_VERSIONS:  # chooses among the convex candidates
             return self.refine(left, right, disparity, mask, sparse, valid, quarter)
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:

@@ -24,6 +24,7 @@ from torch.nn import functional as F
 from edge_depth.model.cspn import patches_3x3
 from edge_depth.model.losses import warp_horizontal
 
+GUIDED_VERSIONS = (3, 5, 6, 7, 8)  # the refinement versions that are a `GuidedSelection`
 RESIDUAL_INIT_STD = 1e-2  # version 2: ~the identity at the start (residuals of ~0.1 px), not zero
 CONFIDENCE_TRUNK_GRAD = 0.1  # how much of the confidence's gradient reaches the shared trunk
 
@@ -129,9 +130,16 @@ def expand_to_cells(values: torch.Tensor, factor: int, scale: int) -> torch.Tens
     per = factor // scale
     cells = F.pixel_unshuffle(values, per)  # (B, K·per², h, w)
     h, w = cells.shape[-2:]
-    index = torch.tensor([(i // scale) * per + j // scale for i in range(factor)
-                          for j in range(factor)], device=values.device)
-    return cells.view(b, k, per * per, h, w).index_select(2, index)
+    return cells.view(b, k, per * per, h, w).index_select(
+        2, sub_position_index(factor, scale, values.device))
+
+
+def sub_position_index(factor: int, scale: int, device) -> torch.Tensor:
+    """For each of a 1/factor cell's factor² full-resolution sub-positions, the index of the
+    1/scale pixel that holds it among the cell's (factor/scale)²."""
+    per = factor // scale
+    return torch.tensor([(i // scale) * per + j // scale for i in range(factor)
+                         for j in range(factor)], device=device)
 
 
 class GuidedSelection(nn.Module):
@@ -184,7 +192,7 @@ class GuidedSelection(nn.Module):
 
     SCALE = 4  # the resolution the candidates are scored at; 1/2 cost ~45 ms in ONNX Runtime
     QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
-    PIXEL_SCALE = 2  # version 7's features
+    PIXEL_SCALE = 2  # versions 7 and 8: the resolution of the pixel side's features
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
                  quarter: int = 0, context: int = 0, pixel: int = 0,
@@ -291,7 +299,6 @@ class GuidedSelection(nn.Module):
                                   align_corners=False)
         return F.pixel_shuffle(up, f), logit
 
-
     def cell_affinity(self, left: torch.Tensor) -> torch.Tensor:
         """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, f², H/f, W/f), the dot product
         of each 1/2-resolution pixel's features (version 8: their query) with the mean
@@ -312,9 +319,7 @@ class GuidedSelection(nn.Module):
         affinity = means[:, 0] * pixels[:, 0]
         for i in range(1, c):
             affinity = affinity + means[:, i] * pixels[:, i]
-        index = torch.tensor([(i // s) * per + j // s for i in range(f) for j in range(f)],
-                             device=left.device)
-        return affinity.index_select(2, index)
+        return affinity.index_select(2, sub_position_index(f, s, left.device))
 
 
 def widen_from_version3(weights: dict, module: GuidedSelection, prefix: str = "refine."
