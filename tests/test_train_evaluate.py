@@ -251,3 +251,38 @@ def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, ca
     assert "6 tensors of the refinement stages start fresh (refine.pixel.0.bias" in \
         capsys.readouterr().out
     assert torch.load(v8 / "final.pt", weights_only=False)["config"]["refine"] == 8
+
+
+def test_freeze_trunk_trains_only_the_refinement_and_fresh_tensors_at_their_own_rate(tmp_path):
+    """--freeze-trunk leaves every trunk tensor (batch-norm statistics included) as the
+    checkpoint had it while the refinement moves; --fresh-lr-mult puts the tensors the
+    checkpoint lacks in their own optimizer group at that multiple, on --resume too."""
+    common = ["--batch", "1", "--crop", "64x64", "--iters", "2", "--workers", "0"]
+    v5 = tmp_path / "v5"
+    assert train.main(["--out", str(v5), "--steps", "1", "--refine", "5"] + common) == 0
+    v8 = tmp_path / "v8"
+    args = ["--out", str(v8), "--refine", "8", "--init", str(v5 / "final.pt"),
+            "--freeze-trunk", "--fresh-lr-mult", "10", "--ckpt-every", "1"] + common
+    assert train.main(args + ["--steps", "2"]) == 0
+    assert train.main(args + ["--steps", "3", "--resume"]) == 0
+    before = torch.load(v5 / "final.pt", weights_only=False)["model"]
+    after = torch.load(v8 / "final.pt", weights_only=False)
+    trunk = [k for k in before if not k.startswith("refine.")]
+    assert any("running_mean" in k for k in trunk)
+    assert all(torch.equal(before[k], after["model"][k]) for k in trunk)
+    assert not torch.equal(before["refine.score.0.weight"],
+                           after["model"]["refine.score.0.weight"])
+    assert after["model"]["refine.query.weight"].abs().sum() > 0  # started at zero
+    groups = after["optimizer"]["param_groups"]
+    fresh = [k for k in after["model"] if k.startswith(("refine.pixel.", "refine.query."))]
+    assert [len(g["params"]) for g in groups][1] == len(fresh) == 6
+    assert [g["max_lr"] for g in groups] == pytest.approx([2e-4, 2e-3])
+
+
+def test_freeze_trunk_needs_a_checkpoint_and_a_refinement_stage(tmp_path, capsys):
+    for extra in ([], ["--init", str(tmp_path / "x.pt")]):
+        with pytest.raises(SystemExit):
+            train.main(["--out", str(tmp_path / "r"), "--steps", "1", "--freeze-trunk"]
+                       + extra)
+    err = capsys.readouterr().err
+    assert "--freeze-trunk needs --init" in err and "give --refine N" in err

@@ -82,6 +82,14 @@ def parse_args(argv):
                         "(training only: not exported; any refine but 4)")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")
+    p.add_argument("--fresh-lr-mult", type=float, default=1.0,
+                   help="with --init: the learning rate of the tensors the checkpoint lacks "
+                        "(a new stage's, which start at or near zero) as a multiple of the "
+                        "refinement stage's")
+    p.add_argument("--freeze-trunk", action="store_true",
+                   help="with --init: train only the refinement stages; the encoders and the "
+                        "update block keep the checkpoint's weights and run as deployed "
+                        "(batch norm on its running statistics)")
     p.add_argument("--patterns", default="beams16")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--workers", type=int, default=1,
@@ -97,6 +105,10 @@ def parse_args(argv):
                    help="scene folders, REC.mcap, kitti:DIR, sceneflow:DIR or things:DIR "
                         "(rendered by `edge-depth synth --world things`; default: the rig)")
     args = p.parse_args(argv)
+    if args.freeze_trunk and args.init is None:
+        p.error("--freeze-trunk needs --init (the trunk's weights come from it)")
+    if args.freeze_trunk and not (args.refine or args.aux_offsets):
+        p.error("--freeze-trunk trains the refinement stages only: give --refine N")
     if args.stereo_only_share is not None:
         if not 0.0 <= args.stereo_only_share <= 1.0:
             p.error(f"--stereo-only-share must be within 0-1, got {args.stereo_only_share}")
@@ -184,6 +196,31 @@ def plot_metrics(csv_path: Path, png_path: Path) -> None:
     plt.close(fig)
 
 
+def init_weights(init: dict, refine: int, net) -> dict:
+    """The --init checkpoint's weights in the form `net` loads: a version 3 scorer widened
+    for the versions that extend it (each starts as exactly the one it extends), another
+    version's refinement dropped (its tensors do not fit: it starts fresh)."""
+    weights = init["model"]
+    before = ModelConfig.from_dict(init["config"]).refine
+    extends = {5: (3,), 6: (3, 5), 7: (3, 5), 8: (3, 5)}.get(refine, ())
+    if before in extends:
+        from edge_depth.model.refine import widen_from_version3
+
+        return widen_from_version3(weights, net.refine)
+    if refine and before != refine:
+        return {k: v for k, v in weights.items() if not k.startswith("refine.")}
+    return weights
+
+
+def set_train_mode(net, freeze_trunk: bool) -> None:
+    """Training mode, but a frozen trunk runs as deployed (batch norm on its running
+    statistics), so the refinement learns on the features the engine will give it."""
+    net.train()
+    if freeze_trunk:
+        net.encoders.eval()
+        net.update.eval()
+
+
 def main(argv: list[str] | None = None) -> int:
     # denormal floats (early training, tiny activations) make CPU convolutions crawl; the
     # setting is the whole process's (a caller's subnormals read as 0 after it), so it is
@@ -223,12 +260,24 @@ def _train(argv: list[str] | None) -> int:
         config = ModelConfig.from_dict({**init["config"], **changes})
     net = SparseStereoNet(config)
     heads = ("refine.", "aux_offsets.")  # the stages that may start fresh, at their own LR
-    stage = [p for n, p in net.named_parameters() if n.startswith(heads)]
-    rest = [p for n, p in net.named_parameters() if not n.startswith(heads)]
-    lrs = [args.lr, args.lr * args.refine_lr_mult][:1 + bool(stage)]
-    opt = torch.optim.AdamW([dict(params=rest), dict(params=stage)][:len(lrs)], lr=args.lr,
+    weights = init_weights(init, args.refine, net) if init is not None else None
+    # the tensors the checkpoint lacks start fresh; kept apart in the optimizer (even on
+    # --resume) so that --fresh-lr-mult can move them faster than the weights carried over
+    fresh = {n for n, _ in net.named_parameters()
+             if weights is not None and n.startswith(heads) and n not in weights}
+    if args.freeze_trunk:
+        for n, p in net.named_parameters():
+            p.requires_grad_(n.startswith(heads))
+    groups = [([p for n, p in net.named_parameters() if not n.startswith(heads)], args.lr),
+              ([p for n, p in net.named_parameters() if n.startswith(heads) and n not in fresh],
+               args.lr * args.refine_lr_mult),
+              ([p for n, p in net.named_parameters() if n in fresh],
+               args.lr * args.refine_lr_mult * args.fresh_lr_mult)]
+    groups = [(ps, lr) for ps, lr in groups if ps and ps[0].requires_grad]
+    opt = torch.optim.AdamW([dict(params=ps) for ps, _ in groups], lr=args.lr,
                             weight_decay=1e-5)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, lrs, total_steps=args.steps + 100,
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, [lr for _, lr in groups],
+                                                total_steps=args.steps + 100,
                                                 pct_start=0.05, anneal_strategy="linear")
     step = 0
     last = args.out / "last.pt"
@@ -240,17 +289,6 @@ def _train(argv: list[str] | None) -> int:
         step = ckpt["step"]
         print(f"resumed from {last} at step {step}")
     elif init is not None:
-        weights = init["model"]
-        before = ModelConfig.from_dict(init["config"]).refine
-        # version 5 extends 3, 6 to 8 extend 5: each starts as exactly the one it extends
-        extends = {5: (3,), 6: (3, 5), 7: (3, 5), 8: (3, 5)}.get(args.refine, ())
-        if before in extends:
-            from edge_depth.model.refine import widen_from_version3
-
-            weights = widen_from_version3(weights, net.refine)
-        elif args.refine and before != args.refine:
-            # another version of the stage: its tensors do not fit, it starts fresh
-            weights = {k: v for k, v in weights.items() if not k.startswith("refine.")}
         result = net.load_state_dict(weights, strict=False)
         new = [k for k in result.missing_keys if k.startswith(heads)]
         if new and (args.refine or args.aux_offsets):  # a stage the checkpoint lacks: fresh
@@ -300,7 +338,7 @@ def _train(argv: list[str] | None) -> int:
                             args=vars(args) | {"out": str(args.out), "init": str(args.init)}),
                        tmp)
 
-    net.train()
+    set_train_mode(model, args.freeze_trunk)
     bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True,
                disable=not main_rank)
     start = time.time()
@@ -347,6 +385,7 @@ def _train(argv: list[str] | None) -> int:
                    seconds=round(time.time() - start, 1), **terms)
         if args.val_every and (step % args.val_every == 0 or step == args.steps):
             row.update(validate(model, 4))
+            set_train_mode(model, args.freeze_trunk)
         writer.writerow(row)
         log.flush()
         bar.update(1)
