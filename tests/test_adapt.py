@@ -141,10 +141,23 @@ def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
 
 
 @pytest.mark.slow
-def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path):
+def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path, monkeypatch):
+    """The time bound is checked after each step: on a clock that advances 0.6 s per
+    reading (two readings a step) a 3-second bound stops after the third step, at 3.6 s,
+    however fast or slow the machine is."""
     from edge_depth.sim import RigConfig, make_sample
+    from edge_depth.tools import adapt
     from edge_depth.tools.adapt import DEFAULT_CHECKPOINT, finetune
     from edge_depth.tools.adapt_frames import _compact
+
+    class Clock:
+        now = 1000.0
+
+        def time(self) -> float:
+            self.now += 0.6
+            return self.now
+
+    monkeypatch.setattr(adapt, "time", Clock())
 
     frames = []
     for seed in (11, 12):
@@ -154,7 +167,7 @@ def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path):
                             _compact(np.zeros_like(sparse))))
     plan = FineTune(minutes=0.05, batch=1, ckpt_every=1)
     path, summary = finetune(DEFAULT_CHECKPOINT, frames, tmp_path, plan)
-    assert path.is_file() and summary["steps"] >= 1 and 0.05 <= summary["minutes"] < 0.5
+    assert path.is_file() and summary["steps"] == 3 and summary["minutes"] == 0.06
     again, resumed = finetune(DEFAULT_CHECKPOINT, frames, tmp_path, FineTune(
         steps=summary["steps"] + 1, batch=1), resume=True)
     assert resumed["steps"] == summary["steps"] + 1
