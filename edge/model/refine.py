@@ -285,11 +285,18 @@ class GuidedSelection(nn.Module):
                           (chosen * per_candidate[2]).sum(1, keepdim=True),
                           chosen.amax(1, keepdim=True),
                           (chosen * to_lidar.abs()).sum(1, keepdim=True), has, left_s], 1)
-        logits = mask.view(b, 9, f * f, h, w) + expand_to_cells(correction, f, s)
-        if self.query is not None:
-            logits = logits + self.cell_affinity(left)
-        elif self.pixel is not None:
-            logits = logits + self.pixel_gain * self.cell_affinity(left)
+        if self.pixel is None:
+            logits = mask.view(b, 9, f * f, h, w) + expand_to_cells(correction, f, s)
+        else:  # both terms summed at the pixel side's resolution, then expanded once
+            affinity = self.half_resolution_affinity(left)
+            if self.query is None:
+                affinity = self.pixel_gain * affinity
+            per = s // self.PIXEL_SCALE
+            quarter = F.pixel_unshuffle(correction, per).view(b, 9, per * per, h, w)
+            half = quarter.index_select(2, sub_position_index(f // self.PIXEL_SCALE, per,
+                                                              left.device)) + affinity
+            logits = mask.view(b, 9, f * f, h, w) + half.index_select(
+                2, sub_position_index(f, self.PIXEL_SCALE, left.device))
         weights = torch.exp(logits.clamp(-30.0, 30.0))
         patches = patches_3x3(disparity * f).view(b, 9, 1, h, w)
         up = (weights * patches).sum(1) / weights.sum(1)  # (B, f², h, w)
@@ -300,10 +307,16 @@ class GuidedSelection(nn.Module):
         return F.pixel_shuffle(up, f), logit
 
     def cell_affinity(self, left: torch.Tensor) -> torch.Tensor:
-        """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, f², H/f, W/f), the dot product
-        of each 1/2-resolution pixel's features (version 8: their query) with the mean
-        features of each of the nine 1/8 cells its candidates come from, in the convex
-        upsampling's layout (each full-resolution pixel takes its 1/2 pixel's). Computed per
+        """`half_resolution_affinity` in the convex upsampling's layout (B, 9, f², H/f, W/f):
+        each full-resolution pixel takes its 1/2 pixel's."""
+        return self.half_resolution_affinity(left).index_select(
+            2, sub_position_index(self.factor, self.PIXEL_SCALE, left.device))
+
+    def half_resolution_affinity(self, left: torch.Tensor) -> torch.Tensor:
+        """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, (f/2)², H/f, W/f), the dot
+        product of each 1/2-resolution pixel's features (version 8: their query) with the mean
+        features of each of the nine 1/8 cells its candidates come from, per 1/2-resolution
+        sub-position of each 1/8 cell (`pixel_unshuffle`'s order). Computed per
         1/8 cell, one channel at a time: at full resolution, as one batched product per cell,
         or with the cell means resized to 1/2, the graph ran 30–60 % slower in OpenVINO."""
         f, s = self.factor, self.PIXEL_SCALE
@@ -319,7 +332,7 @@ class GuidedSelection(nn.Module):
         affinity = means[:, 0] * pixels[:, 0]
         for i in range(1, c):
             affinity = affinity + means[:, i] * pixels[:, i]
-        return affinity.index_select(2, sub_position_index(f, s, left.device))
+        return affinity
 
 
 def widen_from_version3(weights: dict, module: GuidedSelection, prefix: str = "refine."
