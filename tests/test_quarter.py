@@ -11,7 +11,7 @@ from edge_depth.errors import ConfigError
 from edge_depth.model.config import ModelConfig
 from edge_depth.model.losses import gate_loss, offset_loss
 from edge_depth.model.network import SparseStereoNet, convex_upsample
-from tests.test_model import _two_plane_cell_edge
+from tests.test_refine import _two_plane_cell_edge
 
 
 def test_local_correlation_reads_the_right_features_around_the_centre():
