@@ -279,10 +279,11 @@ def test_freeze_trunk_trains_only_the_refinement_and_fresh_tensors_at_their_own_
     assert [g["max_lr"] for g in groups] == pytest.approx([2e-4, 2e-3])
 
 
-def test_freeze_trunk_needs_a_checkpoint_and_a_refinement_stage(tmp_path, capsys):
-    for extra in ([], ["--init", str(tmp_path / "x.pt")]):
+def test_freeze_trunk_and_fresh_lr_need_a_checkpoint_and_a_refinement_stage(tmp_path, capsys):
+    for extra in (["--freeze-trunk"], ["--freeze-trunk", "--init", str(tmp_path / "x.pt")],
+                  ["--fresh-lr-mult", "10"]):
         with pytest.raises(SystemExit):
-            train.main(["--out", str(tmp_path / "r"), "--steps", "1", "--freeze-trunk"]
-                       + extra)
+            train.main(["--out", str(tmp_path / "r"), "--steps", "1"] + extra)
     err = capsys.readouterr().err
     assert "--freeze-trunk needs --init" in err and "give --refine N" in err
+    assert "--fresh-lr-mult needs --init" in err

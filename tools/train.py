@@ -107,6 +107,8 @@ def parse_args(argv):
     args = p.parse_args(argv)
     if args.freeze_trunk and args.init is None:
         p.error("--freeze-trunk needs --init (the trunk's weights come from it)")
+    if args.fresh_lr_mult != 1.0 and args.init is None:
+        p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
     if args.freeze_trunk and not (args.refine or args.aux_offsets):
         p.error("--freeze-trunk trains the refinement stages only: give --refine N")
     if args.stereo_only_share is not None:
