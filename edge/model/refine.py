@@ -291,10 +291,8 @@ class GuidedSelection(nn.Module):
             affinity = self.half_resolution_affinity(left)
             if self.query is None:
                 affinity = self.pixel_gain * affinity
-            per = s // self.PIXEL_SCALE
-            quarter = F.pixel_unshuffle(correction, per).view(b, 9, per * per, h, w)
-            half = quarter.index_select(2, sub_position_index(f // self.PIXEL_SCALE, per,
-                                                              left.device)) + affinity
+            half = expand_to_cells(correction, f // self.PIXEL_SCALE,
+                                   s // self.PIXEL_SCALE) + affinity
             logits = mask.view(b, 9, f * f, h, w) + half.index_select(
                 2, sub_position_index(f, self.PIXEL_SCALE, left.device))
         weights = torch.exp(logits.clamp(-30.0, 30.0))
