@@ -96,14 +96,15 @@ def test_matching_cost_reads_the_right_features_at_each_candidate():
     from edge_depth.model.refine import matching_cost
 
     torch.manual_seed(2)
-    f_left, f_right = torch.randn(1, 3, 4, 10), torch.randn(1, 3, 4, 10)
-    candidates = torch.rand(1, 2, 4, 10) * 6
-    expected = torch.zeros(1, 2, 4, 10)
-    for k in range(2):
-        for y in range(4):
-            for x in range(10):
-                j = min(max(round(x - float(candidates[0, k, y, x])), 0), 9)
-                expected[0, k, y, x] = (f_left[0, :, y, x] - f_right[0, :, y, j]).abs().mean()
+    f_left, f_right = torch.randn(2, 3, 4, 10), torch.randn(2, 3, 4, 10)
+    candidates = torch.rand(2, 2, 4, 10) * 6
+    expected = torch.zeros(2, 2, 4, 10)
+    for n in range(2):  # the second image's rows must not read the first's
+        for k in range(2):
+            for y in range(4):
+                for x in range(10):
+                    j = min(max(round(x - float(candidates[n, k, y, x])), 0), 9)
+                    expected[n, k, y, x] = (f_left[n, :, y, x] - f_right[n, :, y, j]).abs().mean()
     torch.testing.assert_close(matching_cost(f_left, f_right, candidates), expected)
 
 

@@ -34,6 +34,7 @@ from edge_depth.model.refine import (
     RESIDUAL_INIT_STD,
     ResidualDilated,
     lidar_at,
+    read_right_rows,
 )
 
 SCALE = 4
@@ -48,18 +49,15 @@ def local_correlation(f_left: torch.Tensor, f_right: torch.Tensor, centre: torch
     """f_l(x) · f_r(x − centre − k) / √C for k = −r..r: features (B, C, h, w), integer-valued
     centre (B, 1, h, w) px → (B, 2r + 1, h, w), the right row read at clamped columns.
 
-    Written for the runtimes: the right features as (B·h·w, C) rows read with one 1-D Gather
-    and the products summed by a batched MatMul — ~2× faster in ONNX Runtime than a
-    GatherElements over (B, C, h, w·K), whose index must be expanded over the channels."""
+    The right row is read by `read_right_rows` (one 1-D Gather) and the products summed by a
+    batched MatMul."""
     b, c, h, w = f_left.shape
     k = 2 * radius + 1
     offsets = torch.arange(-radius, radius + 1, dtype=centre.dtype,
                            device=centre.device).view(1, 1, 1, k)
     x = torch.arange(w, dtype=centre.dtype, device=centre.device).view(1, 1, w, 1)
     column = (x - centre.permute(0, 2, 3, 1) - offsets).clamp(0, w - 1)  # (B, h, w, K)
-    row = (torch.arange(b * h, dtype=centre.dtype, device=centre.device) * w).view(b, h, 1, 1)
-    rows = f_right.permute(0, 2, 3, 1).reshape(b * h * w, c)
-    read = rows.index_select(0, (row + column).long().reshape(-1)).view(b * h * w, k, c)
+    read = read_right_rows(f_right, column)
     dots = torch.matmul(read, f_left.permute(0, 2, 3, 1).reshape(b * h * w, c, 1))
     return dots.view(b, h, w, k).permute(0, 3, 1, 2) / c**0.5
 
