@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from torch.nn import functional as F
 
 from edge_depth.errors import ConfigError
 from edge_depth.model.config import ModelConfig
@@ -106,6 +107,18 @@ def test_matching_cost_reads_the_right_features_at_each_candidate():
                     j = min(max(round(x - float(candidates[n, k, y, x])), 0), 9)
                     expected[n, k, y, x] = (f_left[n, :, y, x] - f_right[n, :, y, j]).abs().mean()
     torch.testing.assert_close(matching_cost(f_left, f_right, candidates), expected)
+
+
+@pytest.mark.parametrize("factor,scale", [(8, 4), (8, 2), (4, 2)])
+def test_expand_to_cells_is_nearest_upsampling_in_the_convex_layout(factor, scale):
+    from edge_depth.model.refine import expand_to_cells
+
+    torch.manual_seed(3)
+    values = torch.randn(2, 3, 24 // scale, 40 // scale)
+    full = F.interpolate(values, scale_factor=scale, mode="nearest")  # (2, 3, 24, 40)
+    expected = F.pixel_unshuffle(full, factor).view(2, 3, factor * factor, 24 // factor,
+                                                   40 // factor)
+    assert torch.equal(expand_to_cells(values, factor, scale), expected)
 
 
 def _two_plane_cell_edge():
