@@ -98,6 +98,17 @@ def test_convex_upsampling_of_a_constant_is_the_scaled_constant():
     torch.testing.assert_close(up, torch.full_like(up, 16.0))
 
 
+def test_upsampling_mask_as_matmul_equals_the_convolutions():
+    from edge_depth.model.update import UpdateBlock
+
+    torch.manual_seed(4)
+    block = UpdateBlock(hidden_dim=16, context_dim=8, corr_channels=9, factor=4)
+    hidden = torch.randn(2, 16, 5, 7)
+    logits = block.upsampling_mask(hidden)
+    assert logits.shape == (2, 9 * 16, 5, 7)
+    torch.testing.assert_close(logits, 0.25 * block.mask(hidden), atol=1e-5, rtol=1e-5)
+
+
 def test_sparse_downsampling_averages_valid_points_in_low_res_pixels():
     sparse = torch.zeros(1, 1, 8, 16)
     valid = torch.zeros(1, 1, 8, 16)
