@@ -85,6 +85,22 @@ def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_
     assert float(np.abs(int8 - fp32).mean()) < 0.5
 
 
+def test_quantize_keeps_the_confidence_head_float(small_bundle, tmp_path):
+    import onnx
+
+    from edge_depth.tools.graph_ab import random_feeds
+    from edge_depth.tools.quantize import quantize_graph
+
+    src, dst = small_bundle[0] / "upsample.onnx", tmp_path / "upsample.int8.onnx"
+    quantize_graph(src, dst, [random_feeds(src)])
+    graph = onnx.load(str(dst)).graph
+    made_by = {out: n.op_type for n in graph.node for out in n.output}
+    weights = {n.name: made_by.get(n.input[1]) for n in graph.node if n.op_type == "Conv"}
+    confidence = {k: v for k, v in weights.items() if k.startswith("/refine/confidence/")}
+    assert len(confidence) == 3 and set(confidence.values()) == {None}  # float initialisers
+    assert "DequantizeLinear" in {v for k, v in weights.items() if k not in confidence}
+
+
 def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, tmp_path):
     import shutil
 

@@ -73,9 +73,18 @@ class FeedReader:
         return next(self._iter, None)
 
 
+# convolutions that always stay float: the confidence head's int8 graph agreed with its float
+# one on ONNX Runtime but not on OpenVINO (the runtime `auto` picks on x86), where stage 12's
+# confidence read 0.99 on average against 0.90 in float — on the test split, 98 % of pixels
+# above 0.9 instead of 72 % — while the disparity stayed within 0.01 px
+ALWAYS_FLOAT = ("/refine/confidence/",)
+
+
 def quantize_graph(src: Path, dst: Path, feeds: list[dict],
                    exclude: list[str] | None = None) -> None:
     from onnxruntime.quantization import QuantFormat, QuantType, quantize_static
+
+    exclude = list(exclude or []) + [n for n in conv_nodes(src) if n.startswith(ALWAYS_FLOAT)]
     from onnxruntime.quantization.shape_inference import quant_pre_process
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -84,7 +93,7 @@ def quantize_graph(src: Path, dst: Path, feeds: list[dict],
         quantize_static(str(prepared), str(dst), FeedReader(feeds),
                         quant_format=QuantFormat.QDQ, op_types_to_quantize=["Conv"],
                         per_channel=True, activation_type=QuantType.QUInt8,
-                        weight_type=QuantType.QInt8, nodes_to_exclude=exclude or [])
+                        weight_type=QuantType.QInt8, nodes_to_exclude=exclude)
 
 
 def conv_nodes(path: Path) -> list[str]:
