@@ -108,9 +108,10 @@ class Refinement(nn.Module):
 def read_right_rows(f_right: torch.Tensor, column: torch.Tensor) -> torch.Tensor:
     """f_right (B, C, h, w), integer-valued columns (B, h, w, K) within 0..w − 1 → (B·h·w, K, C):
     each pixel's right row read at its K columns. Written for the runtimes: the features as
-    (B·h·w, C) rows read with one 1-D Gather — ~2× faster in ONNX Runtime than a
-    GatherElements over (B, C, h, w·K), whose index must be expanded over the channels, and a
-    JIT kernel in OpenVINO, where GatherElements is a reference one."""
+    (B·h·w, C) rows read with one 1-D Gather instead of a GatherElements over (B, C, h, w·K),
+    whose index must be expanded over the channels — ~2× faster in ONNX Runtime for the 1/4
+    stage's correlation (equal there for `matching_cost`), and a JIT kernel in OpenVINO, where
+    GatherElements is a reference one (upsampling graph 28.4 → 26.2 ms)."""
     b, c, h, w = f_right.shape
     k = column.shape[-1]
     row = (torch.arange(b * h, dtype=column.dtype, device=column.device) * w).view(b, h, 1, 1)
