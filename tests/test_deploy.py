@@ -101,6 +101,44 @@ def test_quantize_keeps_the_confidence_head_float(small_bundle, tmp_path):
     assert "DequantizeLinear" in {v for k, v in weights.items() if k not in confidence}
 
 
+def test_quantize_checks_the_confidence_on_the_runtime_that_will_run_it(
+        small_bundle, tmp_path, monkeypatch):
+    """A confidence map that only OpenVINO's int8 ruins (as it did stage 12's: 0.99
+    everywhere) sends the graphs back to float when the bundle is timed for OpenVINO, and
+    not when it is timed for ONNX Runtime alone; both runtimes' numbers are recorded."""
+    import shutil
+
+    from edge_depth.tools import quantize
+
+    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters: (10.0, 5.0))
+    measured = quantize.agreement
+
+    def openvino_ruins_the_confidence(engine_a, engine_b, frames, iters):
+        out = measured(engine_a, engine_b, frames, iters)
+        files = engine_a.meta["precisions"][engine_a.precision].values()
+        if engine_a.runtime == "openvino" and any(f.endswith(".int8.onnx") for f in files):
+            out["confidence"] += 0.5
+        return out
+
+    monkeypatch.setattr(quantize, "agreement", openvino_ruins_the_confidence)
+    for timing, int8 in (("openvino", False), ("onnxruntime", True)):
+        bundle = tmp_path / timing
+        shutil.copytree(small_bundle[0], bundle)
+        q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1,
+                                     threads=1, node_search=False, max_total_px=10.0,
+                                     timing_runtime=timing)
+        assert {g["int8"] for g in q["graphs"].values()} == {int8}
+        assert not any(g.get("float_for_the_total") for g in q["graphs"].values())
+        assert set(q["vs_fp32"]) == {"onnxruntime", timing}
+        for graph in q["graphs"].values():  # each graph checked alone on both runtimes
+            assert set(graph["alone"]) == {"onnxruntime", timing}
+            assert (graph["alone"][timing]["confidence"] > 0.5) == (timing == "openvino")
+        # the int8 that ships, against fp32: a real, small change where the graphs stayed
+        # int8; none where they all went back to float
+        confidence = q["vs_fp32"]["onnxruntime"]["confidence"]
+        assert 0.0 < confidence < 0.03 if int8 else confidence == 0.0
+
+
 def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, tmp_path):
     import shutil
 
