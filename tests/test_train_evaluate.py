@@ -27,6 +27,31 @@ def test_train_writes_checkpoints_and_resumes_where_it_stopped(tmp_path):
     assert (out / "loss.png").stat().st_size > 0
 
 
+def test_resume_continues_the_run_as_it_was_started(tmp_path, capsys):
+    """--resume with only --out and --steps takes --init, --refine and the rest from the run's
+    checkpoint (the model would not match it otherwise); a flag given again with another value
+    is one clear error, while --steps may change."""
+    first = tmp_path / "a"
+    small = ["--batch", "1", "--crop", "64x64", "--iters", "2", "--workers", "0"]
+    assert train.main(["--out", str(first), "--steps", "1"] + small) == 0
+    run = tmp_path / "b"
+    assert train.main(["--out", str(run), "--steps", "1", "--refine", "3", "--lr", "1e-4",
+                       "--ckpt-every", "1", "--init", str(first / "final.pt")] + small) == 0
+    capsys.readouterr()
+    assert train.main(["--out", str(run), "--steps", "2", "--resume", "--workers", "0"]) == 0
+    out = capsys.readouterr().out
+    assert "--resume: as the run was started" in out and "--refine 3" in out
+    assert f"--init {first / 'final.pt'}" in out and "--crop 64x64" in out
+    assert "resumed from" in out and "at step 1" in out
+    ckpt = torch.load(run / "last.pt", weights_only=False)
+    assert ckpt["step"] == 2 and ckpt["config"]["refine"] == 3
+    assert ckpt["args"]["lr"] == 1e-4 and ckpt["args"]["steps"] == 2
+    with pytest.raises(SystemExit):
+        train.main(["--out", str(run), "--steps", "3", "--resume", "--lr", "2e-4"])
+    err = capsys.readouterr().err
+    assert "these differ from it: --lr 0.0002 (the run: 0.0001)" in err
+
+
 def test_self_supervised_training_runs_from_an_initial_checkpoint(tmp_path):
     first = tmp_path / "a"
     assert train.main(["--out", str(first), "--steps", "1", "--batch", "1", "--crop", "64x64",

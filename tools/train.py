@@ -10,7 +10,9 @@ Under torchrun every rank trains on its own shard of the data (gloo on CPU, nccl
 rank 0 logs and checkpoints, and at the end all ranks compare a checksum of their weights.
 
 Checkpoints (`last.pt`, every --ckpt-every steps) make long runs resumable; metrics go to
-`metrics.csv` and `loss.png` in the output folder.
+`metrics.csv` and `loss.png` in the output folder. `--out DIR --resume [--steps N]` continues
+a run as it was started: the flags not given again (--init, --refine, --lr, ...) come from its
+checkpoint, and one given with another value is an error.
 """
 
 from __future__ import annotations
@@ -105,6 +107,8 @@ def parse_args(argv):
                    help="scene folders, REC.mcap, kitti:DIR, sceneflow:DIR or things:DIR "
                         "(rendered by `edge-depth synth --world things`; default: the rig)")
     args = p.parse_args(argv)
+    if args.resume:
+        restore_run_args(p, args, argv)
     if args.freeze_trunk and args.init is None:
         p.error("--freeze-trunk needs --init (the trunk's weights come from it)")
     if args.fresh_lr_mult != 1.0 and args.init is None:
@@ -117,6 +121,42 @@ def parse_args(argv):
         if not (args.data or "").startswith("things:"):
             p.error("--stereo-only-share applies to --data things:DIR only")
     return args
+
+
+# what a resumed run may change: how long and with what it continues, not what it trains
+RESUME_MAY_CHANGE = {"out", "resume", "steps", "threads", "workers", "ckpt_every", "val_every"}
+
+
+def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv) -> None:
+    """--resume continues the run as it was started: the flags not given again take the values
+    saved in OUT/last.pt (--init and --refine among them: without them the model and its
+    optimizer groups would not match the checkpoint); one given again with another value is an
+    error, except those in RESUME_MAY_CHANGE."""
+    last = args.out / "last.pt"
+    if not last.exists():
+        return
+    saved = torch.load(last, weights_only=False, map_location="cpu").get("args") or {}
+    unset = object()  # argparse fills in a default only where the namespace has no value
+    parsed = vars(p.parse_args(argv, argparse.Namespace(**dict.fromkeys(vars(args), unset))))
+    given = {k: v for k, v in parsed.items() if v is not unset}  # on the command line
+    restored, clashes = [], []
+    for key, value in saved.items():
+        if key in RESUME_MAY_CHANGE or not hasattr(args, key):
+            continue
+        if key == "init":
+            value = None if value in (None, "None") else Path(value)
+        flag = f"--{key.replace('_', '-')}"
+        if key not in given:
+            if value != getattr(args, key):
+                restored.append(flag if value is True else f"{flag} {value}")
+            setattr(args, key, value)
+        elif str(given[key]) != str(value):
+            clashes.append(f"{flag} {given[key]} (the run: {value})")
+    if clashes:
+        p.error(f"--resume continues {last} as it was started; these differ from it: "
+                + "; ".join(clashes))
+    if restored:
+        print(f"--resume: as the run was started, {', '.join(restored)}")
 
 
 def self_supervised_step(net, batch, split: str, iters: int):
