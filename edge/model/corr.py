@@ -78,7 +78,7 @@ def lookup_flat(flat: torch.Tensor, disparity: torch.Tensor, radius: int, levels
         positions.append(pos)
         starts.append(torch.full_like(offsets, start + 1.0))  # +1: the left pad column
         start += width + 3
-        width //= 2
+        width = width // 2  # not //=: under tracing `w` may be a tensor, divided in place
     pos = torch.cat(positions, -1)
     base = torch.cat(starts, -1)
     i0 = torch.floor(pos)
