@@ -199,7 +199,8 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
             # step: 0.20 px all-int8)
             src = bundle / files[part]
             shifts = {}
-            for node in conv_nodes(src):
+            # (ALWAYS_FLOAT's are float in every trial: trying them would repeat the graph)
+            for node in [n for n in conv_nodes(src) if not n.startswith(ALWAYS_FLOAT)]:
                 quantize_graph(src, dst, record[part], [node])
                 trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
                 shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
