@@ -110,7 +110,7 @@ def test_quantize_checks_the_confidence_on_the_runtime_that_will_run_it(
 
     from edge_depth.tools import quantize
 
-    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters: (10.0, 5.0))
+    monkeypatch.setattr(quantize, "paired_ms", lambda engines, frames, iters: (10.0, 5.0, 0.5))
     measured = quantize.agreement
 
     def openvino_ruins_the_confidence(engine_a, engine_b, frames, iters):
@@ -153,6 +153,37 @@ def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, 
     assert not list(bundle.glob("*.int8.onnx"))
 
 
+def test_quantize_times_int8_against_float_call_by_call():
+    """A host whose speed swings every few calls (as in the minute after a training run
+    ended, when the int8 step was judged slower than float) slows both calls of a pair
+    alike: the ratio is the engines' own, 0.8, where whole blocks per engine see the swing."""
+    from types import SimpleNamespace
+
+    from edge_depth.tools import quantize
+
+    calls = []
+
+    class Clocked:
+        def __init__(self, ms: float) -> None:
+            self.ms = ms
+
+        def infer(self, *frame, iters):
+            calls.append(self)
+            slow = 3.0 if (len(calls) // 5) % 2 else 1.0  # 5 calls fast, 5 slow, ...
+            return SimpleNamespace(timings_ms={"engine": self.ms * slow})
+
+    fp32, int8 = Clocked(10.0), Clocked(8.0)
+    ms_fp32, ms_int8, ratio = quantize.paired_ms([fp32, int8], [()] * 4, iters=1)
+    assert len(calls) == 2 + 2 * 3 * 4  # one untimed call each, then 3 rounds of 4 pairs
+    # the pairs straddling a swing are outliers; the median ratio is the engines' own
+    assert ratio == pytest.approx(0.8)
+    assert ms_int8 < ms_fp32
+    # what blocks of 5 calls per engine would have measured on the same host: int8 slower
+    blocks = [(fp32 if (i // 5) % 2 == 0 else int8).ms * (3.0 if (i // 5) % 2 else 1.0)
+              for i in range(20)]
+    assert np.median(blocks[5:10] + blocks[15:20]) > np.median(blocks[:5] + blocks[10:15])
+
+
 def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
         small_bundle, tmp_path, monkeypatch):
     """Every graph passes alone (the speed test forced: a busy machine can pass it by
@@ -163,8 +194,8 @@ def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
     from edge_depth.tools import quantize
 
     timed = []
-    monkeypatch.setattr(quantize, "median_ms", lambda engines, frames, iters:
-                        timed.append([e.runtime for e in engines]) or (10.0, 5.0))
+    monkeypatch.setattr(quantize, "paired_ms", lambda engines, frames, iters:
+                        timed.append([e.runtime for e in engines]) or (10.0, 5.0, 0.5))
     bundle = tmp_path / "b"
     shutil.copytree(small_bundle[0], bundle)
     q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,

@@ -10,7 +10,7 @@ lookup, CSPN and the upsampling costs agreement and gains no speed (DESIGN.md). 
 feeds come from the fp32 engine run over the calibration frames (every step's inputs, so the
 step graph sees the disparities of all iterations). Each graph is then tried alone in int8 and
 kept in float if it alone moves the disparity by more than --max-graph-px on average or
-does not make the engine at least --min-gain (5 %) faster (median, alternating runs, on the
+does not make the engine at least --min-gain (5 %) faster (median of paired calls, on the
 runtime the engine will use: --timing-runtime auto is OpenVINO on x86-64, where ONNX Runtime's
 speed said nothing about OpenVINO's: the upsampling graph's int8 was neutral on one and ~25 %
 faster on the other); then, while the
@@ -120,16 +120,26 @@ def mean_abs_difference(engine_a: Engine, engine_b: Engine, frames, iters: int) 
     return agreement(engine_a, engine_b, frames, iters)["px"]
 
 
-def median_ms(engines: list[Engine], frames, iters: int, rounds: int = 3) -> list[float]:
-    """Median engine time of each engine over the frames, run alternately in blocks (thread
-    pools and caches favour whatever ran last)."""
-    times: list[list[float]] = [[] for _ in engines]
-    for _ in range(rounds):
-        for engine, out in zip(engines, times, strict=True):
-            engine.infer(*frames[0], iters=iters)  # untimed first call
-            for frame in frames:
-                out.append(engine.infer(*frame, iters=iters).timings_ms["engine"])
-    return [float(np.median(t)) for t in times]
+def paired_ms(engines: list[Engine], frames, iters: int, rounds: int = 3
+              ) -> tuple[float, float, float]:
+    """Two engines timed call by call, in turn (their order swapped every round), on the
+    same frames: (median ms of the first, median ms of the second, median of the per-pair
+    ratios second / first). A pair's two calls are a fraction of a second apart, so a host
+    whose speed swings between minutes — or seconds — slows both alike; blocks of runs per
+    engine once judged the int8 step slower than float (301 against 241 ms) in the minute
+    after a training run ended, where it is ~1.8x faster."""
+    first, second = engines
+    for engine in engines:
+        engine.infer(*frames[0], iters=iters)  # untimed first call (compilation, caches)
+    times: list[list[float]] = [[], []]
+    for r in range(rounds):
+        order = (0, 1) if r % 2 == 0 else (1, 0)
+        for frame in frames:
+            for i in order:
+                times[i].append((first, second)[i].infer(*frame, iters=iters)
+                                .timings_ms["engine"])
+    ratios = np.asarray(times[1]) / np.maximum(np.asarray(times[0]), 1e-9)
+    return float(np.median(times[0])), float(np.median(times[1])), float(np.median(ratios))
 
 
 def evaluate(engine: Engine, folders: list[Path], iters: int) -> dict[str, float]:
@@ -188,11 +198,12 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         alone = shipped["px"]
         timed = trial_engine if timing == RUNTIME else Engine(bundle, "trial", threads, trial,
                                                               runtime=timing)
-        ms_fp32, ms_trial = median_ms([fp32_timed, timed], frames[:4], iters)
-        faster = ms_trial < (1.0 - min_gain) * ms_fp32
+        ms_fp32, ms_trial, ratio = paired_ms([fp32_timed, timed], frames[:4], iters)
+        faster = ratio < 1.0 - min_gain
         graphs[part] = dict(int8=alone <= max_graph_px and faster,
                             mean_abs_px_alone=alone, engine_ms_fp32=ms_fp32,
-                            engine_ms_with_this_int8=ms_trial, float_nodes=[])
+                            engine_ms_with_this_int8=ms_trial, int8_to_fp32_ratio=ratio,
+                            float_nodes=[])
         if faster and node_search:
             # convolutions that cost most of the graph's agreement stay float; a graph whose
             # all-int8 shift is over the limit goes int8 if that brings it under (stage 6's
