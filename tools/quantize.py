@@ -318,7 +318,8 @@ def main(argv: list[str] | None = None) -> int:
     for part, g in q["graphs"].items():
         print(f"{part}: {'int8' if g['int8'] else 'float'} (alone: moves disparity "
               f"{g['mean_abs_px_alone']:.4f} px, engine {g['engine_ms_fp32']:.1f} -> "
-              f"{g['engine_ms_with_this_int8']:.1f} ms)"
+              f"{g['engine_ms_with_this_int8']:.1f} ms median, int8/float "
+              f"{g['int8_to_fp32_ratio']:.2f} median of paired calls)"
               + (f"; kept float: {', '.join(g['float_nodes'])} -> moves "
                  f"{g['mean_abs_px_with_float_nodes']:.4f} px" if g["float_nodes"] else "")
               + ("; back to float: the int8 graphs together moved the disparity or the "
