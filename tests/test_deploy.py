@@ -156,7 +156,8 @@ def test_quantize_keeps_a_graph_float_when_it_moves_the_disparity(small_bundle, 
 def test_quantize_times_int8_against_float_call_by_call():
     """A host whose speed swings every few calls (as in the minute after a training run
     ended, when the int8 step was judged slower than float) slows both calls of a pair
-    alike: the ratio is the engines' own, 0.8, where whole blocks per engine see the swing."""
+    alike: the ratio is the engines' own, 0.8 (blocks of 5 calls per engine on this host
+    would time float in the fast phases and int8 in the slow ones)."""
     from types import SimpleNamespace
 
     from edge_depth.tools import quantize
@@ -178,10 +179,6 @@ def test_quantize_times_int8_against_float_call_by_call():
     # the pairs straddling a swing are outliers; the median ratio is the engines' own
     assert ratio == pytest.approx(0.8)
     assert ms_int8 < ms_fp32
-    # what blocks of 5 calls per engine would have measured on the same host: int8 slower
-    blocks = [(fp32 if (i // 5) % 2 == 0 else int8).ms * (3.0 if (i // 5) % 2 else 1.0)
-              for i in range(20)]
-    assert np.median(blocks[5:10] + blocks[15:20]) > np.median(blocks[:5] + blocks[10:15])
 
 
 def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(

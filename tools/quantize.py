@@ -128,7 +128,6 @@ def paired_ms(engines: list[Engine], frames, iters: int, rounds: int = 3
     whose speed swings between minutes — or seconds — slows both alike; blocks of runs per
     engine once judged the int8 step slower than float (301 against 241 ms) in the minute
     after a training run ended, where it is ~1.8x faster."""
-    first, second = engines
     for engine in engines:
         engine.infer(*frames[0], iters=iters)  # untimed first call (compilation, caches)
     times: list[list[float]] = [[], []]
@@ -136,8 +135,7 @@ def paired_ms(engines: list[Engine], frames, iters: int, rounds: int = 3
         order = (0, 1) if r % 2 == 0 else (1, 0)
         for frame in frames:
             for i in order:
-                times[i].append((first, second)[i].infer(*frame, iters=iters)
-                                .timings_ms["engine"])
+                times[i].append(engines[i].infer(*frame, iters=iters).timings_ms["engine"])
     ratios = np.asarray(times[1]) / np.maximum(np.asarray(times[0]), 1e-9)
     return float(np.median(times[0])), float(np.median(times[1])), float(np.median(ratios))
 
