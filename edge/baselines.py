@@ -32,12 +32,18 @@ def lidar_nearest(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each pixel takes the disparity of the nearest valid sparse pixel; (H, W) float32."""
     if not valid.any():
         return np.zeros_like(sparse, np.float32)
-    _, labels = cv2.distanceTransformWithLabels((~valid).astype(np.uint8), cv2.DIST_L2, 5,
-                                                labelType=cv2.DIST_LABEL_PIXEL)
-    ys, xs = np.nonzero(valid)
-    # labels count valid pixels in row-major scan order, the same order np.nonzero returns.
-    lookup = np.concatenate([[0.0], sparse[ys, xs]]).astype(np.float32)
-    return lookup[labels]
+    index, _ = nearest_valid_index(valid)
+    return sparse[valid].astype(np.float32)[index]
+
+
+def nearest_valid_index(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """For each pixel, the nearest valid pixel as an index into `np.nonzero(valid)`'s
+    (row-major) order, and the distance to it in pixels: (H, W) int, (H, W) float32.
+    `valid` must have at least one True."""
+    distance, labels = cv2.distanceTransformWithLabels((~valid).astype(np.uint8), cv2.DIST_L2,
+                                                       5, labelType=cv2.DIST_LABEL_PIXEL)
+    # labels count valid pixels from 1 in row-major scan order, the order np.nonzero returns
+    return labels - 1, distance
 
 
 def lidar_linear(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:

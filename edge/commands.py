@@ -220,7 +220,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     source, stereo, lidar = open_sources(config, max_frames)
     e = config.engine
     engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
-                    scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice)
+                    scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
+                    lidar_select=e.lidar_select)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()

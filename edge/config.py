@@ -36,6 +36,8 @@
     pipelined = false           # live: rectify/project, engine and logging overlap in
                                 # threads (on 2 cores with a 2-thread engine: +35 % frames/s,
                                 # at a higher latency, README "Speed")
+    lidar_select = true         # the bundle's full-resolution choice between the network
+                                # and the nearest LiDAR point (if it has one; README)
 
     [log]
     out = "logs/depth.mcap"
@@ -111,6 +113,7 @@ class EngineConfig:
     runtime: str = "auto"
     bf16: str = "auto"
     pipelined: bool = False
+    lidar_select: bool = True
 
     @property
     def bf16_choice(self) -> bool | None:

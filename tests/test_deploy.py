@@ -407,3 +407,36 @@ def test_graph_ab_times_graphs_in_turn_on_their_declared_shapes(small_bundle, tm
         assert r["runtime"] == "onnxruntime" and 0 < r["p10_ms"] <= r["median_ms"]
     with pytest.raises(SystemExit):
         graph_ab.main([str(tmp_path / "missing.onnx")])
+
+
+def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bundle, tmp_path):
+    import shutil
+
+    from edge_depth.baselines import lidar_nearest
+    from edge_depth.runtime.lidar_select import FEATURES, LidarSelect
+
+    bundle = tmp_path / "bundle"
+    shutil.copytree(small_bundle[0], bundle)
+    f = len(FEATURES)
+    always = LidarSelect(mean=np.zeros(f, np.float32), std=np.ones(f, np.float32),
+                         w1=np.zeros((f, 2), np.float32), b1=np.zeros(2, np.float32),
+                         w2=np.zeros(2, np.float32), b2=10.0)  # p = 0.99995: take the LiDAR
+    meta = json.loads((bundle / "model.json").read_text())
+    meta["lidar_select"] = always.to_meta()
+    (bundle / "model.json").write_text(json.dumps(meta))
+    _, left, right, sparse = scene_inputs(5)
+    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", lidar_select=False)
+    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime")
+    assert plain.select is None and chosen.select is not None
+    before = plain.infer(left, right, sparse, iters=2)
+    after = chosen.infer(left, right, sparse, iters=2)
+    nearest = lidar_nearest(sparse, sparse > 0)
+    differ = np.abs(nearest - before.disparity) > 0.5
+    assert differ.mean() > 0.05
+    np.testing.assert_array_equal(after.disparity[differ], nearest[differ])
+    np.testing.assert_allclose(after.disparity[~differ], before.disparity[~differ], atol=1e-4)
+    assert after.timings_ms["select"] > 0 and "select" not in before.timings_ms
+    stereo_only = chosen.infer(left, right, np.zeros_like(sparse), iters=2)
+    np.testing.assert_allclose(stereo_only.disparity,
+                               plain.infer(left, right, np.zeros_like(sparse),
+                                           iters=2).disparity, atol=1e-4)

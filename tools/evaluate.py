@@ -80,10 +80,11 @@ class BundleNet:
     """An exported bundle run by the robot-side engine (ONNX Runtime or OpenVINO)."""
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
-                 bf16: bool | None = None) -> None:
+                 bf16: bool | None = None, lidar_select: bool = True) -> None:
         from edge_depth.runtime.engine import Engine
 
-        self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16)
+        self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
+                             lidar_select=lidar_select)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -91,16 +92,18 @@ class BundleNet:
 
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None):
-    return BundleNet(model, precision, runtime, bf16) if model.is_dir() else TorchNet(model)
+             bf16: bool | None = None, lidar_select: bool = True):
+    return BundleNet(model, precision, runtime, bf16, lidar_select) if model.is_dir() \
+        else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None) -> dict[str, dict[str, float]]:
+             bf16: bool | None = None, lidar_select: bool = True
+             ) -> dict[str, dict[str, float]]:
     net = None
     if {"net", "net-nolidar"} & set(methods):
-        net = load_net(model, precision, runtime, bf16)
+        net = load_net(model, precision, runtime, bf16, lidar_select)
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -187,6 +190,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--no-lidar", action="store_true",
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
+    p.add_argument("--no-select", action="store_true",
+                   help="a bundle without its full-resolution LiDAR selection, if it has one")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     args = p.parse_args(argv)
@@ -207,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"no scene folders under {args.data}")
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
-                       bf16)
+                       bf16, not args.no_select)
     print(markdown_table(summary))
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))

@@ -20,6 +20,7 @@ import numpy as np
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
 from edge_depth.runtime.fit import FitPlan
+from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.types import DepthResult
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
@@ -49,11 +50,13 @@ class Engine:
     or 0: the largest factor ≤ 1 that fits) and padded to it, and the outputs come back at the
     camera's size (`edge.runtime.fit`). `runtime`: "auto" | "onnxruntime" | "openvino";
     `bf16` (OpenVINO only): run the graphs in `BF16_GRAPHS` in bf16; None = where the CPU
-    has it natively."""
+    has it natively. `lidar_select`: run the bundle's full-resolution LiDAR selection
+    (`edge.runtime.lidar_select`) when it has one."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
-                 runtime: str = "auto", bf16: bool | None = None) -> None:
+                 runtime: str = "auto", bf16: bool | None = None,
+                 lidar_select: bool = True) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -92,6 +95,8 @@ class Engine:
         shape = (1, 1, self.height, self.width)
         self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
                                                                  "valid")}
+        self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
+            if lidar_select and "lidar_select" in self.meta else None
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -179,14 +184,21 @@ class Engine:
         full, *rest = self.sessions["upsample"].run(feed("upsample", feeds))
         up_ms = (time.perf_counter() - t) * 1000
         timings["upsample"] = up_ms
-        self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
-            0.2 * up_ms
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         confidence = np.ascontiguousarray(rest[0][0, 0], dtype=np.float32) if rest else None
         if confidence is not None and confidence.shape != disp.shape:
             # bundles since stage 11 return it at the refinement's 1/4 resolution
             confidence = cv2.resize(confidence, disp.shape[::-1],
                                     interpolation=cv2.INTER_LINEAR)
+        if self.select is not None and confidence is not None:
+            t = time.perf_counter()
+            disp, _ = self.select.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
+                                        confidence, buf["sparse"][0, 0])
+            timings["select"] = (time.perf_counter() - t) * 1000
+            up_ms += timings["select"]
+        # what follows the last step, for the deadline's prediction
+        self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
+            0.2 * up_ms
         if not plan.identity:
             disp = plan.restore(disp, disparity=True)
             confidence = None if confidence is None else plan.restore(confidence, False)

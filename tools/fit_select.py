@@ -1,0 +1,179 @@
+"""Fit the full-resolution LiDAR selection (`edge.runtime.lidar_select`) on a bundle's own
+outputs and store it in the bundle's model.json.
+
+    python tools/fit_select.py BUNDLE --data data/things_400k [--frames 240] [--rig-share 0.15]
+        [--holdout 0.2] [--runtime onnxruntime] [--dry-run]
+
+Each frame is a things sample the network never trained on (or, `--rig-share` of them, a rig
+frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as in training
+(`GtLidarPattern.random`, never none). The bundle runs on it (int8, its default iterations);
+where the network's disparity and the nearest LiDAR point's differ, the label is which of the
+two is nearer the GT, weighted by how much nearer (so the fit minimises the end-point error
+of the choice). A held-out share of the frames reports what the fitted choice does to EPE and
+bad-3 there; nothing from the evaluation sets is read.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
+from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.lidar_select import FEATURES, LidarSelect, selection_features
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim.gt_lidar import GtLidarPattern
+from edge_depth.sim.things_store import list_things, read_things
+
+MAX_WEIGHT_PX = 8.0  # a pixel's weight: how much nearer its better candidate is, capped
+
+
+def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int):
+    """Yield (left, right, sparse, gt), each (H, W) at the bundle's size."""
+    files = list_things(data)
+    if not files:
+        raise SystemExit(f"{data}: no things samples (NNNNNNN.npz); render them with "
+                         "`edge-depth synth --world things --out DIR`")
+    rng = np.random.default_rng(seed)
+    order = rng.permutation(len(files))
+    rig = RigConfig()
+    used = 0
+    for i in range(count):
+        if rng.random() < rig_share:
+            arrays = sample_to_arrays(make_sample(int(rng.integers(0, TRAIN_SEED_LIMIT)), rig,
+                                                  "beams16"))
+            left, right, gt, sparse = (arrays["left"], arrays["right"], arrays["gt"],
+                                       arrays["sparse"] * arrays["valid"])
+        else:
+            things = read_things(files[order[used % len(files)]])
+            used += 1
+            left, right, gt = things["left"], things["right"], things["disp_left"]
+            pattern = GtLidarPattern.random(gt.shape[0], rng, none_share=0.0)
+            sparse = pattern.sample(gt, rng)
+        if (left.shape[1], left.shape[0]) != size:
+            raise SystemExit(f"frame {i}: {left.shape[::-1]} is not the bundle's size {size}")
+        yield left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
+
+
+def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int):
+    """Per frame: (features, labels, weights, and what EPE/bad-3 need to score a choice)."""
+    out = []
+    start = time.perf_counter()
+    for i, (left, right, sparse, gt) in enumerate(frames(data, count, rig_share, engine.size,
+                                                         seed)):
+        result = engine.infer(left, right, sparse)
+        features, pixels, lidar = selection_features(left, right, result.disparity,
+                                                     result.confidence, sparse)
+        gt = gt.ravel()
+        known = np.isfinite(gt) & (gt > 0)
+        err_net = np.abs(result.disparity.ravel() - gt)
+        err_lidar = np.abs(lidar - gt[pixels])
+        known_at = known[pixels]
+        chosen = np.zeros(gt.shape, bool)
+        chosen[pixels] = True
+        out.append(dict(features=features, label=err_lidar < err_net[pixels],
+                        weight=np.clip(np.abs(err_net[pixels] - err_lidar), 0.0,
+                                       MAX_WEIGHT_PX) * known_at,
+                        err_net=err_net[known], err_lidar_at=err_lidar[known_at],
+                        where_known=chosen[known], known_at=known_at))
+        if (i + 1) % 20 == 0 or i + 1 == count:
+            print(f"fit_select: {i + 1}/{count} frames ({time.perf_counter() - start:.0f} s)",
+                  file=sys.stderr, flush=True)
+    return out
+
+
+def fit(rows: list[dict], hidden: int, steps: int, seed: int) -> LidarSelect:
+    """Weighted logistic loss, one hidden ReLU layer, Adam (torch: the training extra)."""
+    import torch
+
+    x = np.concatenate([r["features"] for r in rows])
+    y = np.concatenate([r["label"] for r in rows]).astype(np.float32)
+    w = np.concatenate([r["weight"] for r in rows]).astype(np.float32)
+    mean, std = x.mean(0), x.std(0) + 1e-6
+    torch.manual_seed(seed)
+    xt = torch.from_numpy((x - mean) / std)
+    yt, wt = torch.from_numpy(y), torch.from_numpy(w)
+    model = torch.nn.Sequential(torch.nn.Linear(len(FEATURES), hidden), torch.nn.ReLU(),
+                                torch.nn.Linear(hidden, 1))
+    opt = torch.optim.Adam(model.parameters(), 1e-2)
+    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
+    gen = torch.Generator().manual_seed(seed)
+    for _ in range(steps):
+        idx = torch.randint(0, len(yt), (min(65536, len(yt)),), generator=gen)
+        logit = model(xt[idx])[:, 0]
+        loss = torch.nn.functional.binary_cross_entropy_with_logits(logit, yt[idx], wt[idx])
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+        sched.step()
+    first, second = model[0], model[2]
+    return LidarSelect(mean=mean.astype(np.float32), std=std.astype(np.float32),
+                       w1=first.weight.detach().numpy().T.copy(),
+                       b1=first.bias.detach().numpy().copy(),
+                       w2=second.weight.detach().numpy()[0].copy(),
+                       b2=float(second.bias.detach()[0]))
+
+
+def score(rows: list[dict], select: LidarSelect | None) -> tuple[float, float]:
+    """Mean EPE and bad-3 % over the frames' known pixels, with or without the choice."""
+    epe, bad3 = [], []
+    for r in rows:
+        err = r["err_net"].copy()
+        if select is not None and len(r["features"]):
+            take = select.logit(r["features"][r["known_at"]]) > 0
+            at = np.flatnonzero(r["where_known"])
+            err[at[take]] = r["err_lidar_at"][take]
+        epe.append(float(err.mean()))
+        bad3.append(100.0 * float((err > 3).mean()))
+    return float(np.mean(epe)), float(np.mean(bad3))
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("bundle", type=Path)
+    p.add_argument("--data", type=Path, required=True,
+                   help="things samples the network never trained on")
+    p.add_argument("--frames", type=int, default=240)
+    p.add_argument("--rig-share", type=float, default=0.15)
+    p.add_argument("--holdout", type=float, default=0.2)
+    p.add_argument("--hidden", type=int, default=32)
+    p.add_argument("--steps", type=int, default=2000)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--runtime", default="onnxruntime")
+    p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
+    args = p.parse_args(argv)
+    if args.frames < 5 or not 0 < args.holdout < 1:
+        raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
+    meta_path = args.bundle / "model.json"
+    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime)
+    engine.select = None  # fit on the network's own outputs
+    if not engine.has_confidence:
+        raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
+    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed)
+    n_hold = max(1, int(round(len(rows) * args.holdout)))
+    fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
+    select = fit(fit_rows, args.hidden, args.steps, args.seed)
+    before, after = score(hold_rows, None), score(hold_rows, select)
+    print(f"held-out {n_hold} frames: EPE {before[0]:.3f} → {after[0]:.3f} px, "
+          f"bad-3 {before[1]:.2f} → {after[1]:.2f} %")
+    select = fit(rows, args.hidden, args.steps, args.seed)  # the stored fit sees every frame
+    if args.dry_run:
+        return 0
+    meta = json.loads(meta_path.read_text())
+    meta["lidar_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
+                                rig_share=args.rig_share, seed=args.seed,
+                                heldout=dict(frames=n_hold, epe=[before[0], after[0]],
+                                             bad3=[before[1], after[1]]))
+    meta_path.write_text(json.dumps(meta, indent=1) + "\n")
+    print(f"wrote lidar_select into {meta_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
