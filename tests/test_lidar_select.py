@@ -130,3 +130,23 @@ def test_fit_learns_a_choice_that_lowers_the_error_it_is_scored_on():
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before == pytest.approx((2.6, 50.0), abs=1.5)
     assert after[0] < 0.5 and after[1] < 6.0
+
+
+def test_a_disagreement_cap_keeps_the_network_where_the_lidar_is_too_far_off():
+    left, right = textured_pair()
+    disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
+    disparity[30:60, 40:100] = TRUE_DISPARITY + 6
+    disparity[70:90, 40:100] = TRUE_DISPARITY + 2
+    sparse = lidar_rows(TRUE_DISPARITY)
+    capped = LidarSelect(**{**cost_chooser().__dict__, "max_disagreement_px": 4.0})
+    _, pixels, _ = selection_features(left, right, disparity, disparity, sparse, 4.0)
+    assert len(pixels) == 20 * 60  # only the 2-px block
+    out, replaced = capped.apply(left, right, disparity, np.zeros((H, W), np.float32), sparse)
+    assert replaced == 20 * 60
+    assert np.all(out[70:90, 40:100] == TRUE_DISPARITY)
+    assert np.all(out[30:60, 40:100] == TRUE_DISPARITY + 6)
+    again = LidarSelect.from_meta(capped.to_meta())
+    assert again.max_disagreement_px == 4.0
+    assert np.isinf(LidarSelect.from_meta(cost_chooser().to_meta()).max_disagreement_px)
+    with pytest.raises(ConfigError, match="lidar_select"):
+        LidarSelect.from_meta({**capped.to_meta(), "max_disagreement_px": 0.1})

@@ -2,7 +2,7 @@
 outputs and store it in the bundle's model.json.
 
     python tools/fit_select.py BUNDLE --data data/things_400k [--frames 240] [--rig-share 0.15]
-        [--holdout 0.2] [--runtime onnxruntime] [--dry-run]
+        [--holdout 0.2] [--max-disagreement PX] [--runtime onnxruntime] [--dry-run]
 
 Each frame is a things sample the network never trained on (or, `--rig-share` of them, a rig
 frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as in training
@@ -10,7 +10,8 @@ frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as 
 where the network's disparity and the nearest LiDAR point's differ, the label is which of the
 two is nearer the GT, weighted by how much nearer (so the fit minimises the end-point error
 of the choice). A held-out share of the frames reports what the fitted choice does to EPE and
-bad-3 there; nothing from the evaluation sets is read.
+bad-3 there, over all of them and per source (rig / things: a mix can hide a loss on the
+rarer one); nothing from the evaluation sets is read.
 """
 
 from __future__ import annotations
@@ -34,7 +35,8 @@ MAX_WEIGHT_PX = 8.0  # a pixel's weight: how much nearer its better candidate is
 
 
 def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int):
-    """Yield (left, right, sparse, gt), each (H, W) at the bundle's size."""
+    """Yield (source "rig" | "things", left, right, sparse, gt), each (H, W) at the bundle's
+    size."""
     files = list_things(data)
     if not files:
         raise SystemExit(f"{data}: no things samples (NNNNNNN.npz); render them with "
@@ -44,7 +46,8 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
     rig = RigConfig()
     used = 0
     for i in range(count):
-        if rng.random() < rig_share:
+        source = "rig" if rng.random() < rig_share else "things"
+        if source == "rig":
             arrays = sample_to_arrays(make_sample(int(rng.integers(0, TRAIN_SEED_LIMIT)), rig,
                                                   "beams16"))
             left, right, gt, sparse = (arrays["left"], arrays["right"], arrays["gt"],
@@ -57,18 +60,20 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
             sparse = pattern.sample(gt, rng)
         if (left.shape[1], left.shape[0]) != size:
             raise SystemExit(f"frame {i}: {left.shape[::-1]} is not the bundle's size {size}")
-        yield left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
+        yield source, left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
 
 
-def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int):
+def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
+            max_disagreement_px: float = np.inf):
     """Per frame: (features, labels, weights, and what EPE/bad-3 need to score a choice)."""
     out = []
     start = time.perf_counter()
-    for i, (left, right, sparse, gt) in enumerate(frames(data, count, rig_share, engine.size,
-                                                         seed)):
+    for i, (source, left, right, sparse, gt) in enumerate(frames(data, count, rig_share,
+                                                                 engine.size, seed)):
         result = engine.infer(left, right, sparse)
         features, pixels, lidar = selection_features(left, right, result.disparity,
-                                                     result.confidence, sparse)
+                                                     result.confidence, sparse,
+                                                     max_disagreement_px)
         gt = gt.ravel()
         known = np.isfinite(gt) & (gt > 0)
         err_net = np.abs(result.disparity.ravel() - gt)
@@ -76,7 +81,7 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int)
         known_at = known[pixels]
         chosen = np.zeros(gt.shape, bool)
         chosen[pixels] = True
-        out.append(dict(features=features, label=err_lidar < err_net[pixels],
+        out.append(dict(source=source, features=features, label=err_lidar < err_net[pixels],
                         weight=np.clip(np.abs(err_net[pixels] - err_lidar), 0.0,
                                        MAX_WEIGHT_PX) * known_at,
                         err_net=err_net[known], err_lidar_at=err_lidar[known_at],
@@ -87,7 +92,8 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int)
     return out
 
 
-def fit(rows: list[dict], hidden: int, steps: int, seed: int) -> LidarSelect:
+def fit(rows: list[dict], hidden: int, steps: int, seed: int,
+        max_disagreement_px: float = np.inf) -> LidarSelect:
     """Weighted logistic loss, one hidden ReLU layer, Adam (torch: the training extra)."""
     import torch
 
@@ -116,7 +122,8 @@ def fit(rows: list[dict], hidden: int, steps: int, seed: int) -> LidarSelect:
                        w1=first.weight.detach().numpy().T.copy(),
                        b1=first.bias.detach().numpy().copy(),
                        w2=second.weight.detach().numpy()[0].copy(),
-                       b2=float(second.bias.detach()[0]))
+                       b2=float(second.bias.detach()[0]),
+                       max_disagreement_px=max_disagreement_px)
 
 
 def score(rows: list[dict], select: LidarSelect | None) -> tuple[float, float]:
@@ -146,6 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--runtime", default="onnxruntime")
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--max-disagreement", type=float, default=0.0,
+                   help="px: act only where the candidates differ by at most this (0 = any)")
     p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
     args = p.parse_args(argv)
     if args.frames < 5 or not 0 < args.holdout < 1:
@@ -155,21 +164,26 @@ def main(argv: list[str] | None = None) -> int:
     engine.select = None  # fit on the network's own outputs
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
-    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed)
+    cap = args.max_disagreement or np.inf
+    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap)
     n_hold = max(1, int(round(len(rows) * args.holdout)))
     fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
-    select = fit(fit_rows, args.hidden, args.steps, args.seed)
-    before, after = score(hold_rows, None), score(hold_rows, select)
-    print(f"held-out {n_hold} frames: EPE {before[0]:.3f} → {after[0]:.3f} px, "
-          f"bad-3 {before[1]:.2f} → {after[1]:.2f} %")
-    select = fit(rows, args.hidden, args.steps, args.seed)  # the stored fit sees every frame
+    select = fit(fit_rows, args.hidden, args.steps, args.seed, cap)
+    heldout = {}
+    for source in ("all", "rig", "things"):  # the mix can hide a loss on the rarer source
+        part = [r for r in hold_rows if source in ("all", r["source"])]
+        if part:
+            before, after = score(part, None), score(part, select)
+            heldout[source] = dict(frames=len(part), epe=[before[0], after[0]],
+                                   bad3=[before[1], after[1]])
+            print(f"held-out {source} ({len(part)} frames): EPE {before[0]:.3f} → "
+                  f"{after[0]:.3f} px, bad-3 {before[1]:.2f} → {after[1]:.2f} %")
+    select = fit(rows, args.hidden, args.steps, args.seed, cap)  # the stored fit: every frame
     if args.dry_run:
         return 0
     meta = json.loads(meta_path.read_text())
     meta["lidar_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
-                                rig_share=args.rig_share, seed=args.seed,
-                                heldout=dict(frames=n_hold, epe=[before[0], after[0]],
-                                             bad3=[before[1], after[1]]))
+                                rig_share=args.rig_share, seed=args.seed, heldout=heldout)
     meta_path.write_text(json.dumps(meta, indent=1) + "\n")
     print(f"wrote lidar_select into {meta_path}")
     return 0

@@ -47,9 +47,11 @@ def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
 
 def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                       confidence: np.ndarray, sparse: np.ndarray
+                       confidence: np.ndarray, sparse: np.ndarray,
+                       max_disagreement_px: float = np.inf
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scorer's inputs where the two candidates differ.
+    """The scorer's inputs where the two candidates differ (by more than MIN_DISAGREEMENT_PX,
+    at most max_disagreement_px).
 
     left/right (H, W) grey (any dtype), disparity and confidence (H, W) the network's
     outputs, sparse (H, W) LiDAR disparity in px (0 or non-finite = none). Returns
@@ -68,7 +70,8 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     index = index.ravel()
     net = disparity.ravel()
     signed = points[index] - net
-    pixels = np.flatnonzero(np.abs(signed) > MIN_DISAGREEMENT_PX)
+    gap = np.abs(signed)
+    pixels = np.flatnonzero((gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px))
     if not len(pixels):
         return empty
     point = index[pixels]
@@ -91,7 +94,8 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
 @dataclass(frozen=True)
 class LidarSelect:
     """The fitted scorer: standardise, ReLU layer, one logit; p(LiDAR is nearer the truth).
-    mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar."""
+    mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar; max_disagreement_px: pixels where
+    the candidates differ by more keep the network's value."""
 
     mean: np.ndarray
     std: np.ndarray
@@ -99,6 +103,7 @@ class LidarSelect:
     b1: np.ndarray
     w2: np.ndarray
     b2: float
+    max_disagreement_px: float = np.inf
 
     @classmethod
     def from_meta(cls, entry: dict) -> LidarSelect:
@@ -108,10 +113,13 @@ class LidarSelect:
                 raise ValueError(f"features {entry['features']} are not {list(FEATURES)}")
             arrays = {k: np.asarray(entry[k], np.float32) for k in ("mean", "std", "w1",
                                                                      "b1", "w2")}
-            out = cls(b2=float(entry["b2"]), **arrays)
+            cap = entry.get("max_disagreement_px")
+            out = cls(b2=float(entry["b2"]), **arrays,
+                      max_disagreement_px=np.inf if cap is None else float(cap))
             f, k = len(FEATURES), out.b1.shape[0]
             if out.mean.shape != (f,) or out.std.shape != (f,) or out.w1.shape != (f, k) \
-                    or out.w2.shape != (k,) or not np.all(out.std > 0):
+                    or out.w2.shape != (k,) or not np.all(out.std > 0) \
+                    or not out.max_disagreement_px > MIN_DISAGREEMENT_PX:
                 raise ValueError("shapes or scales do not match")
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError("bundle", "model.json's lidar_select as tools/fit_select.py "
@@ -121,7 +129,9 @@ class LidarSelect:
     def to_meta(self) -> dict:
         return dict(features=list(FEATURES), mean=self.mean.tolist(), std=self.std.tolist(),
                     w1=self.w1.tolist(), b1=self.b1.tolist(), w2=self.w2.tolist(),
-                    b2=float(self.b2))
+                    b2=float(self.b2),
+                    max_disagreement_px=None if np.isinf(self.max_disagreement_px)
+                    else float(self.max_disagreement_px))
 
     def logit(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth (the
@@ -141,7 +151,7 @@ class LidarSelect:
               confidence: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, int]:
         """(disparity (H, W) with the chosen pixels replaced, how many were replaced)."""
         features, pixels, lidar = selection_features(left, right, disparity, confidence,
-                                                     sparse)
+                                                     sparse, self.max_disagreement_px)
         if not len(features):
             return disparity, 0
         take = self.logit(features) > 0  # p > 0.5
