@@ -160,8 +160,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.frames < 5 or not 0 < args.holdout < 1:
         raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
     meta_path = args.bundle / "model.json"
-    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime)
-    engine.select = None  # fit on the network's own outputs
+    # fit on the network's own outputs, without a selection the bundle may already hold
+    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
+                    lidar_select=False)
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     cap = args.max_disagreement or np.inf

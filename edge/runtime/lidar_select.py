@@ -6,11 +6,11 @@ other side's; the nearest LiDAR point's value is exact where it lies on the pixe
 the edge. Neither the image nor a matching cost alone says which (`docs/experiments.md`,
 "Analysis" and session 17); this stage learns it from both: the photometric cost of each
 candidate at full resolution (5×5 and 9×9 windows), how far they disagree and in which
-direction, the network's confidence, the distance to the LiDAR point and the image gradient.
-The scorer (a 2-layer perceptron, ~200 weights) is fitted on the bundle's own int8 outputs
-over training frames by `tools/fit_select.py` and stored in the bundle's `model.json` under
-`lidar_select`; bundles without that key run without the stage. Without LiDAR points the
-disparity is returned unchanged.
+direction, the network's confidence, the distance to the LiDAR point, the image gradient and
+the point's own residual. The scorer (a 2-layer perceptron, ~400 weights) is fitted on the
+bundle's own int8 outputs over training frames by `tools/fit_select.py` and stored in the
+bundle's `model.json` under `lidar_select`; bundles without that key run without the stage.
+Without LiDAR points the disparity is returned unchanged.
 
 Pure numpy + OpenCV (robot side, no torch).
 """
@@ -24,6 +24,7 @@ import numpy as np
 
 from edge_depth.baselines import nearest_valid_index
 from edge_depth.errors import ConfigError
+from edge_depth.selfcheck import warp_right_to_left
 
 FEATURES = ("cost5_net_minus_lidar", "cost9_net_minus_lidar", "log_cost5_net",
             "log_cost5_lidar", "log_disagreement", "lidar_minus_net", "confidence",
@@ -35,14 +36,11 @@ OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its b
 def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                 windows: tuple[int, ...]) -> list[np.ndarray]:
     """Mean |left(x, y) − right(x − d, y)| (grey levels) over each window size; (H, W) each.
-    left/right (H, W) float32 grey; disparity (H, W) px; bilinear in the right image."""
-    h, w = left.shape
-    map_x = np.arange(w, dtype=np.float32)[None, :] - disparity.astype(np.float32)
-    map_y = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
-    warped = cv2.remap(right, map_x, np.ascontiguousarray(map_y), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_REPLICATE)
-    error = np.abs(left - warped)
-    error[map_x < 0] = OUT_OF_VIEW_COST
+    left/right (H, W) float32 grey; disparity (H, W) px; bilinear in the right image; a pixel
+    whose x − d falls left of the image costs OUT_OF_VIEW_COST."""
+    error = np.abs(left - warp_right_to_left(right, disparity))
+    out_of_view = np.arange(left.shape[1], dtype=np.float32)[None, :] < disparity
+    error[out_of_view] = OUT_OF_VIEW_COST
     return [cv2.blur(error, (k, k)) for k in windows]
 
 
