@@ -34,8 +34,9 @@
     bf16 = "auto"               # OpenVINO: the encoder in bf16 | "on" | "off"; auto = where
                                 # the CPU has it natively (AVX512-BF16, AMX)
     pipelined = false           # live: rectify/project, engine and logging overlap in
-                                # threads (on 2 cores with a 2-thread engine: +35 % frames/s,
-                                # at a higher latency, README "Speed")
+                                # threads; at a higher latency. On 2 cores it gained 35 %
+                                # frames/s with a 40 ms engine and lost 8 % with an 87 ms
+                                # one (README "Speed")
     lidar_select = true         # the bundle's full-resolution choice between the network
                                 # and the nearest LiDAR point (if it has one; README)
 
