@@ -179,3 +179,22 @@ def test_things_stream_refuses_an_empty_folder(tmp_path):
 
     with pytest.raises(ValueError, match="no things samples"):
         ThingsTrainSet(tmp_path)
+
+
+def test_gt_lidar_projected_from_the_right_view_keeps_what_the_left_camera_sees():
+    # right view: a box at disparity 40 over columns 60-119 in front of a wall at 11; in the
+    # left view the box covers columns 100-159 and the wall the rest. The wall the right
+    # camera sees just right of the box (columns 120-148) lands inside the box in the left
+    # view (131-159): hidden there, so the occlusion filter must drop it.
+    right = np.full((60, 300), 11.0, np.float32)
+    right[:, 60:120] = 40.0
+    left = np.full((60, 300), 11.0, np.float32)
+    left[:, 100:160] = 40.0
+    pattern = GtLidarPattern.evenly(60, 3, column_step=2, noise_px=0.0)
+    sparse = pattern.sample_projected(right, np.random.default_rng(0))
+    ys, xs = np.nonzero(sparse)
+    np.testing.assert_array_equal(sparse[ys, xs], left[ys, xs])  # no hidden wall point left
+    assert ((xs >= 100) & (xs < 160)).sum() == 3 * 30  # the box, every 2nd column of each row
+    assert ((xs >= 160) & (xs < 300)).sum() > 3 * 60  # the wall right of it
+    scan = pattern.sample(right, np.random.default_rng(0))
+    assert (scan[:, 120:149] == 11).sum() == 3 * 15  # the hidden wall was in the scan

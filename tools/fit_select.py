@@ -2,11 +2,15 @@
 outputs and store it in the bundle's model.json.
 
     python tools/fit_select.py BUNDLE --data data/things_400k [--frames 240] [--rig-share 0.15]
-        [--holdout 0.2] [--max-disagreement PX] [--runtime onnxruntime] [--dry-run]
+        [--holdout 0.2] [--max-disagreement PX] [--lidar projected|gt] [--runtime onnxruntime]
+        [--dry-run]
 
 Each frame is a things sample the network never trained on (or, `--rig-share` of them, a rig
 frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as in training
-(`GtLidarPattern.random`, never none). The bundle runs on it (int8, its default iterations);
+(`GtLidarPattern.random`, never none), by default read in the right view and projected into
+the left with the occlusion filter (`--lidar projected`: the wrong points a robot's projected
+scan keeps; `--lidar gt`: exact rows, as the Aloe recipe samples them). The bundle runs on
+it (int8, its default iterations);
 where the network's disparity and the nearest LiDAR point's differ, the label is which of the
 two is nearer the GT, weighted by how much nearer (so the fit minimises the end-point error
 of the choice). A held-out share of the frames reports what the fitted choice does to EPE and
@@ -34,7 +38,8 @@ from edge_depth.sim.things_store import list_things, read_things
 MAX_WEIGHT_PX = 8.0  # a pixel's weight: how much nearer its better candidate is, capped
 
 
-def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int):
+def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int,
+           lidar_source: str = "projected"):
     """Yield (source "rig" | "things", left, right, sparse, gt), each (H, W) at the bundle's
     size."""
     files = list_things(data)
@@ -57,19 +62,22 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
             used += 1
             left, right, gt = things["left"], things["right"], things["disp_left"]
             pattern = GtLidarPattern.random(gt.shape[0], rng, none_share=0.0)
-            sparse = pattern.sample(gt, rng)
+            if lidar_source == "projected":
+                sparse = pattern.sample_projected(things["disp_right"], rng)
+            else:
+                sparse = pattern.sample(gt, rng)
         if (left.shape[1], left.shape[0]) != size:
             raise SystemExit(f"frame {i}: {left.shape[::-1]} is not the bundle's size {size}")
         yield source, left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
 
 
 def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
-            max_disagreement_px: float = np.inf):
+            max_disagreement_px: float = np.inf, lidar_source: str = "projected"):
     """Per frame: (features, labels, weights, and what EPE/bad-3 need to score a choice)."""
     out = []
     start = time.perf_counter()
     for i, (source, left, right, sparse, gt) in enumerate(frames(data, count, rig_share,
-                                                                 engine.size, seed)):
+                                                                 engine.size, seed, lidar_source)):
         result = engine.infer(left, right, sparse)
         features, pixels, lidar = selection_features(left, right, result.disparity,
                                                      result.confidence, sparse,
@@ -155,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--max-disagreement", type=float, default=0.0,
                    help="px: act only where the candidates differ by at most this (0 = any)")
+    p.add_argument("--lidar", choices=("projected", "gt"), default="projected",
+                   help="things frames' LiDAR: projected from the right view (default) or "
+                        "exact GT rows")
     p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
     args = p.parse_args(argv)
     if args.frames < 5 or not 0 < args.holdout < 1:
@@ -166,7 +177,7 @@ def main(argv: list[str] | None = None) -> int:
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     cap = args.max_disagreement or np.inf
-    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap)
+    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap, args.lidar)
     n_hold = max(1, int(round(len(rows) * args.holdout)))
     fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
     select = fit(fit_rows, args.hidden, args.steps, args.seed, cap)
@@ -184,7 +195,8 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     meta = json.loads(meta_path.read_text())
     meta["lidar_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
-                                rig_share=args.rig_share, seed=args.seed, heldout=heldout)
+                                rig_share=args.rig_share, lidar=args.lidar, seed=args.seed,
+                                heldout=heldout)
     meta_path.write_text(json.dumps(meta, indent=1) + "\n")
     print(f"wrote lidar_select into {meta_path}")
     return 0

@@ -5,7 +5,10 @@ for the real-pair evaluation recipe (16 rows, every 2nd column, N(0, 0.1 px)).
 Patterns, drawn per sample: none (stereo only), one 2-D scan line, or 16 / 32 / 64 beams as
 near-horizontal rows with a slight tilt; points every 1-4 columns with jitter, dropouts,
 disparity noise, and now and then a slightly wrong extrinsic (a shift of up to 2 px and a
-disparity scale off by up to 2 %).
+disparity scale off by up to 2 %). `sample_projected` reads the rows in the *right* view's GT and
+projects them into the left, as a LiDAR one baseline to the right of the left camera would
+be: the background it sees behind foreground edges lands inside the foreground, and the
+project's occlusion filter removes most of it but not all — as on a robot.
 """
 
 from __future__ import annotations
@@ -87,3 +90,23 @@ class GtLidarPattern:
             keep = (disparity[src_v[ok], src_u[ok]] > 0) & (d > 0)
             sparse[vi[ok][keep], ui[ok][keep]] = d[keep]
         return sparse
+
+    def sample_projected(self, disparity_right: np.ndarray, rng: np.random.Generator,
+                         occlusion=None) -> np.ndarray:
+        """(H, W) float32 sparse disparity in the *left* view, from the right view's GT: the
+        points are drawn there as `sample` does, moved by their own disparity into the left
+        image (u_left = u_right + d; the nearest point wins a pixel), then filtered by
+        `calibration.projection.filter_occluded` with the LiDAR at the right camera."""
+        from edge_depth.calibration.projection import filter_occluded
+
+        h, w = disparity_right.shape
+        in_right = self.sample(disparity_right, rng)
+        vs, us = np.nonzero(in_right)
+        d = in_right[vs, us]
+        u_left = np.rint(us + d).astype(np.int64)
+        inside = u_left < w
+        sparse = np.zeros((h, w), np.float32)
+        np.maximum.at(sparse.ravel(), vs[inside] * w + u_left[inside], d[inside])
+        # a LiDAR at the right camera: one baseline along +x, so the offset over the baseline is 1
+        keep = filter_occluded(sparse, sparse > 0, np.array([1.0, 0.0, 0.0]), 1.0, occlusion)
+        return np.where(keep, sparse, np.float32(0))
