@@ -153,8 +153,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("bundle", type=Path)
     p.add_argument("--data", type=Path, required=True,
                    help="things samples the network never trained on")
-    # defaults: the variant the held-out frames chose for the shipped bundle (docs/experiments.md,
-    # session 18)
+    # defaults: the variant the held-out frames chose on stage 15's bundle (docs/experiments.md,
+    # session 18; accurate, but over its time budget there, so the shipped bundle has none)
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--rig-share", type=float, default=0.4)
     p.add_argument("--holdout", type=float, default=0.25)

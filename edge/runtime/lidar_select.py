@@ -134,13 +134,13 @@ class LidarSelect:
     def logit(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth (the
         standardisation folded into the first layer: one matmul)."""
+        if not len(features):
+            return np.zeros(0, np.float32)
         w1 = self.w1 / self.std[:, None]
         b1 = self.b1 - (self.mean / self.std) @ self.w1
         # OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and, on a
         # 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 → 23
         # ms in tools/bench.py while the stage ran; docs/experiments.md, session 18)
-        if not len(features):
-            return np.zeros(0, np.float32)
         features = np.ascontiguousarray(features, np.float32)
         hidden = cv2.gemm(features, np.ascontiguousarray(w1, np.float32), 1.0, None, 0.0)
         hidden += b1
