@@ -1,8 +1,9 @@
-"""Fit the full-resolution LiDAR selection (`edge.runtime.lidar_select`) on a bundle's own
-outputs and store it in the bundle's model.json.
+"""Fit the LiDAR selection (`edge.runtime.lidar_select`) on a bundle's own outputs and store
+it in the bundle's model.json.
 
     python tools/fit_select.py BUNDLE --data data/things_select [--frames 300] [--rig-share 0.4]
-        [--holdout 0.25] [--max-disagreement 8] [--lidar projected|gt] [--runtime onnxruntime]
+        [--holdout 0.25] [--max-disagreement 8] [--max-confidence 0.9]
+        [--lidar projected|gt] [--runtime onnxruntime]
         [--dry-run]
 
 Each frame is a things sample the network never trained on (or, `--rig-share` of them, a rig
@@ -11,9 +12,10 @@ frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as 
 the left with the occlusion filter (`--lidar projected`: the wrong points a robot's projected
 scan keeps; `--lidar gt`: exact rows, as the Aloe recipe samples them). The bundle runs on
 it (int8, its default iterations);
-where the network's disparity and the nearest LiDAR point's differ, the label is which of the
-two is nearer the GT, weighted by how much nearer (so the fit minimises the end-point error
-of the choice). A held-out share of the frames reports what the fitted choice does to EPE and
+at each 2×2 cell where the network's disparity and the nearest LiDAR point's differ and the
+network is not confident, the label is which of the two is nearer the GT over the cell's
+pixels, weighted by how much nearer (so the fit minimises the end-point error of the
+choice). A held-out share of the frames reports what the fitted choice does to EPE and
 bad-3 there, over all of them and per source (rig / things: a mix can hide a loss on the
 rarer one); nothing from the evaluation sets is read.
 """
@@ -30,12 +32,18 @@ import numpy as np
 
 from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
 from edge_depth.runtime.engine import Engine
-from edge_depth.runtime.lidar_select import FEATURES, LidarSelect, selection_features
+from edge_depth.runtime.lidar_select import (
+    CELL_PX,
+    FEATURES,
+    LidarSelect,
+    cell_pixels,
+    selection_features,
+)
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.sim.gt_lidar import GtLidarPattern
 from edge_depth.sim.things_store import list_things, read_things
 
-MAX_WEIGHT_PX = 8.0  # a pixel's weight: how much nearer its better candidate is, capped
+MAX_WEIGHT_PX = 8.0  # a pixel's share of its cell's weight (how much nearer), capped
 
 
 def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int,
@@ -72,28 +80,35 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
 
 
 def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
-            max_disagreement_px: float = np.inf, lidar_source: str = "projected"):
-    """Per frame: (features, labels, weights, and what EPE/bad-3 need to score a choice)."""
+            max_disagreement_px: float = np.inf, lidar_source: str = "projected",
+            max_confidence: float = np.inf):
+    """Per frame: the candidate cells' features, labels and weights, and what EPE/bad-3 need
+    to score a choice: over the frame's known pixels the network's summed error and bad-3
+    count, and per candidate cell how much taking the LiDAR would lower each (`gain`,
+    `bad3_gain`, summed over the cell's known pixels)."""
     out = []
     start = time.perf_counter()
     for i, (source, left, right, sparse, gt) in enumerate(frames(data, count, rig_share,
                                                                  engine.size, seed, lidar_source)):
         result = engine.infer(left, right, sparse)
-        features, pixels, lidar = selection_features(left, right, result.disparity,
-                                                     result.confidence, sparse,
-                                                     max_disagreement_px)
+        features, cells, lidar = selection_features(left, right, result.disparity,
+                                                    result.confidence, sparse,
+                                                    max_disagreement_px, max_confidence)
         gt = gt.ravel()
         known = np.isfinite(gt) & (gt > 0)
         err_net = np.abs(result.disparity.ravel() - gt)
-        err_lidar = np.abs(lidar - gt[pixels])
-        known_at = known[pixels]
-        chosen = np.zeros(gt.shape, bool)
-        chosen[pixels] = True
-        out.append(dict(source=source, features=features, label=err_lidar < err_net[pixels],
-                        weight=np.clip(np.abs(err_net[pixels] - err_lidar), 0.0,
-                                       MAX_WEIGHT_PX) * known_at,
-                        err_net=err_net[known], err_lidar_at=err_lidar[known_at],
-                        where_known=chosen[known], known_at=known_at))
+        pixels, owner = cell_pixels(cells, left.shape)
+        keep = known[pixels]
+        pixels, owner = pixels[keep], owner[keep]
+        err_lidar = np.abs(lidar[owner] - gt[pixels])
+        gain = np.bincount(owner, err_net[pixels] - err_lidar, minlength=len(cells))
+        bad3_gain = np.bincount(owner, (err_net[pixels] > 3).astype(np.float64) -
+                                (err_lidar > 3), minlength=len(cells))
+        out.append(dict(source=source, features=features, label=gain > 0,
+                        weight=np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX),
+                        gain=gain, bad3_gain=bad3_gain, known=int(known.sum()),
+                        err_sum=float(err_net[known].sum()),
+                        bad3=int((err_net[known] > 3).sum())))
         if (i + 1) % 20 == 0 or i + 1 == count:
             print(f"fit_select: {i + 1}/{count} frames ({time.perf_counter() - start:.0f} s)",
                   file=sys.stderr, flush=True)
@@ -101,7 +116,7 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
 
 
 def fit(rows: list[dict], hidden: int, steps: int, seed: int,
-        max_disagreement_px: float = np.inf) -> LidarSelect:
+        max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> LidarSelect:
     """Weighted logistic loss, one hidden ReLU layer, Adam (torch: the training extra)."""
     import torch
 
@@ -131,20 +146,21 @@ def fit(rows: list[dict], hidden: int, steps: int, seed: int,
                        b1=first.bias.detach().numpy().copy(),
                        w2=second.weight.detach().numpy()[0].copy(),
                        b2=float(second.bias.detach()[0]),
-                       max_disagreement_px=max_disagreement_px)
+                       max_disagreement_px=max_disagreement_px,
+                       max_confidence=max_confidence)
 
 
 def score(rows: list[dict], select: LidarSelect | None) -> tuple[float, float]:
     """Mean EPE and bad-3 % over the frames' known pixels, with or without the choice."""
     epe, bad3 = [], []
     for r in rows:
-        err = r["err_net"].copy()
+        err_sum, bad = r["err_sum"], float(r["bad3"])
         if select is not None and len(r["features"]):
-            take = select.logit(r["features"][r["known_at"]]) > 0
-            at = np.flatnonzero(r["where_known"])
-            err[at[take]] = r["err_lidar_at"][take]
-        epe.append(float(err.mean()))
-        bad3.append(100.0 * float((err > 3).mean()))
+            take = select.logit(r["features"]) > 0
+            err_sum -= float(r["gain"][take].sum())
+            bad -= float(r["bad3_gain"][take].sum())
+        epe.append(err_sum / max(r["known"], 1))
+        bad3.append(100.0 * bad / max(r["known"], 1))
     return float(np.mean(epe)), float(np.mean(bad3))
 
 
@@ -165,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--max-disagreement", type=float, default=8.0,
                    help="px: act only where the candidates differ by at most this (0 = any)")
+    p.add_argument("--max-confidence", type=float, default=0.9,
+                   help="act only where the network's confidence is below this (0 = anywhere)")
     p.add_argument("--lidar", choices=("projected", "gt"), default="projected",
                    help="things frames' LiDAR: projected from the right view (default) or "
                         "exact GT rows")
@@ -179,10 +197,12 @@ def main(argv: list[str] | None = None) -> int:
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     cap = args.max_disagreement or np.inf
-    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap, args.lidar)
+    gate = args.max_confidence or np.inf
+    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap, args.lidar,
+                   gate)
     n_hold = max(1, int(round(len(rows) * args.holdout)))
     fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
-    select = fit(fit_rows, args.hidden, args.steps, args.seed, cap)
+    select = fit(fit_rows, args.hidden, args.steps, args.seed, cap, gate)
     heldout = {}
     for source in ("all", "rig", "things"):  # the mix can hide a loss on the rarer source
         part = [r for r in hold_rows if source in ("all", r["source"])]
@@ -192,7 +212,7 @@ def main(argv: list[str] | None = None) -> int:
                                    bad3=[before[1], after[1]])
             print(f"held-out {source} ({len(part)} frames): EPE {before[0]:.3f} → "
                   f"{after[0]:.3f} px, bad-3 {before[1]:.2f} → {after[1]:.2f} %")
-    select = fit(rows, args.hidden, args.steps, args.seed, cap)  # the stored fit: every frame
+    select = fit(rows, args.hidden, args.steps, args.seed, cap, gate)  # stored: every frame
     if args.dry_run:
         return 0
     meta = json.loads(meta_path.read_text())

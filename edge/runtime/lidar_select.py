@@ -1,16 +1,21 @@
-"""Full-resolution LiDAR selection: per pixel, keep the network's disparity or take the
-nearest LiDAR point's, chosen by a small learned scorer.
+"""LiDAR selection: per 2×2 cell of the full-resolution disparity, keep the network's values or
+take the nearest LiDAR point's, chosen by a small learned scorer.
 
 Why: the network estimates at 1/8 (refined at 1/4), so at depth edges its value is often the
 other side's; the nearest LiDAR point's value is exact where it lies on the pixel's side of
 the edge. Neither the image nor a matching cost alone says which (`docs/experiments.md`,
 "Analysis" and session 17); this stage learns it from both: the photometric cost of each
-candidate at full resolution (5×5 and 9×9 windows), how far they disagree and in which
-direction, the network's confidence, the distance to the LiDAR point, the image gradient and
-the point's own residual. The scorer (a 2-layer perceptron, ~400 weights) is fitted on the
-bundle's own int8 outputs over training frames by `tools/fit_select.py` and stored in the
-bundle's `model.json` under `lidar_select`; bundles without that key run without the stage.
-Without LiDAR points the disparity is returned unchanged.
+candidate (3×3 and 5×5 windows at half resolution: 6 and 10 px), how far they disagree and in
+which direction, the network's confidence, the distance to the LiDAR point, the image
+gradient and the point's own residual. The scorer (a 2-layer perceptron, ~400 weights) is
+fitted on the bundle's own int8 outputs over training frames by `tools/fit_select.py` and
+stored in the bundle's `model.json` under `lidar_select`; bundles without that key run
+without the stage.
+
+Everything runs on 2×2 cells (half resolution) and only where the network's confidence is
+below the fitted gate: at full resolution the stage cost 25–30 ms a frame on a 2-core robot,
+over the engine's budget (docs/experiments.md, sessions 18–19). A chosen cell's four pixels
+all take the LiDAR value. Without LiDAR points the disparity is returned unchanged.
 
 Pure numpy + OpenCV (robot side, no torch).
 """
@@ -29,6 +34,7 @@ from edge_depth.selfcheck import warp_right_to_left
 FEATURES = ("cost5_net_minus_lidar", "cost9_net_minus_lidar", "log_cost5_net",
             "log_cost5_lidar", "log_disagreement", "lidar_minus_net", "confidence",
             "log_distance_to_lidar", "log_gradient", "log_point_residual")
+CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
 MIN_DISAGREEMENT_PX = 0.5  # below this the two candidates are the same value
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
 
@@ -44,56 +50,127 @@ def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     return [cv2.blur(error, (k, k)) for k in windows]
 
 
+def cell_shape(shape: tuple[int, int]) -> tuple[int, int]:
+    """(rows, columns) of cells covering an (H, W) image (the last ones may be cut)."""
+    return -(-shape[0] // CELL_PX), -(-shape[1] // CELL_PX)
+
+
+def _padded(image: np.ndarray) -> np.ndarray:
+    """float32, edge-replicated to a multiple of CELL_PX in both directions."""
+    h, w = image.shape
+    hc, wc = cell_shape((h, w))
+    image = np.asarray(image, np.float32)
+    if (hc * CELL_PX, wc * CELL_PX) == (h, w):
+        return image
+    return cv2.copyMakeBorder(image, 0, hc * CELL_PX - h, 0, wc * CELL_PX - w,
+                              cv2.BORDER_REPLICATE)
+
+
+def cell_mean(image: np.ndarray) -> np.ndarray:
+    """(H, W) → its cells' means, float32."""
+    padded = _padded(image)
+    hc, wc = cell_shape(image.shape)
+    return cv2.resize(padded, (wc, hc), interpolation=cv2.INTER_AREA)
+
+
+def cell_lidar(sparse: np.ndarray) -> np.ndarray:
+    """The sparse disparity (0 or non-finite = none) per cell: the largest (the nearest
+    surface) of the cell's points, 0 where it has none."""
+    h, w = sparse.shape
+    hc, wc = cell_shape((h, w))
+    if (hc * CELL_PX, wc * CELL_PX) != (h, w):
+        padded = np.zeros((hc * CELL_PX, wc * CELL_PX), np.float32)
+        padded[:h, :w] = sparse
+        sparse = padded
+    # fmax over the strided slices skips NaN and starts from 0 (so negatives count as none);
+    # numpy's reduce over a reshaped (hc, 2, wc, 2) view took 11 ms at 640×400
+    out = np.zeros((hc, wc), np.float32)
+    for dy in range(CELL_PX):
+        for dx in range(CELL_PX):
+            np.fmax(out, sparse[dy::CELL_PX, dx::CELL_PX], out=out)
+    out[~np.isfinite(out)] = 0
+    return out
+
+
+def cell_of_pixel(shape: tuple[int, int]) -> np.ndarray:
+    """(H, W) int: each pixel's flat cell index (row-major over `cell_shape`)."""
+    h, w = shape
+    wc = cell_shape(shape)[1]
+    return (np.arange(h)[:, None] // CELL_PX) * wc + np.arange(w)[None, :] // CELL_PX
+
+
 def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                        confidence: np.ndarray, sparse: np.ndarray,
-                       max_disagreement_px: float = np.inf
+                       max_disagreement_px: float = np.inf, max_confidence: float = np.inf
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scorer's inputs where the two candidates differ (by more than MIN_DISAGREEMENT_PX,
-    at most max_disagreement_px).
+    """The scorer's inputs at the cells where the two candidates differ (by more than
+    MIN_DISAGREEMENT_PX, at most max_disagreement_px) and the network's confidence is below
+    max_confidence.
 
     left/right (H, W) grey (any dtype), disparity and confidence (H, W) the network's
     outputs, sparse (H, W) LiDAR disparity in px (0 or non-finite = none). Returns
-    (features (N, len(FEATURES)) float32, pixels (N,) their flat row-major indices,
+    (features (N, len(FEATURES)) float32, cells (N,) their flat indices over `cell_shape`,
     lidar (N,) float32 the nearest LiDAR point's disparity there). The point's residual is
-    how far the network's own value at the LiDAR point's pixel is from the point: large
-    where the point leaked through an occlusion or the network is wrong there too."""
-    valid = np.isfinite(sparse) & (sparse > 0)
+    how far the network's own value at the LiDAR point's cell is from the point: large where
+    the point leaked through an occlusion or the network is wrong there too."""
     empty = (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
              np.zeros(0, np.float32))
+    lidar_cells = cell_lidar(sparse)
+    valid = lidar_cells > 0
     if not valid.any():
         return empty
     index, distance = nearest_valid_index(valid)
-    points = sparse[valid].astype(np.float32)
-    residual = points - disparity[valid]
+    net = cell_mean(disparity)
+    points = lidar_cells[valid]
+    residual = points - net[valid]
     index = index.ravel()
-    net = disparity.ravel()
-    signed = points[index] - net
+    signed = points[index] - net.ravel()
     gap = np.abs(signed)
-    pixels = np.flatnonzero((gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px))
-    if not len(pixels):
+    trust = cell_mean(confidence).ravel()
+    candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px) & \
+        (trust < max_confidence)
+    cells = np.flatnonzero(candidate)
+    if not len(cells):
         return empty
-    point = index[pixels]
+    point = index[cells]
     lidar = points[point]
-    signed = signed[pixels]
-    grey_l, grey_r = left.astype(np.float32), right.astype(np.float32)
-    lidar_map = np.array(disparity, dtype=np.float32, order="C")  # a copy, ravel() a view
-    lidar_map.ravel()[pixels] = lidar  # where they agree the cost is not used
-    net5, net9 = (c.ravel()[pixels] for c in warped_cost(grey_l, grey_r, disparity, (5, 9)))
-    lid5, lid9 = (c.ravel()[pixels] for c in warped_cost(grey_l, grey_r, lidar_map, (5, 9)))
+    signed = signed[cells]
+    grey_l, grey_r = cell_mean(left), cell_mean(right)
+    lidar_map = net.copy()
+    lidar_map.ravel()[cells] = lidar  # where they agree the cost is not used
+    # disparities in cell units for the warp; windows 3 and 5 cells ≈ 5 and 9 pixels
+    net5, net9 = (c.ravel()[cells] for c in warped_cost(grey_l, grey_r, net / CELL_PX, (3, 5)))
+    lid5, lid9 = (c.ravel()[cells] for c in warped_cost(grey_l, grey_r, lidar_map / CELL_PX,
+                                                        (3, 5)))
     gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
-                np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[pixels]
+                np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
     columns = (net5 - lid5, net9 - lid9, np.log1p(net5), np.log1p(lid5),
-               np.log1p(np.abs(signed)), np.tanh(signed / 8.0), confidence.ravel()[pixels],
-               np.log1p(distance.ravel()[pixels]), np.log1p(gradient),
+               np.log1p(np.abs(signed)), np.tanh(signed / 8.0),
+               trust[cells],
+               np.log1p(CELL_PX * distance.ravel()[cells]), np.log1p(gradient),
                np.log1p(np.abs(residual[point])))
-    return np.stack(columns, axis=1).astype(np.float32), pixels, lidar
+    return np.stack(columns, axis=1).astype(np.float32), cells, lidar
+
+
+def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+    """The full-resolution pixels of the given cells: (flat pixel indices, which entry of
+    `cells` each belongs to); cells cut by the image's border give fewer."""
+    h, w = shape
+    wc = cell_shape(shape)[1]
+    y0, x0 = (cells // wc) * CELL_PX, (cells % wc) * CELL_PX
+    dy, dx = np.divmod(np.arange(CELL_PX * CELL_PX), CELL_PX)
+    ys, xs = y0[:, None] + dy[None, :], x0[:, None] + dx[None, :]
+    owner = np.broadcast_to(np.arange(len(cells))[:, None], ys.shape)
+    inside = (ys < h) & (xs < w)
+    return ys[inside] * w + xs[inside], owner[inside]
 
 
 @dataclass(frozen=True)
 class LidarSelect:
     """The fitted scorer: standardise, ReLU layer, one logit; p(LiDAR is nearer the truth).
-    mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar; max_disagreement_px: pixels where
-    the candidates differ by more keep the network's value."""
+    mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar; max_disagreement_px: cells where
+    the candidates differ by more keep the network's values; max_confidence: so do cells
+    where the network's mean confidence is at least this."""
 
     mean: np.ndarray
     std: np.ndarray
@@ -102,6 +179,7 @@ class LidarSelect:
     w2: np.ndarray
     b2: float
     max_disagreement_px: float = np.inf
+    max_confidence: float = np.inf
 
     @classmethod
     def from_meta(cls, entry: dict) -> LidarSelect:
@@ -109,15 +187,20 @@ class LidarSelect:
         try:
             if list(entry["features"]) != list(FEATURES):
                 raise ValueError(f"features {entry['features']} are not {list(FEATURES)}")
+            if entry.get("cell_px") != CELL_PX:
+                raise ValueError(f"fitted on {entry.get('cell_px', 1)}-pixel cells, not "
+                                 f"{CELL_PX} (refit with tools/fit_select.py)")
             arrays = {k: np.asarray(entry[k], np.float32) for k in ("mean", "std", "w1",
                                                                      "b1", "w2")}
-            cap = entry.get("max_disagreement_px")
+            cap, gate = entry.get("max_disagreement_px"), entry.get("max_confidence")
             out = cls(b2=float(entry["b2"]), **arrays,
-                      max_disagreement_px=np.inf if cap is None else float(cap))
+                      max_disagreement_px=np.inf if cap is None else float(cap),
+                      max_confidence=np.inf if gate is None else float(gate))
             f, k = len(FEATURES), out.b1.shape[0]
             if out.mean.shape != (f,) or out.std.shape != (f,) or out.w1.shape != (f, k) \
                     or out.w2.shape != (k,) or not np.all(out.std > 0) \
-                    or not out.max_disagreement_px > MIN_DISAGREEMENT_PX:
+                    or not out.max_disagreement_px > MIN_DISAGREEMENT_PX \
+                    or not out.max_confidence > 0:
                 raise ValueError("shapes or scales do not match")
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError("bundle", "model.json's lidar_select as tools/fit_select.py "
@@ -125,11 +208,13 @@ class LidarSelect:
         return out
 
     def to_meta(self) -> dict:
-        return dict(features=list(FEATURES), mean=self.mean.tolist(), std=self.std.tolist(),
-                    w1=self.w1.tolist(), b1=self.b1.tolist(), w2=self.w2.tolist(),
-                    b2=float(self.b2),
+        return dict(features=list(FEATURES), cell_px=CELL_PX, mean=self.mean.tolist(),
+                    std=self.std.tolist(), w1=self.w1.tolist(), b1=self.b1.tolist(),
+                    w2=self.w2.tolist(), b2=float(self.b2),
                     max_disagreement_px=None if np.isinf(self.max_disagreement_px)
-                    else float(self.max_disagreement_px))
+                    else float(self.max_disagreement_px),
+                    max_confidence=None if np.isinf(self.max_confidence)
+                    else float(self.max_confidence))
 
     def logit(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth (the
@@ -154,12 +239,14 @@ class LidarSelect:
 
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
               confidence: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, int]:
-        """(disparity (H, W) with the chosen pixels replaced, how many were replaced)."""
-        features, pixels, lidar = selection_features(left, right, disparity, confidence,
-                                                     sparse, self.max_disagreement_px)
+        """(disparity (H, W) with the chosen cells' pixels replaced, how many pixels were)."""
+        features, cells, lidar = selection_features(left, right, disparity, confidence,
+                                                    sparse, self.max_disagreement_px,
+                                                    self.max_confidence)
         if not len(features):
             return disparity, 0
         take = self.logit(features) > 0  # p > 0.5
+        pixels, owner = cell_pixels(cells[take], disparity.shape)
         out = np.array(disparity, dtype=np.float32, order="C")  # a copy, ravel() a view
-        out.ravel()[pixels[take]] = lidar[take]
-        return out, int(take.sum())
+        out.ravel()[pixels] = lidar[take][owner]
+        return out, len(pixels)
