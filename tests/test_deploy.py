@@ -413,7 +413,7 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     import shutil
 
     from edge_depth.baselines import lidar_nearest
-    from edge_depth.runtime.lidar_select import FEATURES, LidarSelect
+    from edge_depth.runtime.lidar_select import FEATURES, LidarSelect, cell_lidar, cell_mean
 
     bundle = tmp_path / "bundle"
     shutil.copytree(small_bundle[0], bundle)
@@ -430,8 +430,16 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     assert plain.select is None and chosen.select is not None
     before = plain.infer(left, right, sparse, iters=2)
     after = chosen.infer(left, right, sparse, iters=2)
-    nearest = lidar_nearest(sparse, sparse > 0)
-    differ = np.abs(nearest - before.disparity) > 0.5
+    # per 2×2 cell: the cell's nearest LiDAR value wherever it differs from the cell's mean
+    points = cell_lidar(sparse)
+    nearest = lidar_nearest(points, points > 0)
+    differ = np.abs(nearest - cell_mean(before.disparity)) > 0.5
+    h, w = sparse.shape
+
+    def full(cells):
+        return np.repeat(np.repeat(cells, 2, axis=0), 2, axis=1)[:h, :w]
+
+    nearest, differ = full(nearest), full(differ)
     assert differ.mean() > 0.05
     np.testing.assert_array_equal(after.disparity[differ], nearest[differ])
     np.testing.assert_allclose(after.disparity[~differ], before.disparity[~differ], atol=1e-4)

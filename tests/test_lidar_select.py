@@ -1,5 +1,5 @@
-"""The full-resolution LiDAR selection: its features, the choice, model.json round trip, and
-the fitting tool's loss and scoring."""
+"""The LiDAR selection: its 2×2 cells, features, the choice, model.json round trip, and the
+fitting tool's loss and scoring."""
 
 from __future__ import annotations
 
@@ -7,7 +7,15 @@ import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.lidar_select import FEATURES, LidarSelect, selection_features
+from edge_depth.runtime.lidar_select import (
+    CELL_PX,
+    FEATURES,
+    LidarSelect,
+    cell_lidar,
+    cell_pixels,
+    cell_shape,
+    selection_features,
+)
 
 H, W = 96, 160
 TRUE_DISPARITY = 12.0
@@ -57,8 +65,8 @@ def test_selection_keeps_the_network_where_the_lidar_is_wrong():
     out, replaced = cost_chooser().apply(left, right, disparity, np.ones((H, W), np.float32),
                                          lidar_rows(TRUE_DISPARITY - 5))
     # only in the left border's strip, where the network's value reads the right image
-    # outside its border and so costs the most
-    assert 0 < replaced <= H * int(TRUE_DISPARITY)
+    # outside its border and so costs the most (one cell further: the 3×3-cell window)
+    assert 0 < replaced <= H * (int(TRUE_DISPARITY) + 2)
     np.testing.assert_array_equal(out[:, int(TRUE_DISPARITY) + 2:], TRUE_DISPARITY)
 
 
@@ -75,23 +83,54 @@ def test_without_lidar_the_disparity_comes_back_unchanged():
 def test_features_measure_cost_disagreement_and_distance():
     left, right = textured_pair()
     disparity = np.full((H, W), TRUE_DISPARITY + 4, np.float32)
-    features, pixels, lidar = selection_features(left, right, disparity,
-                                                 np.full((H, W), 0.25, np.float32),
-                                                 lidar_rows(TRUE_DISPARITY))
-    np.testing.assert_array_equal(pixels, np.arange(H * W))  # every pixel disagrees
-    assert features.shape == (H * W, len(FEATURES))
+    features, cells, lidar = selection_features(left, right, disparity,
+                                                np.full((H, W), 0.25, np.float32),
+                                                lidar_rows(TRUE_DISPARITY))
+    hc, wc = cell_shape((H, W))
+    np.testing.assert_array_equal(cells, np.arange(hc * wc))  # every cell disagrees
+    assert features.shape == (hc * wc, len(FEATURES))
     np.testing.assert_array_equal(lidar, TRUE_DISPARITY)
     col = {name: features[:, i] for i, name in enumerate(FEATURES)}
-    inside = pixels % W >= 24  # away from the left border (the warp reads outside the image)
+    inside = cells % wc >= 12  # away from the left border (the warp reads outside the image)
     assert np.all(col["cost5_net_minus_lidar"][inside] > 5)  # the LiDAR's value matches
     np.testing.assert_allclose(col["log_disagreement"], np.log1p(4.0), rtol=1e-6)
     np.testing.assert_allclose(col["lidar_minus_net"], np.tanh(-4.0 / 8.0), rtol=1e-6)
     np.testing.assert_allclose(col["confidence"], 0.25)
     # the network is 4 px off at the points themselves too
     np.testing.assert_allclose(col["log_point_residual"], np.log1p(4.0), rtol=1e-6)
-    assert col["log_distance_to_lidar"].min() == 0.0  # on a LiDAR point
-    # the last LiDAR row is 84: rows 85-95 are up to 11 px from a point
-    assert np.expm1(col["log_distance_to_lidar"].max()) == pytest.approx(11.0, abs=0.6)
+    assert col["log_distance_to_lidar"].min() == 0.0  # on a LiDAR point's cell
+    # the last LiDAR row is 84 (cell row 42): cell rows 43-47 are up to 5 cells = 10 px away
+    assert np.expm1(col["log_distance_to_lidar"].max()) == pytest.approx(10.0, abs=0.6)
+
+
+def test_cells_cover_an_odd_sized_image_and_take_the_nearest_surface():
+    sparse = np.zeros((5, 7), np.float32)
+    sparse[0, 0], sparse[1, 1] = 3.0, 9.0  # one cell, two points: the nearer (larger) wins
+    sparse[0, 2] = np.nan  # none
+    sparse[4, 6] = 2.0  # the cut corner cell
+    sparse[2, 2] = -1.0  # none
+    lidar = cell_lidar(sparse)
+    assert lidar.shape == cell_shape((5, 7)) == (3, 4)
+    assert lidar[0, 0] == 9.0 and lidar[2, 3] == 2.0
+    assert np.count_nonzero(lidar) == 2
+    pixels, owner = cell_pixels(np.array([0, 11]), (5, 7))  # cell 11: the corner (2, 3)
+    np.testing.assert_array_equal(pixels[owner == 0], [0, 1, 7, 8])
+    np.testing.assert_array_equal(pixels[owner == 1], [4 * 7 + 6])  # cut to one pixel
+    assert CELL_PX == 2
+
+
+def test_selection_runs_on_an_odd_sized_frame():
+    left, right = textured_pair()
+    left, right = left[:95, :159], right[:95, :159]
+    disparity = np.full((95, 159), TRUE_DISPARITY, np.float32)
+    disparity[31:61, 41:101] = TRUE_DISPARITY + 6
+    sparse = lidar_rows(TRUE_DISPARITY)[:95, :159]
+    out, replaced = cost_chooser().apply(left, right, disparity,
+                                         np.zeros_like(disparity), sparse)
+    assert out.shape == (95, 159)
+    # the odd block is covered by whole cells: rows 30-61, columns 40-101
+    assert np.all(out[31:61, 41:101] == TRUE_DISPARITY)
+    assert 30 * 60 <= replaced <= 32 * 62
 
 
 def test_model_json_round_trip_and_a_damaged_entry_is_a_config_error():
@@ -108,6 +147,9 @@ def test_model_json_round_trip_and_a_damaged_entry_is_a_config_error():
         LidarSelect.from_meta({k: v for k, v in entry.items() if k != "b2"})
     with pytest.raises(ConfigError, match="lidar_select"):
         LidarSelect.from_meta({**entry, "std": [0.0] * len(FEATURES)})
+    # a fit from before the cells (full resolution) must be refitted, not misread
+    with pytest.raises(ConfigError, match="refit"):
+        LidarSelect.from_meta({k: v for k, v in entry.items() if k != "cell_px"})
 
 
 def test_fit_learns_a_choice_that_lowers_the_error_it_is_scored_on():
@@ -117,19 +159,40 @@ def test_fit_learns_a_choice_that_lowers_the_error_it_is_scored_on():
     rng = np.random.default_rng(0)
     rows = []
     for _ in range(4):
-        n = 4000
+        n = 4000  # cells of one known pixel each
         x = rng.normal(size=(n, len(FEATURES))).astype(np.float32)
         lidar_better = x[:, 0] + 0.3 * x[:, 5] > 0
-        err_net = np.where(lidar_better, 5.0, 0.2).astype(np.float32)
-        err_lidar = np.where(lidar_better, 0.2, 5.0).astype(np.float32)
-        rows.append(dict(features=x, label=lidar_better,
-                         weight=np.abs(err_net - err_lidar), err_net=err_net,
-                         err_lidar_at=err_lidar, where_known=np.ones(n, bool),
-                         known_at=np.ones(n, bool)))
+        err_net = np.where(lidar_better, 5.0, 0.2)
+        err_lidar = np.where(lidar_better, 0.2, 5.0)
+        gain = err_net - err_lidar
+        rows.append(dict(features=x, label=gain > 0, weight=np.abs(gain), gain=gain,
+                         bad3_gain=(err_net > 3).astype(float) - (err_lidar > 3), known=n,
+                         err_sum=float(err_net.sum()), bad3=int((err_net > 3).sum())))
     select = fit(rows[1:], hidden=8, steps=200, seed=0)
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before == pytest.approx((2.6, 50.0), abs=1.5)
     assert after[0] < 0.5 and after[1] < 6.0
+
+
+def test_the_fitting_tool_scores_a_choice_exactly_as_the_engine_applies_it():
+    from edge_depth.tools.fit_select import frame_row, score
+
+    left, right = textured_pair()
+    gt = np.full((H, W), TRUE_DISPARITY, np.float32)
+    gt[:, :20] = 0  # unknown
+    disparity = gt + np.float32(0.3)
+    disparity[30:61, 40:101] = TRUE_DISPARITY + 6  # odd edges: cells half inside
+    disparity[70:80, 10:60] = TRUE_DISPARITY - 2
+    sparse = lidar_rows(TRUE_DISPARITY + 0.5)
+    confidence = np.zeros((H, W), np.float32)
+    row = frame_row("rig", left, right, disparity, confidence, sparse, gt)
+    out, _ = cost_chooser().apply(left, right, disparity, confidence, sparse)
+    known = gt > 0
+    err = np.abs(out - gt)[known]
+    epe, bad3 = score([row], cost_chooser())
+    assert epe == pytest.approx(float(err.mean()), rel=1e-5)
+    assert bad3 == pytest.approx(100.0 * float((err > 3).mean()), rel=1e-5)
+    assert epe < score([row], None)[0]  # the choice helps here
 
 
 def test_a_disagreement_cap_keeps_the_network_where_the_lidar_is_too_far_off():
@@ -139,8 +202,8 @@ def test_a_disagreement_cap_keeps_the_network_where_the_lidar_is_too_far_off():
     disparity[70:90, 40:100] = TRUE_DISPARITY + 2
     sparse = lidar_rows(TRUE_DISPARITY)
     capped = LidarSelect(**{**cost_chooser().__dict__, "max_disagreement_px": 4.0})
-    _, pixels, _ = selection_features(left, right, disparity, disparity, sparse, 4.0)
-    assert len(pixels) == 20 * 60  # only the 2-px block
+    _, cells, _ = selection_features(left, right, disparity, disparity, sparse, 4.0)
+    assert len(cells) * CELL_PX**2 == 20 * 60  # only the 2-px block
     out, replaced = capped.apply(left, right, disparity, np.zeros((H, W), np.float32), sparse)
     assert replaced == 20 * 60
     assert np.all(out[70:90, 40:100] == TRUE_DISPARITY)
@@ -150,3 +213,18 @@ def test_a_disagreement_cap_keeps_the_network_where_the_lidar_is_too_far_off():
     assert np.isinf(LidarSelect.from_meta(cost_chooser().to_meta()).max_disagreement_px)
     with pytest.raises(ConfigError, match="lidar_select"):
         LidarSelect.from_meta({**capped.to_meta(), "max_disagreement_px": 0.1})
+
+
+def test_a_confidence_gate_keeps_the_network_where_it_is_confident():
+    left, right = textured_pair()
+    disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
+    disparity[30:60, 40:100] = TRUE_DISPARITY + 6
+    confidence = np.full((H, W), 0.5, np.float32)
+    confidence[30:60, 40:70] = 0.95  # the left half of the wrong block is (wrongly) sure
+    gated = LidarSelect(**{**cost_chooser().__dict__, "max_confidence": 0.9})
+    out, replaced = gated.apply(left, right, disparity, confidence, lidar_rows(TRUE_DISPARITY))
+    assert replaced == 30 * 30
+    assert np.all(out[30:60, 70:100] == TRUE_DISPARITY)
+    assert np.all(out[30:60, 40:70] == TRUE_DISPARITY + 6)
+    assert LidarSelect.from_meta(gated.to_meta()).max_confidence == pytest.approx(0.9)
+    assert np.isinf(LidarSelect.from_meta(cost_chooser().to_meta()).max_confidence)

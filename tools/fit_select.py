@@ -79,36 +79,42 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
         yield source, left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
 
 
+def frame_row(source: str, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+              confidence: np.ndarray, sparse: np.ndarray, gt: np.ndarray,
+              max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> dict:
+    """One frame's candidate cells' features, labels and weights, and what EPE/bad-3 need to
+    score a choice: over the frame's known pixels the network's summed error and bad-3 count,
+    and per candidate cell how much taking the LiDAR lowers each (`gain`, `bad3_gain`, summed
+    over the cell's known pixels)."""
+    features, cells, lidar = selection_features(left, right, disparity, confidence, sparse,
+                                                max_disagreement_px, max_confidence)
+    gt = np.asarray(gt, np.float32).ravel()
+    known = np.isfinite(gt) & (gt > 0)
+    err_net = np.abs(disparity.ravel() - gt)
+    pixels, owner = cell_pixels(cells, left.shape)
+    keep = known[pixels]
+    pixels, owner = pixels[keep], owner[keep]
+    err_lidar = np.abs(lidar[owner] - gt[pixels])
+    gain = np.bincount(owner, err_net[pixels] - err_lidar, minlength=len(cells))
+    bad3_gain = np.bincount(owner, (err_net[pixels] > 3).astype(np.float64) - (err_lidar > 3),
+                            minlength=len(cells))
+    return dict(source=source, features=features, label=gain > 0,
+                weight=np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX),
+                gain=gain, bad3_gain=bad3_gain, known=int(known.sum()),
+                err_sum=float(err_net[known].sum()), bad3=int((err_net[known] > 3).sum()))
+
+
 def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
             max_disagreement_px: float = np.inf, lidar_source: str = "projected",
-            max_confidence: float = np.inf):
-    """Per frame: the candidate cells' features, labels and weights, and what EPE/bad-3 need
-    to score a choice: over the frame's known pixels the network's summed error and bad-3
-    count, and per candidate cell how much taking the LiDAR would lower each (`gain`,
-    `bad3_gain`, summed over the cell's known pixels)."""
+            max_confidence: float = np.inf) -> list[dict]:
+    """`frame_row` for each of `frames`, through the bundle (progress on stderr)."""
     out = []
     start = time.perf_counter()
     for i, (source, left, right, sparse, gt) in enumerate(frames(data, count, rig_share,
                                                                  engine.size, seed, lidar_source)):
         result = engine.infer(left, right, sparse)
-        features, cells, lidar = selection_features(left, right, result.disparity,
-                                                    result.confidence, sparse,
-                                                    max_disagreement_px, max_confidence)
-        gt = gt.ravel()
-        known = np.isfinite(gt) & (gt > 0)
-        err_net = np.abs(result.disparity.ravel() - gt)
-        pixels, owner = cell_pixels(cells, left.shape)
-        keep = known[pixels]
-        pixels, owner = pixels[keep], owner[keep]
-        err_lidar = np.abs(lidar[owner] - gt[pixels])
-        gain = np.bincount(owner, err_net[pixels] - err_lidar, minlength=len(cells))
-        bad3_gain = np.bincount(owner, (err_net[pixels] > 3).astype(np.float64) -
-                                (err_lidar > 3), minlength=len(cells))
-        out.append(dict(source=source, features=features, label=gain > 0,
-                        weight=np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX),
-                        gain=gain, bad3_gain=bad3_gain, known=int(known.sum()),
-                        err_sum=float(err_net[known].sum()),
-                        bad3=int((err_net[known] > 3).sum())))
+        out.append(frame_row(source, left, right, result.disparity, result.confidence, sparse,
+                             gt, max_disagreement_px, max_confidence))
         if (i + 1) % 20 == 0 or i + 1 == count:
             print(f"fit_select: {i + 1}/{count} frames ({time.perf_counter() - start:.0f} s)",
                   file=sys.stderr, flush=True)
