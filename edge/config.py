@@ -37,8 +37,8 @@
                                 # threads; at a higher latency. On 2 cores it gained 35 %
                                 # frames/s with a 40 ms engine and lost 8 % with an 87 ms
                                 # one (README "Speed")
-    lidar_select = true         # the bundle's full-resolution choice between the network
-                                # and the nearest LiDAR point (if it has one; README)
+    lidar_select = true         # the bundle's per-2×2-cell choice between the network and
+                                # the nearest LiDAR point (if it has one; README)
 
     [log]
     out = "logs/depth.mcap"

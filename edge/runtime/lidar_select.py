@@ -246,7 +246,12 @@ class LidarSelect:
         if not len(features):
             return disparity, 0
         take = self.logit(features) > 0  # p > 0.5
-        pixels, owner = cell_pixels(cells[take], disparity.shape)
-        out = np.array(disparity, dtype=np.float32, order="C")  # a copy, ravel() a view
-        out.ravel()[pixels] = lidar[take][owner]
-        return out, len(pixels)
+        h, w = disparity.shape
+        hc, wc = cell_shape((h, w))
+        chosen = np.zeros(hc * wc, np.float32)  # the LiDAR value where taken (always > 0)
+        chosen[cells[take]] = lidar[take]
+        chosen = cv2.resize(chosen.reshape(hc, wc), (wc * CELL_PX, hc * CELL_PX),
+                            interpolation=cv2.INTER_NEAREST)[:h, :w]
+        replace = chosen > 0
+        return np.where(replace, chosen, disparity).astype(np.float32), \
+            int(np.count_nonzero(replace))
