@@ -33,7 +33,8 @@ bench: $(STAMP)
 	$(BIN)/python tools/bench.py --runs 3 --json out/bench.json --markdown out/bench.md
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
-# calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split)
+# calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split,
+# then the LiDAR selection fitted on 260 things pairs no shipped stage trained on)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
 bundle: $(STAMP)
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
@@ -42,6 +43,9 @@ bundle: $(STAMP)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
 	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16
+	test -d data/things_select || $(BIN)/edge-depth synth --world things --out data/things_select \
+	  --count 260 --seed 400000 --workers 2
+	$(BIN)/python tools/fit_select.py edge/models/default --data data/things_select
 
 clean:
 	rm -rf $(VENV) out
