@@ -225,7 +225,7 @@ def main(argv: list[str] | None = None) -> int:
     meta["lidar_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
                                 rig_share=args.rig_share, lidar=args.lidar, seed=args.seed,
                                 heldout=heldout)
-    meta_path.write_text(json.dumps(meta, indent=1) + "\n")
+    meta_path.write_text(json.dumps(meta, indent=2))  # as export.py and quantize.py write it
     print(f"wrote lidar_select into {meta_path}")
     return 0
 
