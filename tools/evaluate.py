@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
-                   help="a bundle without its full-resolution LiDAR selection, if it has one")
+                   help="a bundle without its LiDAR selection, if it has one")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     args = p.parse_args(argv)

@@ -50,7 +50,7 @@ class Engine:
     or 0: the largest factor ≤ 1 that fits) and padded to it, and the outputs come back at the
     camera's size (`edge.runtime.fit`). `runtime`: "auto" | "onnxruntime" | "openvino";
     `bf16` (OpenVINO only): run the graphs in `BF16_GRAPHS` in bf16; None = where the CPU
-    has it natively. `lidar_select`: run the bundle's full-resolution LiDAR selection
+    has it natively. `lidar_select`: run the bundle's LiDAR selection
     (`edge.runtime.lidar_select`) when it has one."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
