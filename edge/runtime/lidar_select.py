@@ -92,13 +92,6 @@ def cell_lidar(sparse: np.ndarray) -> np.ndarray:
     return out
 
 
-def cell_of_pixel(shape: tuple[int, int]) -> np.ndarray:
-    """(H, W) int: each pixel's flat cell index (row-major over `cell_shape`)."""
-    h, w = shape
-    wc = cell_shape(shape)[1]
-    return (np.arange(h)[:, None] // CELL_PX) * wc + np.arange(w)[None, :] // CELL_PX
-
-
 def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                        confidence: np.ndarray, sparse: np.ndarray,
                        max_disagreement_px: float = np.inf, max_confidence: float = np.inf
