@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--data", type=Path, required=True,
                    help="things samples the network never trained on")
     # defaults: the variant the held-out frames chose on stage 15's bundle (docs/experiments.md,
-    # session 18; accurate, but over its time budget there, so the shipped bundle has none)
+    # sessions 18-19), the one the shipped bundle holds
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--rig-share", type=float, default=0.4)
     p.add_argument("--holdout", type=float, default=0.25)
@@ -188,7 +188,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--max-disagreement", type=float, default=8.0,
                    help="px: act only where the candidates differ by at most this (0 = any)")
     p.add_argument("--max-confidence", type=float, default=0.9,
-                   help="act only where the network's confidence is below this (0 = anywhere)")
+                   help="act only on cells whose mean confidence is below this (0 = any cell)")
     p.add_argument("--lidar", choices=("projected", "gt"), default="projected",
                    help="things frames' LiDAR: projected from the right view (default) or "
                         "exact GT rows")

@@ -246,5 +246,5 @@ class LidarSelect:
         chosen = cv2.resize(chosen.reshape(hc, wc), (wc * CELL_PX, hc * CELL_PX),
                             interpolation=cv2.INTER_NEAREST)[:h, :w]
         replace = chosen > 0
-        return np.where(replace, chosen, disparity).astype(np.float32), \
+        return np.where(replace, chosen, disparity).astype(np.float32, copy=False), \
             int(np.count_nonzero(replace))
