@@ -23,6 +23,7 @@ Pure numpy + OpenCV (robot side, no torch).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 import cv2
 import numpy as np
@@ -209,22 +210,28 @@ class LidarSelect:
                     max_confidence=None if np.isinf(self.max_confidence)
                     else float(self.max_confidence))
 
+    @cached_property
+    def _folded(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """(w1, b1, w2 as a column) with the standardisation folded into the first layer,
+        float32 and contiguous: computed once, not per frame."""
+        w1 = np.ascontiguousarray(self.w1 / self.std[:, None], np.float32)
+        b1 = (self.b1 - (self.mean / self.std) @ self.w1).astype(np.float32)
+        return w1, b1, np.ascontiguousarray(self.w2.reshape(-1, 1), np.float32)
+
     def logit(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth (the
         standardisation folded into the first layer: one matmul)."""
         if not len(features):
             return np.zeros(0, np.float32)
-        w1 = self.w1 / self.std[:, None]
-        b1 = self.b1 - (self.mean / self.std) @ self.w1
+        w1, b1, w2 = self._folded
         # OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and, on a
         # 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 → 23
         # ms in tools/bench.py while the stage ran; docs/experiments.md, session 18)
         features = np.ascontiguousarray(features, np.float32)
-        hidden = cv2.gemm(features, np.ascontiguousarray(w1, np.float32), 1.0, None, 0.0)
+        hidden = cv2.gemm(features, w1, 1.0, None, 0.0)
         hidden += b1
         np.maximum(hidden, 0.0, out=hidden)
-        return cv2.gemm(hidden, self.w2.reshape(-1, 1).astype(np.float32), 1.0, None,
-                        0.0)[:, 0] + np.float32(self.b2)
+        return cv2.gemm(hidden, w2, 1.0, None, 0.0)[:, 0] + np.float32(self.b2)
 
     def probability(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) probability that the LiDAR candidate is nearer the truth."""
