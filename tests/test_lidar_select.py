@@ -52,7 +52,7 @@ def test_selection_takes_the_lidar_where_the_images_agree_with_it():
     disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
     disparity[30:60, 40:100] = TRUE_DISPARITY + 6  # the network is wrong here
     confidence = np.full((H, W), 0.5, np.float32)
-    out, replaced = cost_chooser().apply(left, right, disparity, confidence,
+    out, _, replaced = cost_chooser().apply(left, right, disparity, confidence,
                                          lidar_rows(TRUE_DISPARITY))
     assert replaced == 30 * 60  # exactly the wrong block: elsewhere both candidates agree
     np.testing.assert_array_equal(out, TRUE_DISPARITY)
@@ -62,7 +62,7 @@ def test_selection_takes_the_lidar_where_the_images_agree_with_it():
 def test_selection_keeps_the_network_where_the_lidar_is_wrong():
     left, right = textured_pair()
     disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
-    out, replaced = cost_chooser().apply(left, right, disparity, np.ones((H, W), np.float32),
+    out, _, replaced = cost_chooser().apply(left, right, disparity, np.ones((H, W), np.float32),
                                          lidar_rows(TRUE_DISPARITY - 5))
     # only in the left border's strip, where the network's value reads the right image
     # outside its border and so costs the most (one cell further: the 3×3-cell window)
@@ -76,7 +76,7 @@ def test_without_lidar_the_disparity_comes_back_unchanged():
     sparse = np.full((H, W), np.nan, np.float32)  # non-finite counts as no point
     features, pixels, _ = selection_features(left, right, disparity, disparity, sparse)
     assert features.shape == (0, len(FEATURES)) and not len(pixels)
-    out, replaced = cost_chooser().apply(left, right, disparity, disparity, sparse)
+    out, _, replaced = cost_chooser().apply(left, right, disparity, disparity, sparse)
     assert replaced == 0 and out is disparity
 
 
@@ -125,7 +125,7 @@ def test_selection_runs_on_an_odd_sized_frame():
     disparity = np.full((95, 159), TRUE_DISPARITY, np.float32)
     disparity[31:61, 41:101] = TRUE_DISPARITY + 6
     sparse = lidar_rows(TRUE_DISPARITY)[:95, :159]
-    out, replaced = cost_chooser().apply(left, right, disparity,
+    out, _, replaced = cost_chooser().apply(left, right, disparity,
                                          np.zeros_like(disparity), sparse)
     assert out.shape == (95, 159)
     # the odd block is covered by whole cells: rows 30-61, columns 40-101
@@ -186,7 +186,7 @@ def test_the_fitting_tool_scores_a_choice_exactly_as_the_engine_applies_it():
     sparse = lidar_rows(TRUE_DISPARITY + 0.5)
     confidence = np.zeros((H, W), np.float32)
     row = frame_row("rig", left, right, disparity, confidence, sparse, gt)
-    out, _ = cost_chooser().apply(left, right, disparity, confidence, sparse)
+    out, _, _ = cost_chooser().apply(left, right, disparity, confidence, sparse)
     known = gt > 0
     err = np.abs(out - gt)[known]
     epe, bad3 = score([row], cost_chooser())
@@ -204,7 +204,7 @@ def test_a_disagreement_cap_keeps_the_network_where_the_lidar_is_too_far_off():
     capped = LidarSelect(**{**cost_chooser().__dict__, "max_disagreement_px": 4.0})
     _, cells, _ = selection_features(left, right, disparity, disparity, sparse, 4.0)
     assert len(cells) * CELL_PX**2 == 20 * 60  # only the 2-px block
-    out, replaced = capped.apply(left, right, disparity, np.zeros((H, W), np.float32), sparse)
+    out, _, replaced = capped.apply(left, right, disparity, np.zeros((H, W), np.float32), sparse)
     assert replaced == 20 * 60
     assert np.all(out[70:90, 40:100] == TRUE_DISPARITY)
     assert np.all(out[30:60, 40:100] == TRUE_DISPARITY + 6)
@@ -222,9 +222,90 @@ def test_a_confidence_gate_keeps_the_network_where_it_is_confident():
     confidence = np.full((H, W), 0.5, np.float32)
     confidence[30:60, 40:70] = 0.95  # the left half of the wrong block is (wrongly) sure
     gated = LidarSelect(**{**cost_chooser().__dict__, "max_confidence": 0.9})
-    out, replaced = gated.apply(left, right, disparity, confidence, lidar_rows(TRUE_DISPARITY))
+    out, _, replaced = gated.apply(left, right, disparity, confidence, lidar_rows(TRUE_DISPARITY))
     assert replaced == 30 * 30
     assert np.all(out[30:60, 70:100] == TRUE_DISPARITY)
     assert np.all(out[30:60, 40:70] == TRUE_DISPARITY + 6)
     assert LidarSelect.from_meta(gated.to_meta()).max_confidence == pytest.approx(0.9)
     assert np.isinf(LidarSelect.from_meta(cost_chooser().to_meta()).max_confidence)
+
+
+def test_spatial_cues_see_the_networks_edge_and_the_points_zones():
+    left, right = textured_pair()
+    disparity = np.full((H, W), TRUE_DISPARITY + 4, np.float32)
+    disparity[:, 80:] = TRUE_DISPARITY + 14  # the network's edge: between cell columns 39 | 40
+    sparse = lidar_rows(TRUE_DISPARITY)
+    sparse[:, 80:][sparse[:, 80:] > 0] = TRUE_DISPARITY + 2  # the points' zones: the same place
+    features, cells, _ = selection_features(left, right, disparity,
+                                            np.full((H, W), 0.25, np.float32), sparse)
+    hc, wc = cell_shape((H, W))
+    np.testing.assert_array_equal(cells, np.arange(hc * wc))
+    col = {name: features[:, i].reshape(hc, wc) for i, name in enumerate(FEATURES)}
+    net3, net7 = np.expm1(col["log_net_range3"]), np.expm1(col["log_net_range7"])
+    np.testing.assert_allclose(net3[:, 39:41], 10.0, rtol=1e-5)
+    assert np.all(net3[:, :38] == 0) and np.all(net3[:, 42:] == 0)
+    np.testing.assert_allclose(net7[:, 37:43], 10.0, rtol=1e-5)  # 3 cells either side
+    assert np.all(net7[:, :36] == 0) and np.all(net7[:, 44:] == 0)
+    lid3, lid7 = np.expm1(col["log_lidar_range3"]), np.expm1(col["log_lidar_range7"])
+    np.testing.assert_allclose(lid3[:, 39:41], 2.0, rtol=1e-5)
+    assert np.all(lid3[:, :38] == 0) and np.all(lid7[:, 44:] == 0)
+    # points every 12 px = 6 cells down: cell row 2's is row 0, row 4's row 6, row 47's row 42
+    rows = col["rows_to_point"][:, 10]
+    np.testing.assert_allclose(rows[[0, 2, 4, 47]], np.tanh(np.array([0, 2, -2, 5]) / 4.0),
+                               rtol=1e-6)
+    assert np.all(col["log_grey_step_to_point"][::6] == 0)  # a point's own cell
+    assert col["log_grey_step_to_point"][1::6].mean() > 1  # a textured neighbour's grey differs
+    assert col["log_grey_range5"].min() > 0
+
+
+def test_replaced_pixels_get_the_calibrated_confidence_and_the_rest_keep_the_networks():
+    left, right = textured_pair()
+    disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
+    disparity[30:60, 40:100] = TRUE_DISPARITY + 6
+    confidence = np.full((H, W), 0.3, np.float32)
+    chooser = cost_chooser()
+    calibrated = LidarSelect(**{**chooser.__dict__, "confidence_scale": 0.001,
+                                "confidence_bias": -1.0})
+    features, cells, _ = selection_features(left, right, disparity, confidence,
+                                            lidar_rows(TRUE_DISPARITY))
+    logits = chooser.logit(features)
+    out, trust, replaced = calibrated.apply(left, right, disparity, confidence,
+                                            lidar_rows(TRUE_DISPARITY))
+    assert replaced == 30 * 60 and np.all(out == TRUE_DISPARITY)
+    # each replaced cell: sigmoid(0.001 · its logit − 1); the cells' logits differ
+    hc, wc = cell_shape((H, W))
+    per_cell = np.zeros(hc * wc, np.float32)
+    per_cell[cells] = 1 / (1 + np.exp(-(0.001 * logits - 1.0)))
+    expected = np.repeat(np.repeat(per_cell.reshape(hc, wc), 2, 0), 2, 1)[30:60, 40:100]
+    np.testing.assert_allclose(trust[30:60, 40:100], expected, rtol=1e-5)
+    assert trust[30:60, 40:100].std() > 0.01
+    trust[30:60, 40:100] = 0.3
+    assert np.all(trust == 0.3)  # the network's elsewhere
+    _, unchanged, _ = chooser.apply(left, right, disparity, confidence,
+                                    lidar_rows(TRUE_DISPARITY))
+    assert unchanged is confidence  # no calibration (bundles before it): the network's
+    again = LidarSelect.from_meta(calibrated.to_meta())
+    assert (again.confidence_scale, again.confidence_bias) == (0.001, -1.0)
+    assert LidarSelect.from_meta(chooser.to_meta()).confidence_scale is None
+    with pytest.raises(ConfigError, match="lidar_select"):
+        LidarSelect.from_meta({**calibrated.to_meta(), "confidence": {"scale": "x", "bias": 1}})
+
+
+def test_the_confidence_fit_recovers_a_known_calibration():
+    from edge_depth.tools.fit_select import chosen_cells, fit_confidence
+
+    rng = np.random.default_rng(3)
+    chooser = cost_chooser()  # logit = 100 · relu(cost5 difference) − 10
+    rows = []
+    for _ in range(3):
+        x = np.zeros((20000, len(FEATURES)), np.float32)
+        x[:, 0] = rng.uniform(0, 0.3, len(x))
+        z = chooser.logit(x)
+        pixels = np.full(len(x), 4)
+        within1 = rng.binomial(4, 1 / (1 + np.exp(-(0.1 * z - 0.5))))
+        rows.append(dict(features=x, pixels=pixels, within1=within1.astype(float)))
+    scale, bias = fit_confidence(rows, chooser)
+    assert scale == pytest.approx(0.1, abs=0.01) and bias == pytest.approx(-0.5, abs=0.1)
+    z, n, k = chosen_cells(rows, chooser)
+    assert np.all(z > 0) and len(z) == sum(int((chooser.logit(r["features"]) > 0).sum())
+                                           for r in rows)

@@ -7,10 +7,14 @@ the edge. Neither the image nor a matching cost alone says which (`docs/experime
 "Analysis" and session 17); this stage learns it from both: the photometric cost of each
 candidate (3×3 and 5×5 windows at half resolution: 6 and 10 px), how far they disagree and in
 which direction, the network's confidence, the distance to the LiDAR point, the image
-gradient and the point's own residual. The scorer (a 2-layer perceptron, ~400 weights) is
-fitted on the bundle's own int8 outputs over training frames by `tools/fit_select.py` and
-stored in the bundle's `model.json` under `lidar_select`; bundles without that key run
-without the stage.
+gradient and the point's own residual; and, for spatial context (session 20), whether the cell
+lies at an edge of the network's disparity or between two points' zones (their local ranges),
+the grey step from the cell to its point's cell and the point's row offset. The scorer (a
+2-layer perceptron, ~600 weights) is fitted on the bundle's own int8 outputs over training
+frames by `tools/fit_select.py` and stored in the bundle's `model.json` under
+`lidar_select`; bundles without that key run without the stage. The pixels it replaces get
+a confidence of their own (the fitted share of such pixels within 1 px, from the scorer's
+logit), not the network's, which was low there by construction.
 
 Everything runs on 2×2 cells (half resolution) and only where the network's confidence is
 below the fitted gate: at full resolution the stage cost 25–30 ms a frame on a 2-core robot,
@@ -34,7 +38,9 @@ from edge_depth.selfcheck import warp_right_to_left
 
 FEATURES = ("cost5_net_minus_lidar", "cost9_net_minus_lidar", "log_cost5_net",
             "log_cost5_lidar", "log_disagreement", "lidar_minus_net", "confidence",
-            "log_distance_to_lidar", "log_gradient", "log_point_residual")
+            "log_distance_to_lidar", "log_gradient", "log_point_residual",
+            "log_grey_step_to_point", "log_net_range3", "log_net_range7",
+            "log_lidar_range3", "log_lidar_range7", "log_grey_range5", "rows_to_point")
 CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
 MIN_DISAGREEMENT_PX = 0.5  # below this the two candidates are the same value
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
@@ -49,6 +55,12 @@ def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     out_of_view = np.arange(left.shape[1], dtype=np.float32)[None, :] < disparity
     error[out_of_view] = OUT_OF_VIEW_COST
     return [cv2.blur(error, (k, k)) for k in windows]
+
+
+def local_range(image: np.ndarray, size: int) -> np.ndarray:
+    """max − min over each size × size neighbourhood, per channel (float32 in, same out)."""
+    kernel = np.ones((size, size), np.uint8)
+    return cv2.dilate(image, kernel) - cv2.erode(image, kernel)
 
 
 def cell_shape(shape: tuple[int, int]) -> tuple[int, int]:
@@ -106,7 +118,11 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     (features (N, len(FEATURES)) float32, cells (N,) their flat indices over `cell_shape`,
     lidar (N,) float32 the nearest LiDAR point's disparity there). The point's residual is
     how far the network's own value at the LiDAR point's cell is from the point: large where
-    the point leaked through an occlusion or the network is wrong there too."""
+    the point leaked through an occlusion or the network is wrong there too. The local ranges
+(max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map say
+whether the cell sits at an edge of either: without them the scorer could not tell a network
+that missed an edge from a LiDAR point across one, and a cap of 8 px on the disagreement had
+to keep the large ones out (docs/experiments.md, session 20)."""
     empty = (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
              np.zeros(0, np.float32))
     lidar_cells = cell_lidar(sparse)
@@ -118,7 +134,8 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     points = lidar_cells[valid]
     residual = points - net[valid]
     index = index.ravel()
-    signed = points[index] - net.ravel()
+    nearest = points[index]  # each cell's nearest point's value
+    signed = nearest - net.ravel()
     gap = np.abs(signed)
     trust = cell_mean(confidence).ravel()
     candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px) & \
@@ -130,6 +147,12 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     lidar = points[point]
     signed = signed[cells]
     grey_l, grey_r = cell_mean(left), cell_mean(right)
+    wc = net.shape[1]
+    point_cell = np.flatnonzero(valid.ravel())[point]
+    # the two disparity maps' local ranges in one pass each (2 channels)
+    both = cv2.merge([net, nearest.reshape(net.shape)])
+    range3 = local_range(both, 3).reshape(-1, 2)[cells]
+    range7 = local_range(both, 7).reshape(-1, 2)[cells]
     lidar_map = net.copy()
     lidar_map.ravel()[cells] = lidar  # where they agree the cost is not used
     # disparities in cell units for the warp; windows 3 and 5 cells ≈ 5 and 9 pixels
@@ -142,8 +165,17 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
                np.log1p(np.abs(signed)), np.tanh(signed / 8.0),
                trust[cells],
                np.log1p(CELL_PX * distance.ravel()[cells]), np.log1p(gradient),
-               np.log1p(np.abs(residual[point])))
-    return np.stack(columns, axis=1).astype(np.float32), cells, lidar
+               np.log1p(np.abs(residual[point])),
+               np.log1p(np.abs(grey_l.ravel()[cells] - grey_l.ravel()[point_cell])),
+               np.log1p(range3[:, 0]), np.log1p(range7[:, 0]),
+               np.log1p(range3[:, 1]), np.log1p(range7[:, 1]),
+               np.log1p(local_range(grey_l, 5).ravel()[cells]),
+               np.tanh((cells // wc - point_cell // wc) / 4.0))
+    # each column written once into the float32 result: np.stack + astype took 1.4 ms a frame
+    out = np.empty((len(cells), len(FEATURES)), np.float32)
+    for i, column in enumerate(columns):
+        out[:, i] = column
+    return out, cells, lidar
 
 
 def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -164,7 +196,10 @@ class LidarSelect:
     """The fitted scorer: standardise, ReLU layer, one logit; p(LiDAR is nearer the truth).
     mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar; max_disagreement_px: cells where
     the candidates differ by more keep the network's values; max_confidence: so do cells
-    where the network's mean confidence is at least this."""
+    where the network's mean confidence is at least this. confidence_scale/bias: a chosen
+    cell's pixels get the confidence sigmoid(scale · logit + bias), fitted as the share of
+    such pixels within 1 px of the truth (the network's confidence means the same); None
+    (bundles fitted before session 20) keeps the network's confidence there."""
 
     mean: np.ndarray
     std: np.ndarray
@@ -174,6 +209,8 @@ class LidarSelect:
     b2: float
     max_disagreement_px: float = np.inf
     max_confidence: float = np.inf
+    confidence_scale: float | None = None
+    confidence_bias: float | None = None
 
     @classmethod
     def from_meta(cls, entry: dict) -> LidarSelect:
@@ -187,14 +224,19 @@ class LidarSelect:
             arrays = {k: np.asarray(entry[k], np.float32) for k in ("mean", "std", "w1",
                                                                      "b1", "w2")}
             cap, gate = entry.get("max_disagreement_px"), entry.get("max_confidence")
+            calibration = entry.get("confidence")
+            scale, bias = (None, None) if calibration is None else \
+                (float(calibration["scale"]), float(calibration["bias"]))
             out = cls(b2=float(entry["b2"]), **arrays,
                       max_disagreement_px=np.inf if cap is None else float(cap),
-                      max_confidence=np.inf if gate is None else float(gate))
+                      max_confidence=np.inf if gate is None else float(gate),
+                      confidence_scale=scale, confidence_bias=bias)
             f, k = len(FEATURES), out.b1.shape[0]
             if out.mean.shape != (f,) or out.std.shape != (f,) or out.w1.shape != (f, k) \
                     or out.w2.shape != (k,) or not np.all(out.std > 0) \
                     or not out.max_disagreement_px > MIN_DISAGREEMENT_PX \
-                    or not out.max_confidence > 0:
+                    or not out.max_confidence > 0 \
+                    or (scale is not None and not (np.isfinite(scale) and np.isfinite(bias))):
                 raise ValueError("shapes or scales do not match")
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError("bundle", "model.json's lidar_select as tools/fit_select.py "
@@ -208,7 +250,10 @@ class LidarSelect:
                     max_disagreement_px=None if np.isinf(self.max_disagreement_px)
                     else float(self.max_disagreement_px),
                     max_confidence=None if np.isinf(self.max_confidence)
-                    else float(self.max_confidence))
+                    else float(self.max_confidence),
+                    confidence=None if self.confidence_scale is None
+                    else dict(scale=float(self.confidence_scale),
+                              bias=float(self.confidence_bias)))
 
     @cached_property
     def _folded(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -226,7 +271,8 @@ class LidarSelect:
         w1, b1, w2 = self._folded
         # OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and, on a
         # 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 → 23
-        # ms in tools/bench.py while the stage ran; docs/experiments.md, session 18)
+        # ms in tools/bench.py while the stage ran; docs/experiments.md, session 18); and
+        # (N, F) · (F, K): its feature-major transpose took 3 ms, not 0.7 (session 20)
         features = np.ascontiguousarray(features, np.float32)
         hidden = cv2.gemm(features, w1, 1.0, None, 0.0)
         hidden += b1
@@ -237,21 +283,35 @@ class LidarSelect:
         """(N, F) → (N,) probability that the LiDAR candidate is nearer the truth."""
         return 1.0 / (1.0 + np.exp(-self.logit(features)))
 
+    def chosen_confidence(self, logits: np.ndarray) -> np.ndarray | None:
+        """The confidence of cells whose LiDAR value was taken, from their logits (None
+        without a fitted calibration)."""
+        if self.confidence_scale is None:
+            return None
+        z = self.confidence_scale * np.asarray(logits, np.float32) + self.confidence_bias
+        return (1.0 / (1.0 + np.exp(-z))).astype(np.float32)
+
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-              confidence: np.ndarray, sparse: np.ndarray) -> tuple[np.ndarray, int]:
-        """(disparity (H, W) with the chosen cells' pixels replaced, how many pixels were)."""
+              confidence: np.ndarray, sparse: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray, int]:
+        """(disparity (H, W) with the chosen cells' pixels replaced, the confidence with
+        theirs replaced by `chosen_confidence` (when fitted), how many pixels were)."""
         features, cells, lidar = selection_features(left, right, disparity, confidence,
                                                     sparse, self.max_disagreement_px,
                                                     self.max_confidence)
         if not len(features):
-            return disparity, 0
-        take = self.logit(features) > 0  # p > 0.5
-        h, w = disparity.shape
-        hc, wc = cell_shape((h, w))
-        chosen = np.zeros(hc * wc, np.float32)  # the LiDAR value where taken (always > 0)
-        chosen[cells[take]] = lidar[take]
-        chosen = cv2.resize(chosen.reshape(hc, wc), (wc * CELL_PX, hc * CELL_PX),
-                            interpolation=cv2.INTER_NEAREST)[:h, :w]
-        replace = chosen > 0
-        return np.where(replace, chosen, disparity).astype(np.float32, copy=False), \
-            int(np.count_nonzero(replace))
+            return disparity, confidence, 0
+        logits = self.logit(features)
+        take = logits > 0  # p > 0.5
+        if not take.any():
+            return disparity, confidence, 0
+        # only the chosen cells' pixels are written (a copy, then a scatter): a full-frame
+        # resize and np.where per output cost ~1.5 ms
+        pixels, owner = cell_pixels(cells[take], disparity.shape)
+        disparity = disparity.astype(np.float32, copy=True)
+        disparity.ravel()[pixels] = lidar[take][owner]
+        trust = self.chosen_confidence(logits[take])
+        if trust is not None:
+            confidence = confidence.astype(np.float32, copy=True)
+            confidence.ravel()[pixels] = trust[owner]
+        return disparity, confidence, len(pixels)
