@@ -289,6 +289,11 @@ def test_replaced_pixels_get_the_calibrated_confidence_and_the_rest_keep_the_net
     assert LidarSelect.from_meta(chooser.to_meta()).confidence_scale is None
     with pytest.raises(ConfigError, match="lidar_select"):
         LidarSelect.from_meta({**calibrated.to_meta(), "confidence": {"scale": "x", "bias": 1}})
+    # a bundle fitted before the spatial cues: says so and how to go on
+    older = {**chooser.to_meta(), "features": list(FEATURES[:10])}
+    with pytest.raises(ConfigError, match=r"older feature set \(10 features; this engine "
+                       r"computes 17\): refit.*lidar_select = false"):
+        LidarSelect.from_meta(older)
 
 
 def test_the_confidence_fit_recovers_a_known_calibration():

@@ -217,7 +217,12 @@ class LidarSelect:
         """From model.json's `lidar_select` (ConfigError naming what is wrong)."""
         try:
             if list(entry["features"]) != list(FEATURES):
-                raise ValueError(f"features {entry['features']} are not {list(FEATURES)}")
+                fitted = list(entry["features"])
+                which = "an older" if fitted == list(FEATURES[:len(fitted)]) else "another"
+                raise ValueError(f"fitted on {which} feature set ({len(fitted)} features; "
+                                 f"this engine computes {len(FEATURES)}): refit it with "
+                                 "`python tools/fit_select.py BUNDLE --data THINGS_DIR`, or "
+                                 "run without it (`[engine] lidar_select = false`)")
             if entry.get("cell_px") != CELL_PX:
                 raise ValueError(f"fitted on {entry.get('cell_px', 1)}-pixel cells, not "
                                  f"{CELL_PX} (refit with tools/fit_select.py)")
