@@ -249,6 +249,8 @@ class Pipeline:
         timings = dict(result.timings_ms, **p.timings, engine_queue=p.queued_ms,
                        log=(t4 - t3) * 1000, log_raw=raw_ms, frame=(t4 - p.t0) * 1000,
                        iterations=result.iterations)
+        if result.selected_px is not None:  # the share the LiDAR selection replaced
+            timings["replaced_pct"] = 100.0 * result.selected_px / result.disparity.size
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -283,8 +285,23 @@ def lidar_summary(pipeline: Pipeline) -> str:
     return line
 
 
+NOT_LATENCY = ("iterations", "replaced_pct")  # per-frame values in the timings that are not ms
+
+
+def selection_summary(timings: list[dict]) -> str | None:
+    """The closing line about the LiDAR selection: the share of each frame's pixels it
+    replaced (None when the engine ran none)."""
+    shares = [t["replaced_pct"] for t in timings if "replaced_pct" in t]
+    if not shares:
+        return None
+    none = sum(1 for s in shares if s == 0)
+    return (f"LiDAR selection: replaced a median {np.median(shares):.1f} % of each frame's "
+            f"pixels (p95 {np.percentile(shares, 95):.1f} %; none in {none} of {len(shares)} "
+            "frames)")
+
+
 def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
-    keys = [k for k in timings[0] if k != "iterations"] if timings else []
+    keys = [k for k in timings[0] if k not in NOT_LATENCY] if timings else []
     return {k: dict(median=float(np.median([t[k] for t in timings])),
                     p95=float(np.percentile([t[k] for t in timings], 95))) for k in keys}
 

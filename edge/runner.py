@@ -222,7 +222,9 @@ class Runner:
                 errors=dict(stats.errors), lidar_sync=pipeline.sync.counters(),
                 sources=self._source_counters(),
                 latency_ms=summarise(window) if window else {},
-                iterations=[t["iterations"] for t in window]))
+                iterations=[t["iterations"] for t in window],
+                lidar_select_replaced_pct=[round(t["replaced_pct"], 2) for t in window
+                                           if "replaced_pct" in t]))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

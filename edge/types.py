@@ -117,6 +117,8 @@ class DepthResult:
     valid: (H, W) bool. iterations: GRU update steps actually run.
     timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
     the model's estimate that the disparity is within 1 px (None when the model has none).
+    selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
+    ran no selection).
     """
 
     stamp_ns: int
@@ -126,6 +128,7 @@ class DepthResult:
     iterations: int
     timings_ms: dict[str, float] = field(default_factory=dict)
     confidence: np.ndarray | None = None
+    selected_px: int | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

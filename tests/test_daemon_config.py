@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import socket
 
 import numpy as np
@@ -99,6 +100,10 @@ def test_run_on_the_virtual_robot_logs_results_and_diagnostics(tmp_path, capsys)
     assert main(["run", "--config", str(cfg), "--max-frames", "3"]) == 0
     text = capsys.readouterr().out
     assert "3 frames" in text and "errors none" in text
+    # the shipped bundle's LiDAR selection says how much it replaced
+    share = re.search(r"LiDAR selection: replaced a median ([0-9.]+) % of each frame's "
+                      r"pixels \(p95 ([0-9.]+) %; none in 0 of 3 frames\)", text)
+    assert share and 0 < float(share[1]) <= float(share[2]) < 50
     counts = topic_counts(out)
     assert counts[TOPICS["disparity"]] == 3 and counts[TOPICS["depth"]] == 3
     assert counts[TOPICS["left"]] == 3 and counts[TOPICS["lidar"]] >= 3

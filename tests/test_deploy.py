@@ -444,7 +444,9 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     np.testing.assert_array_equal(after.disparity[differ], nearest[differ])
     np.testing.assert_allclose(after.disparity[~differ], before.disparity[~differ], atol=1e-4)
     assert after.timings_ms["select"] > 0 and "select" not in before.timings_ms
+    assert after.selected_px == int(differ.sum()) and before.selected_px is None
     stereo_only = chosen.infer(left, right, np.zeros_like(sparse), iters=2)
     np.testing.assert_allclose(stereo_only.disparity,
                                plain.infer(left, right, np.zeros_like(sparse),
                                            iters=2).disparity, atol=1e-4)
+    assert stereo_only.selected_px == 0

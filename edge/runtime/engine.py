@@ -190,9 +190,10 @@ class Engine:
             # bundles since stage 11 return it at the refinement's 1/4 resolution
             confidence = cv2.resize(confidence, disp.shape[::-1],
                                     interpolation=cv2.INTER_LINEAR)
+        selected = None
         if self.select is not None and confidence is not None:
             t = time.perf_counter()
-            disp, confidence, _ = self.select.apply(buf["left"][0, 0], buf["right"][0, 0],
+            disp, confidence, selected = self.select.apply(buf["left"][0, 0], buf["right"][0, 0],
                                                     disp, confidence, buf["sparse"][0, 0])
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
@@ -207,7 +208,8 @@ class Engine:
         # preparation), which made this include rectification and projection before
         timings["engine"] = (time.perf_counter() - t_engine) * 1000
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
-                           iterations=len(step_ms), timings_ms=timings, confidence=confidence)
+                           iterations=len(step_ms), timings_ms=timings, confidence=confidence,
+                           selected_px=selected)
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
