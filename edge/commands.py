@@ -76,8 +76,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
     print(lidar_summary(pipeline))
-    if selection_summary(stats.timings):
-        print(selection_summary(stats.timings))
+    if selected := selection_summary(stats.timings):
+        print(selected)
     if source.stats.errors:
         print(f"messages skipped while reading: {sum(source.stats.errors.values())} "
               f"{dict(source.stats.errors)}")
@@ -258,8 +258,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
           f"dropped, errors {dict(stats.errors) or 'none'}")
     print(lidar_summary(pipeline))
-    if selection_summary(stats.timings):
-        print(selection_summary(stats.timings))
+    if selected := selection_summary(stats.timings):
+        print(selected)
     if lat:
         fps = stats.throughput()
         print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s"

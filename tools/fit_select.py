@@ -265,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
     scale, bias = fit_confidence(fit_rows, select)
     z, n, k = chosen_cells(hold_rows, select)
     if len(z):
-        predicted = float((n / (1.0 + np.exp(-(scale * z + bias)))).sum() / n.sum())
+        trust = replace(select, confidence_scale=scale, confidence_bias=bias).chosen_confidence(z)
+        predicted = float((n * trust).sum() / n.sum())
         heldout["chosen_within_1px"] = dict(predicted=predicted, measured=float(k.sum() / n.sum()),
                                             pixels=int(n.sum()))
         print(f"held-out chosen pixels ({int(n.sum())}): within 1 px {k.sum() / n.sum():.3f}, "

@@ -193,8 +193,8 @@ class Engine:
         selected = None
         if self.select is not None and confidence is not None:
             t = time.perf_counter()
-            disp, confidence, selected = self.select.apply(buf["left"][0, 0], buf["right"][0, 0],
-                                                    disp, confidence, buf["sparse"][0, 0])
+            disp, confidence, selected = self.select.apply(
+                buf["left"][0, 0], buf["right"][0, 0], disp, confidence, buf["sparse"][0, 0])
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
         # what follows the last step, for the deadline's prediction

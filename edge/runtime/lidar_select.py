@@ -119,10 +119,10 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     lidar (N,) float32 the nearest LiDAR point's disparity there). The point's residual is
     how far the network's own value at the LiDAR point's cell is from the point: large where
     the point leaked through an occlusion or the network is wrong there too. The local ranges
-(max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map say
-whether the cell sits at an edge of either: without them the scorer could not tell a network
-that missed an edge from a LiDAR point across one, and a cap of 8 px on the disagreement had
-to keep the large ones out (docs/experiments.md, session 20)."""
+    (max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map
+    say whether the cell sits at an edge of either: without them the scorer could not tell a
+    network that missed an edge from a LiDAR point across one, and a cap of 8 px on the
+    disagreement had to keep the large ones out (docs/experiments.md, session 20)."""
     empty = (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
              np.zeros(0, np.float32))
     lidar_cells = cell_lidar(sparse)
