@@ -288,10 +288,15 @@ def lidar_summary(pipeline: Pipeline) -> str:
 NOT_LATENCY = ("iterations", "replaced_pct")  # per-frame values in the timings that are not ms
 
 
+def replaced_shares(timings: list[dict]) -> list[float]:
+    """Per frame that ran the LiDAR selection, the % of its pixels it replaced."""
+    return [t["replaced_pct"] for t in timings if "replaced_pct" in t]
+
+
 def selection_summary(timings: list[dict]) -> str | None:
     """The closing line about the LiDAR selection: the share of each frame's pixels it
     replaced (None when the engine ran none)."""
-    shares = [t["replaced_pct"] for t in timings if "replaced_pct" in t]
+    shares = replaced_shares(timings)
     if not shares:
         return None
     none = sum(1 for s in shares if s == 0)

@@ -24,7 +24,13 @@ from collections import deque
 import numpy as np
 
 from edge_depth.calibration.errors import CalibrationError
-from edge_depth.daemon import FatalInputError, Pipeline, PipelineStats, summarise
+from edge_depth.daemon import (
+    FatalInputError,
+    Pipeline,
+    PipelineStats,
+    replaced_shares,
+    summarise,
+)
 from edge_depth.errors import EdgeError
 from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
@@ -223,8 +229,7 @@ class Runner:
                 sources=self._source_counters(),
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window],
-                lidar_select_replaced_pct=[round(t["replaced_pct"], 2) for t in window
-                                           if "replaced_pct" in t]))
+                lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)]))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:
