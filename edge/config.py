@@ -39,6 +39,8 @@
                                 # one (README "Speed")
     lidar_select = true         # the bundle's per-2×2-cell choice between the network and
                                 # the nearest LiDAR point (if it has one; README)
+    edge_select = true          # on frames without LiDAR points, the bundle's per-cell
+                                # choice of an edge's near or far side (if it has one)
 
     [log]
     out = "logs/depth.mcap"
@@ -115,6 +117,7 @@ class EngineConfig:
     bf16: str = "auto"
     pipelined: bool = False
     lidar_select: bool = True
+    edge_select: bool = True
 
     @property
     def bf16_choice(self) -> bool | None:

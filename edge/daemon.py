@@ -251,6 +251,8 @@ class Pipeline:
                        iterations=result.iterations)
         if result.selected_px is not None:  # the share the LiDAR selection replaced
             timings["replaced_pct"] = 100.0 * result.selected_px / result.disparity.size
+        if result.edge_px is not None:  # the share the edge selection (no LiDAR) replaced
+            timings["edge_replaced_pct"] = 100.0 * result.edge_px / result.disparity.size
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -285,30 +287,41 @@ def lidar_summary(pipeline: Pipeline) -> str:
     return line
 
 
-NOT_LATENCY = ("iterations", "replaced_pct")  # per-frame values in the timings that are not ms
+# per-frame values in the timings that are not ms
+NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct")
+# the selections' per-frame shares: timings key -> the closing line's name
+SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)"}
 
 
-def replaced_shares(timings: list[dict]) -> list[float]:
-    """Per frame that ran the LiDAR selection, the % of its pixels it replaced."""
-    return [t["replaced_pct"] for t in timings if "replaced_pct" in t]
+def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
+    """Per frame that ran the selection (`key`: one of SELECTIONS; default the LiDAR one),
+    the % of its pixels it replaced."""
+    return [t[key] for t in timings if key in t]
 
 
 def selection_summary(timings: list[dict]) -> str | None:
-    """The closing line about the LiDAR selection: the share of each frame's pixels it
-    replaced (None when the engine ran none)."""
-    shares = replaced_shares(timings)
-    if not shares:
-        return None
-    none = sum(1 for s in shares if s == 0)
-    return (f"LiDAR selection: replaced a median {np.median(shares):.1f} % of each frame's "
-            f"pixels (p95 {np.percentile(shares, 95):.1f} %; none in {none} of {len(shares)} "
-            "frames)")
+    """The closing lines about the selections, one each: the share of each frame's pixels
+    it replaced (None when the engine ran none)."""
+    lines = []
+    for key, name in SELECTIONS.items():
+        shares = replaced_shares(timings, key)
+        if shares:
+            none = sum(1 for s in shares if s == 0)
+            lines.append(f"{name}: replaced a median {np.median(shares):.1f} % of each "
+                         f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
+                         f"{none} of {len(shares)} frames)")
+    return "\n".join(lines) or None
 
 
 def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
-    keys = [k for k in timings[0] if k not in NOT_LATENCY] if timings else []
-    return {k: dict(median=float(np.median([t[k] for t in timings])),
-                    p95=float(np.percentile([t[k] for t in timings], 95))) for k in keys}
+    """Median and p95 ms per stage, over the frames that ran it (the two selections run on
+    different frames)."""
+    keys = list(dict.fromkeys(k for t in timings for k in t if k not in NOT_LATENCY))
+    out = {}
+    for k in keys:
+        values = [t[k] for t in timings if k in t]
+        out[k] = dict(median=float(np.median(values)), p95=float(np.percentile(values, 95)))
+    return out
 
 
 def format_latency(summary: dict[str, dict[str, float]]) -> str:

@@ -115,7 +115,10 @@ JSON_SCHEMAS = {
         "drops": {"type": "integer"}, "errors": {"type": "object"},
         "lidar_sync": {"type": "object"}, "sources": {"type": "object"},
         "latency_ms": {"type": "object"}, "iterations": {"type": "array",
-                                                         "items": {"type": "integer"}}}},
+                                                         "items": {"type": "integer"}},
+        # per frame that ran it, the % of pixels each selection replaced
+        "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
+        "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}}}},
 }
 
 

@@ -229,7 +229,9 @@ class Runner:
                 sources=self._source_counters(),
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window],
-                lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)]))
+                lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)],
+                edge_select_replaced_pct=[round(s, 2) for s in
+                                          replaced_shares(window, "edge_replaced_pct")]))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

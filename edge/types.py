@@ -118,7 +118,8 @@ class DepthResult:
     timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
-    ran no selection).
+    ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
+    replaced by a side's value (None when it did not run).
     """
 
     stamp_ns: int
@@ -129,6 +130,7 @@ class DepthResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     confidence: np.ndarray | None = None
     selected_px: int | None = None
+    edge_px: int | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

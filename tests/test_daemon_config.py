@@ -414,3 +414,25 @@ def test_the_transform_tree_hangs_under_the_configured_parent(tmp_path, profile)
     q = base.rotation if profile == "foxglove" else base.transform.rotation
     assert (tr.x, tr.y, tr.z) == pytest.approx((0.1, 0.0, 0.3))
     assert (q.z, q.w) == pytest.approx((np.sqrt(0.5), np.sqrt(0.5)))  # 90 deg about z
+
+
+def test_the_two_selections_are_summed_up_each_over_its_own_frames():
+    from edge_depth.daemon import replaced_shares, selection_summary, summarise
+
+    # frames with LiDAR run the LiDAR selection, frames without it the edge selection
+    timings = [dict(engine=50.0, select=10.0, replaced_pct=2.0),
+               dict(engine=40.0, edge_select=6.0, edge_replaced_pct=5.0),
+               dict(engine=60.0, select=12.0, replaced_pct=0.0),
+               dict(engine=45.0, edge_select=8.0, edge_replaced_pct=7.0)]
+    lat = summarise(timings)
+    assert set(lat) == {"engine", "select", "edge_select"}  # the shares are not latencies
+    assert lat["select"]["median"] == 11.0 and lat["edge_select"]["median"] == 7.0
+    assert lat["engine"]["median"] == 47.5
+    assert replaced_shares(timings) == [2.0, 0.0]
+    assert replaced_shares(timings, "edge_replaced_pct") == [5.0, 7.0]
+    assert selection_summary(timings).splitlines() == [
+        "LiDAR selection: replaced a median 1.0 % of each frame's pixels (p95 1.9 %; none in 1 "
+        "of 2 frames)",
+        "Edge selection (no LiDAR): replaced a median 6.0 % of each frame's pixels (p95 6.9 %; "
+        "none in 0 of 2 frames)"]
+    assert selection_summary([dict(engine=1.0)]) is None

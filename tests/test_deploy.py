@@ -450,3 +450,51 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
                                plain.infer(left, right, np.zeros_like(sparse),
                                            iters=2).disparity, atol=1e-4)
     assert stereo_only.selected_px == 0
+
+
+def test_engine_runs_the_edge_selection_only_on_frames_without_lidar(small_bundle, tmp_path):
+    import shutil
+
+    from edge_depth.runtime.edge_select import FEATURES, EdgeSelect, side_values
+    from edge_depth.runtime.lidar_select import cell_mean
+
+    bundle = tmp_path / "bundle"
+    shutil.copytree(small_bundle[0], bundle)
+    f = len(FEATURES)
+    near = EdgeSelect(mean=np.zeros(f, np.float32), std=np.ones(f, np.float32),
+                      w1=np.zeros((f, 2), np.float32), b1=np.zeros(2, np.float32),
+                      w2=np.zeros((2, 3), np.float32), b2=np.array([0.0, 10.0, 0.0], np.float32),
+                      confidence_scale=0.0, confidence_bias=0.0)  # the near side, always
+    meta = json.loads((bundle / "model.json").read_text())
+    meta["edge_select"] = near.to_meta()
+    (bundle / "model.json").write_text(json.dumps(meta))
+    _, left, right, sparse = scene_inputs(5)
+    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_select=False)
+    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime")
+    assert plain.edge_select is None and chosen.edge_select is not None
+    stereo = np.zeros_like(sparse)
+    before, after = plain.infer(left, right, stereo, iters=2), chosen.infer(left, right, stereo,
+                                                                           iters=2)
+    # per 2×2 cell: the near side's value wherever it lies > 0.5 px above the cell's mean
+    net = cell_mean(before.disparity)
+    top, bottom = side_values(net, cell_mean(left), 3)[:2]
+    h, w = sparse.shape
+
+    def full(cells):
+        return np.repeat(np.repeat(cells, 2, axis=0), 2, axis=1)[:h, :w]
+
+    # clear of the 0.5 px boundary (read back through float32 log1p / expm1 in the stage)
+    # (a cell is a candidate where its sides, in quarter pixels, differ by more than 0.5)
+    sides = top - bottom > 0.5
+    differ, same = full((top - net > 0.55) & sides), full((top - net < 0.45) | ~sides)
+    top = full(top)
+    assert differ.mean() > 0.02
+    np.testing.assert_allclose(after.disparity[differ], top[differ], atol=1e-5)
+    np.testing.assert_allclose(after.disparity[same], before.disparity[same], atol=1e-4)
+    np.testing.assert_allclose(after.confidence[differ], 0.5)  # sigmoid(0 · margin + 0)
+    assert differ.sum() <= after.edge_px <= h * w - same.sum() and before.edge_px is None
+    assert after.timings_ms["edge_select"] > 0 and "edge_select" not in before.timings_ms
+    with_lidar = chosen.infer(left, right, sparse, iters=2)  # points: not this stage
+    assert with_lidar.edge_px is None and "edge_select" not in with_lidar.timings_ms
+    np.testing.assert_allclose(with_lidar.disparity,
+                               plain.infer(left, right, sparse, iters=2).disparity, atol=1e-4)

@@ -84,7 +84,7 @@ class BundleNet:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
-                             lidar_select=lidar_select)
+                             lidar_select=lidar_select, edge_select=lidar_select)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -191,7 +191,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
-                   help="a bundle without its LiDAR selection, if it has one")
+                   help="a bundle without its selections (LiDAR and edge), if it has them")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     args = p.parse_args(argv)

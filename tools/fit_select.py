@@ -187,6 +187,12 @@ def fit_confidence(rows: list[dict], select: LidarSelect) -> tuple[float, float]
     if not len(z):
         raise SystemExit("fit_select: the choice took no cell on the fitting frames; "
                          "nothing to calibrate its confidence on")
+    return logistic_share(z, n, k)
+
+
+def logistic_share(z: np.ndarray, n: np.ndarray, k: np.ndarray) -> tuple[float, float]:
+    """(scale, bias) maximising the likelihood of k of n pixels being right at each score z
+    under p = sigmoid(scale · z + bias): a two-parameter weighted logistic fit (Newton)."""
     x = np.stack([z.astype(np.float64), np.ones(len(z))], 1)
     theta = np.zeros(2)
     for _ in range(50):
@@ -214,13 +220,28 @@ def score(rows: list[dict], select: LidarSelect | None) -> tuple[float, float]:
     return float(np.mean(epe)), float(np.mean(bad3))
 
 
-def main(argv: list[str] | None = None) -> int:
-    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def report(label: str, rows: list[dict], score_fn, select) -> dict:
+    """Print and return EPE and bad-3 before → after the choice, over all frames and per
+    source (the mix can hide a loss on the rarer one). score_fn(rows, select or None) →
+    (EPE, bad-3 %)."""
+    out = {}
+    for source in ("all", "rig", "things"):
+        part = [r for r in rows if source in ("all", r["source"])]
+        if part:
+            before, after = score_fn(part, None), score_fn(part, select)
+            out[source] = dict(frames=len(part), epe=[before[0], after[0]],
+                               bad3=[before[1], after[1]])
+            print(f"{label} {source} ({len(part)} frames): EPE {before[0]:.4f} → "
+                  f"{after[0]:.4f} px, bad-3 {before[1]:.3f} → {after[1]:.3f} %")
+    return out
+
+
+def add_fit_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments this tool and `tools/fit_edge_select.py` share: the bundle, the frames,
+    the fit and the confidence gate."""
     p.add_argument("bundle", type=Path)
     p.add_argument("--data", type=Path, required=True,
                    help="things samples the network never trained on")
-    # defaults: the variant the held-out frames chose on stage 15's bundle (docs/experiments.md,
-    # sessions 18-20), the one the shipped bundle holds
     p.add_argument("--frames", type=int, default=300)
     p.add_argument("--rig-share", type=float, default=0.4)
     p.add_argument("--holdout", type=float, default=0.25)
@@ -229,10 +250,17 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--runtime", default="onnxruntime")
     p.add_argument("--threads", type=int, default=2)
-    p.add_argument("--max-disagreement", type=float, default=16.0,
-                   help="px: act only where the candidates differ by at most this (0 = any)")
     p.add_argument("--max-confidence", type=float, default=0.9,
                    help="act only on cells whose mean confidence is below this (0 = any cell)")
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    # defaults: the variant the held-out frames chose on stage 15's bundle (docs/experiments.md,
+    # sessions 18-20), the one the shipped bundle holds
+    add_fit_arguments(p)
+    p.add_argument("--max-disagreement", type=float, default=16.0,
+                   help="px: act only where the candidates differ by at most this (0 = any)")
     p.add_argument("--lidar", choices=("projected", "gt"), default="projected",
                    help="things frames' LiDAR: projected from the right view (default) or "
                         "exact GT rows")
@@ -253,15 +281,7 @@ def main(argv: list[str] | None = None) -> int:
     n_hold = max(1, int(round(len(rows) * args.holdout)))
     fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
     select = fit(fit_rows, args.hidden, args.steps, args.seed, cap, gate)
-    heldout = {}
-    for source in ("all", "rig", "things"):  # the mix can hide a loss on the rarer source
-        part = [r for r in hold_rows if source in ("all", r["source"])]
-        if part:
-            before, after = score(part, None), score(part, select)
-            heldout[source] = dict(frames=len(part), epe=[before[0], after[0]],
-                                   bad3=[before[1], after[1]])
-            print(f"held-out {source} ({len(part)} frames): EPE {before[0]:.3f} → "
-                  f"{after[0]:.3f} px, bad-3 {before[1]:.2f} → {after[1]:.2f} %")
+    heldout = report("held-out", hold_rows, score, select)
     scale, bias = fit_confidence(fit_rows, select)
     z, n, k = chosen_cells(hold_rows, select)
     if len(z):

@@ -19,6 +19,7 @@ import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
+from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.types import DepthResult
@@ -51,12 +52,13 @@ class Engine:
     camera's size (`edge.runtime.fit`). `runtime`: "auto" | "onnxruntime" | "openvino";
     `bf16` (OpenVINO only): run the graphs in `BF16_GRAPHS` in bf16; None = where the CPU
     has it natively. `lidar_select`: run the bundle's LiDAR selection
-    (`edge.runtime.lidar_select`) when it has one."""
+    (`edge.runtime.lidar_select`) when it has one; `edge_select`: on frames without LiDAR
+    points, its edge selection (`edge.runtime.edge_select`) when it has one."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
-                 lidar_select: bool = True) -> None:
+                 lidar_select: bool = True, edge_select: bool = True) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -97,6 +99,8 @@ class Engine:
                                                                  "valid")}
         self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
             if lidar_select and "lidar_select" in self.meta else None
+        self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
+            if edge_select and "edge_select" in self.meta else None
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -190,8 +194,16 @@ class Engine:
             # bundles since stage 11 return it at the refinement's 1/4 resolution
             confidence = cv2.resize(confidence, disp.shape[::-1],
                                     interpolation=cv2.INTER_LINEAR)
-        selected = None
-        if self.select is not None and confidence is not None:
+        selected = edge_px = None
+        if self.edge_select is not None and confidence is not None and not finite.any():
+            # no LiDAR point: the edge selection instead of the LiDAR one (never both, so the
+            # slowest frame's time does not grow)
+            t = time.perf_counter()
+            disp, confidence, edge_px = self.edge_select.apply(
+                buf["left"][0, 0], buf["right"][0, 0], disp, confidence)
+            timings["edge_select"] = (time.perf_counter() - t) * 1000
+            up_ms += timings["edge_select"]
+        elif self.select is not None and confidence is not None:
             t = time.perf_counter()
             disp, confidence, selected = self.select.apply(
                 buf["left"][0, 0], buf["right"][0, 0], disp, confidence, buf["sparse"][0, 0])
@@ -209,7 +221,7 @@ class Engine:
         timings["engine"] = (time.perf_counter() - t_engine) * 1000
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=len(step_ms), timings_ms=timings, confidence=confidence,
-                           selected_px=selected)
+                           selected_px=selected, edge_px=edge_px)
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
