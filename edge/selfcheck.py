@@ -14,6 +14,8 @@ Everything is numpy + OpenCV on (H, W) arrays; disparities in pixels of the left
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import cv2
 import numpy as np
 
@@ -27,12 +29,24 @@ def split_points(valid: np.ndarray, seed: int) -> tuple[np.ndarray, np.ndarray]:
     return valid & coin, valid & ~coin
 
 
+@lru_cache(maxsize=8)
+def _pixel_grid(h: int, w: int) -> tuple[np.ndarray, np.ndarray]:
+    """(columns (1, W), rows (H, W)) float32, read-only: the remap's grid, made once per
+    size (the selections warp two or three maps a frame)."""
+    xs = np.arange(w, dtype=np.float32)[None, :]
+    ys = np.ascontiguousarray(np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w)))
+    xs.flags.writeable = ys.flags.writeable = False
+    return xs, ys
+
+
 def warp_right_to_left(right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
-    """(H, W) float32: right(x − d, y), bilinear; outside the image reads 0."""
-    h, w = disparity.shape
-    xs = np.arange(w, dtype=np.float32)[None, :] - np.nan_to_num(disparity).astype(np.float32)
-    ys = np.broadcast_to(np.arange(h, dtype=np.float32)[:, None], (h, w))
-    return cv2.remap(right.astype(np.float32), xs, np.ascontiguousarray(ys), cv2.INTER_LINEAR,
+    """(H, W) float32: right(x − d, y), bilinear; outside the image reads 0; a non-finite
+    disparity is read as np.nan_to_num makes it."""
+    columns, rows = _pixel_grid(*disparity.shape)
+    disparity = np.asarray(disparity, np.float32)
+    if not np.isfinite(disparity).all():
+        disparity = np.nan_to_num(disparity)
+    return cv2.remap(np.asarray(right, np.float32), columns - disparity, rows, cv2.INTER_LINEAR,
                      borderMode=cv2.BORDER_CONSTANT, borderValue=0)
 
 
