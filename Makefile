@@ -46,6 +46,7 @@ bundle: $(STAMP)
 	test -d data/things_select || $(BIN)/edge-depth synth --world things --out data/things_select \
 	  --count 260 --seed 400000 --workers 2
 	$(BIN)/python tools/fit_select.py edge/models/default --data data/things_select
+	$(BIN)/python tools/fit_edge_select.py edge/models/default --data data/things_select
 
 clean:
 	rm -rf $(VENV) out
