@@ -163,3 +163,18 @@ def test_fit_learns_a_choice_that_lowers_the_error():
     select = fit(rows[1:], hidden=8, steps=300, seed=0, side_cells=3, max_confidence=0.9)
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before[0] > 1.5 and after[0] < 0.6 and after[1] < 10.0
+
+
+def test_selection_cost_times_both_stages_on_the_same_frames(tmp_path):
+    from edge_depth.cli import main
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.tools.selection_cost import measure
+
+    assert main(["synth", "--out", str(tmp_path / "s"), "--count", "2", "--seed", "1000000",
+                 "--lidar", "beams16"]) == 0
+    result = measure(DEFAULT_BUNDLE, tmp_path / "s", frames=2, rounds=2, runtime="onnxruntime")
+    assert set(result) == {"lidar_select", "edge_select"}
+    for r in result.values():
+        assert r["calls"] == 4 and 0 < r["median_ms"] <= r["p90_ms"]
+    with pytest.raises(SystemExit, match="no scene folders"):
+        measure(DEFAULT_BUNDLE, tmp_path, frames=2, rounds=1, runtime="onnxruntime")

@@ -86,8 +86,9 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                   confidence: np.ndarray, side_cells: int = SIDE_CELLS,
                   max_confidence: float = np.inf
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The scorer's inputs at the cells whose network confidence is below max_confidence and
-    whose near and far sides differ by more than MIN_DISAGREEMENT_PX.
+    """The scorer's inputs at the cells whose network confidence is below max_confidence,
+    whose near and far sides differ by more than MIN_DISAGREEMENT_PX and one of which lies
+    that far from the network's value.
 
     left/right (H, W) grey, disparity and confidence (H, W) the network's outputs. Returns
     (features (N, len(FEATURES)) float32, cells (N,) flat indices over the cell grid,
@@ -97,7 +98,12 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     top, bottom = _side_keys(net, grey_l, side_cells)
     near, far = _unpack(top)[0], _unpack(bottom)[0]
     trust = cell_mean(confidence)
-    candidate = ((near - far) > MIN_DISAGREEMENT_PX) & (trust < max_confidence)
+    # a cell where neither side lies more than MIN_DISAGREEMENT_PX from the network's value
+    # would never change (`EdgeSelect.choose`): left out here (a 1e-3 px slack keeps every
+    # cell that choose's log-space test could pass)
+    apart = MIN_DISAGREEMENT_PX - 1e-3
+    candidate = ((near - far) > MIN_DISAGREEMENT_PX) & (trust < max_confidence) & \
+        (((near - net) > apart) | ((net - far) > apart))
     cells = np.flatnonzero(candidate)
     if not len(cells):
         return (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
