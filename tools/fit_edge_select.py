@@ -22,7 +22,6 @@ the share within 1 px (held-out: predicted vs measured).
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import replace
@@ -40,7 +39,13 @@ from edge_depth.runtime.edge_select import (
 )
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_select import CELL_PX, cell_pixels
-from edge_depth.tools.fit_select import add_fit_arguments, frames, logistic_share, report
+from edge_depth.tools.fit_select import (
+    add_fit_arguments,
+    frames,
+    logistic_share,
+    report,
+    store,
+)
 
 MAX_ERROR_PX = 16.0  # a pixel's error, capped, in the fit's gains
 MAX_WEIGHT_PX = 8.0  # a pixel's share of its cell's weight (how much nearer), capped
@@ -221,14 +226,10 @@ def main(argv: list[str] | None = None) -> int:
         confirmed = report("confirmation (stereo only)", confirm_rows, score, select)
     if args.dry_run:
         return 0
-    meta_path = args.bundle / "model.json"
-    meta = json.loads(meta_path.read_text())
-    meta["edge_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
-                               rig_share=args.rig_share, seed=args.seed,
-                               min_margin=args.min_margin, heldout=heldout,
-                               confirmation=confirmed)
-    meta_path.write_text(json.dumps(meta, indent=2))  # as export.py and quantize.py write it
-    print(f"wrote edge_select into {meta_path}")
+    store(args.bundle, "edge_select", dict(select.to_meta(), frames=args.frames,
+                                           data=str(args.data), rig_share=args.rig_share,
+                                           seed=args.seed, min_margin=args.min_margin,
+                                           heldout=heldout, confirmation=confirmed))
     return 0
 
 

@@ -236,6 +236,15 @@ def report(label: str, rows: list[dict], score_fn, select) -> dict:
     return out
 
 
+def store(bundle: Path, key: str, entry: dict) -> None:
+    """Write `entry` under `key` in the bundle's model.json (the rest kept)."""
+    meta_path = bundle / "model.json"
+    meta = json.loads(meta_path.read_text())
+    meta[key] = entry
+    meta_path.write_text(json.dumps(meta, indent=2))  # as export.py and quantize.py write it
+    print(f"wrote {key} into {meta_path}")
+
+
 def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     """The arguments this tool and `tools/fit_edge_select.py` share: the bundle, the frames,
     the fit and the confidence gate."""
@@ -268,7 +277,6 @@ def main(argv: list[str] | None = None) -> int:
     args = p.parse_args(argv)
     if args.frames < 5 or not 0 < args.holdout < 1:
         raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
-    meta_path = args.bundle / "model.json"
     # fit on the network's own outputs, without a selection the bundle may already hold
     engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
                     lidar_select=False)
@@ -296,12 +304,9 @@ def main(argv: list[str] | None = None) -> int:
     select = replace(select, confidence_scale=scale, confidence_bias=bias)
     if args.dry_run:
         return 0
-    meta = json.loads(meta_path.read_text())
-    meta["lidar_select"] = dict(select.to_meta(), frames=args.frames, data=str(args.data),
-                                rig_share=args.rig_share, lidar=args.lidar, seed=args.seed,
-                                heldout=heldout)
-    meta_path.write_text(json.dumps(meta, indent=2))  # as export.py and quantize.py write it
-    print(f"wrote lidar_select into {meta_path}")
+    store(args.bundle, "lidar_select", dict(select.to_meta(), frames=args.frames,
+                                            data=str(args.data), rig_share=args.rig_share,
+                                            lidar=args.lidar, seed=args.seed, heldout=heldout))
     return 0
 
 
