@@ -31,7 +31,6 @@ import numpy as np
 
 from edge_depth.runtime.edge_select import (
     CANDIDATES,
-    FEATURES,
     SIDE_CELLS,
     EdgeSelect,
     edge_features,
@@ -41,6 +40,7 @@ from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_select import CELL_PX, cell_pixels
 from edge_depth.tools.fit_select import (
     add_fit_arguments,
+    fit_perceptron,
     frames,
     logistic_share,
     report,
@@ -97,47 +97,26 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
 
 def fit(rows: list[dict], hidden: int, steps: int, seed: int, side_cells: int,
         max_confidence: float, min_margin: float = 0.0) -> EdgeSelect:
-    """Two weighted logistic losses on one hidden ReLU layer (torch: the training extra): per
-    side, whether it is nearer the truth than the network over the cell, weighted by how
-    much (capped): `tools/fit_select.py`'s recipe, once per side. The network's logit is
+    """Two weighted logistic losses on one hidden ReLU layer (`fit_perceptron`): per side,
+    whether it is nearer the truth than the network over the cell, weighted by how much
+    (capped): `tools/fit_select.py`'s recipe, once per side. The network's logit is
     fixed at 0, so a side is taken where its logit is positive and the other side's lower.
     min_margin: the sides' logits are lowered by it (a side is taken only where the fit is
     that sure; chosen on held-out frames). (Minimising the softmax choice's expected error
     directly settled on never switching.)"""
-    import torch
-
     x = np.concatenate([r["features"] for r in rows])
     cost = np.concatenate([r["capped"] for r in rows])
     gain = cost[:, :1] - cost[:, 1:]  # (N, 2): how much nearer each side is
     # a side equal to the network's value is never chosen (EdgeSelect.choose): no loss there
     weight = np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX) * sides_apart(x)
-    mean, std = x.mean(0), x.std(0) + 1e-6
-    torch.manual_seed(seed)
-    xt = torch.from_numpy((x - mean) / std)
-    yt = torch.from_numpy((gain > 0).astype(np.float32))
-    wt = torch.from_numpy(weight.astype(np.float32))
-    model = torch.nn.Sequential(torch.nn.Linear(len(FEATURES), hidden), torch.nn.ReLU(),
-                                torch.nn.Linear(hidden, 2))
-    opt = torch.optim.Adam(model.parameters(), 1e-2)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
-    gen = torch.Generator().manual_seed(seed)
-    for _ in range(steps):
-        idx = torch.randint(0, len(yt), (min(65536, len(yt)),), generator=gen)
-        loss = torch.nn.functional.binary_cross_entropy_with_logits(
-            model(xt[idx]), yt[idx], wt[idx], reduction="sum") / (wt[idx].sum() + 1e-6)
-        opt.zero_grad()
-        loss.backward()
-        opt.step()
-        sched.step()
-    first, second = model[0], model[2]
+    mean, std, w1, b1, sides_w, sides_b = fit_perceptron(x, gain > 0, weight, hidden, steps,
+                                                         seed, per_weight=True)
     w2 = np.zeros((hidden, len(CANDIDATES)), np.float32)
-    w2[:, 1:] = second.weight.detach().numpy().T
+    w2[:, 1:] = sides_w
     b2 = np.zeros(len(CANDIDATES), np.float32)
-    b2[1:] = second.bias.detach().numpy() - min_margin  # a side must win by min_margin
-    return EdgeSelect(mean=mean.astype(np.float32), std=std.astype(np.float32),
-                      w1=first.weight.detach().numpy().T.copy(),
-                      b1=first.bias.detach().numpy().copy(), w2=w2, b2=b2,
-                      side_cells=side_cells, max_confidence=max_confidence)
+    b2[1:] = sides_b - min_margin  # a side must win by min_margin
+    return EdgeSelect(mean=mean, std=std, w1=w1, b1=b1, w2=w2, b2=b2, side_cells=side_cells,
+                      max_confidence=max_confidence)
 
 
 def score(rows: list[dict], select: EdgeSelect | None) -> tuple[float, float]:

@@ -37,7 +37,6 @@ from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_select import (
     CELL_PX,
-    FEATURES,
     LidarSelect,
     cell_pixels,
     selection_features,
@@ -128,37 +127,50 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
     return out
 
 
-def fit(rows: list[dict], hidden: int, steps: int, seed: int,
-        max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> LidarSelect:
-    """Weighted logistic loss, one hidden ReLU layer, Adam (torch: the training extra)."""
+def fit_perceptron(x: np.ndarray, y: np.ndarray, w: np.ndarray, hidden: int, steps: int,
+                   seed: int, per_weight: bool = False) -> tuple[np.ndarray, ...]:
+    """Weighted logistic losses on one hidden ReLU layer, k outputs (y, w: (N, k)), Adam at
+    1e-2 with a cosine schedule over `steps` batches of up to 65 536 rows (torch: the
+    training extra). per_weight: each batch's loss is divided by its summed weight instead
+    of its size. Returns (mean, std, w1 (F, K), b1 (K,), w2 (K, k), b2 (k,)), float32: the
+    standardisation and the two layers."""
     import torch
 
-    x = np.concatenate([r["features"] for r in rows])
-    y = np.concatenate([r["label"] for r in rows]).astype(np.float32)
-    w = np.concatenate([r["weight"] for r in rows]).astype(np.float32)
     mean, std = x.mean(0), x.std(0) + 1e-6
     torch.manual_seed(seed)
     xt = torch.from_numpy((x - mean) / std)
-    yt, wt = torch.from_numpy(y), torch.from_numpy(w)
-    model = torch.nn.Sequential(torch.nn.Linear(len(FEATURES), hidden), torch.nn.ReLU(),
-                                torch.nn.Linear(hidden, 1))
+    yt, wt = torch.from_numpy(y.astype(np.float32)), torch.from_numpy(w.astype(np.float32))
+    model = torch.nn.Sequential(torch.nn.Linear(x.shape[1], hidden), torch.nn.ReLU(),
+                                torch.nn.Linear(hidden, y.shape[1]))
     opt = torch.optim.Adam(model.parameters(), 1e-2)
     sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, steps)
     gen = torch.Generator().manual_seed(seed)
     for _ in range(steps):
         idx = torch.randint(0, len(yt), (min(65536, len(yt)),), generator=gen)
-        logit = model(xt[idx])[:, 0]
-        loss = torch.nn.functional.binary_cross_entropy_with_logits(logit, yt[idx], wt[idx])
+        if per_weight:
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(
+                model(xt[idx]), yt[idx], wt[idx], reduction="sum") / (wt[idx].sum() + 1e-6)
+        else:
+            loss = torch.nn.functional.binary_cross_entropy_with_logits(model(xt[idx]),
+                                                                        yt[idx], wt[idx])
         opt.zero_grad()
         loss.backward()
         opt.step()
         sched.step()
     first, second = model[0], model[2]
-    return LidarSelect(mean=mean.astype(np.float32), std=std.astype(np.float32),
-                       w1=first.weight.detach().numpy().T.copy(),
-                       b1=first.bias.detach().numpy().copy(),
-                       w2=second.weight.detach().numpy()[0].copy(),
-                       b2=float(second.bias.detach()[0]),
+    return (mean.astype(np.float32), std.astype(np.float32),
+            first.weight.detach().numpy().T.copy(), first.bias.detach().numpy().copy(),
+            second.weight.detach().numpy().T.copy(), second.bias.detach().numpy().copy())
+
+
+def fit(rows: list[dict], hidden: int, steps: int, seed: int,
+        max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> LidarSelect:
+    """Weighted logistic loss, one hidden ReLU layer, Adam (`fit_perceptron`)."""
+    x = np.concatenate([r["features"] for r in rows])
+    y = np.concatenate([r["label"] for r in rows]).astype(np.float32)
+    w = np.concatenate([r["weight"] for r in rows]).astype(np.float32)
+    mean, std, w1, b1, w2, b2 = fit_perceptron(x, y[:, None], w[:, None], hidden, steps, seed)
+    return LidarSelect(mean=mean, std=std, w1=w1, b1=b1, w2=w2[:, 0].copy(), b2=float(b2[0]),
                        max_disagreement_px=max_disagreement_px,
                        max_confidence=max_confidence)
 
