@@ -37,11 +37,12 @@ from edge_depth.runtime.edge_select import (
     sides_apart,
 )
 from edge_depth.runtime.engine import Engine
-from edge_depth.runtime.lidar_select import CELL_PX, cell_pixels
+from edge_depth.runtime.lidar_select import CELL_PX
 from edge_depth.tools.fit_select import (
     add_fit_arguments,
     fit_perceptron,
     frames,
+    known_cell_pixels,
     logistic_share,
     report,
     store,
@@ -58,12 +59,7 @@ def frame_row(source: str, left: np.ndarray, right: np.ndarray, disparity: np.nd
     pixels within 1 px over the cell's known pixels, and the frame's own totals."""
     features, cells, values = edge_features(left, right, disparity, confidence, side_cells,
                                             max_confidence)
-    gt = np.asarray(gt, np.float32).ravel()
-    known = np.isfinite(gt) & (gt > 0)
-    err_net = np.abs(disparity.ravel() - gt)
-    pixels, owner = cell_pixels(cells, left.shape)
-    keep = known[pixels]
-    pixels, owner = pixels[keep], owner[keep]
+    gt, known, err_net, pixels, owner = known_cell_pixels(cells, disparity, gt)
     errors = [err_net[pixels]] + [np.abs(values[owner, i] - gt[pixels]) for i in (0, 1)]
 
     def per_cell(weights: np.ndarray) -> np.ndarray:

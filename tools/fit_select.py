@@ -81,6 +81,19 @@ def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed
         yield source, left, right, np.asarray(sparse, np.float32), np.asarray(gt, np.float32)
 
 
+def known_cell_pixels(cells: np.ndarray, disparity: np.ndarray, gt: np.ndarray
+                      ) -> tuple[np.ndarray, ...]:
+    """What scoring a per-cell choice needs, flat: (gt, known (its finite, positive pixels),
+    the network's error per pixel, the given cells' known pixels, which cell each belongs
+    to)."""
+    gt = np.asarray(gt, np.float32).ravel()
+    known = np.isfinite(gt) & (gt > 0)
+    err_net = np.abs(disparity.ravel() - gt)
+    pixels, owner = cell_pixels(cells, disparity.shape)
+    keep = known[pixels]
+    return gt, known, err_net, pixels[keep], owner[keep]
+
+
 def frame_row(source: str, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
               confidence: np.ndarray, sparse: np.ndarray, gt: np.ndarray,
               max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> dict:
@@ -90,12 +103,7 @@ def frame_row(source: str, left: np.ndarray, right: np.ndarray, disparity: np.nd
     over the cell's known pixels)."""
     features, cells, lidar = selection_features(left, right, disparity, confidence, sparse,
                                                 max_disagreement_px, max_confidence)
-    gt = np.asarray(gt, np.float32).ravel()
-    known = np.isfinite(gt) & (gt > 0)
-    err_net = np.abs(disparity.ravel() - gt)
-    pixels, owner = cell_pixels(cells, left.shape)
-    keep = known[pixels]
-    pixels, owner = pixels[keep], owner[keep]
+    gt, known, err_net, pixels, owner = known_cell_pixels(cells, disparity, gt)
     err_lidar = np.abs(lidar[owner] - gt[pixels])
     gain = np.bincount(owner, err_net[pixels] - err_lidar, minlength=len(cells))
     bad3_gain = np.bincount(owner, (err_net[pixels] > 3).astype(np.float64) - (err_lidar > 3),
