@@ -122,7 +122,8 @@ def test_model_json_round_trip_and_a_damaged_entry_is_a_config_error():
 
 
 def test_the_fitting_tool_scores_a_choice_exactly_as_the_engine_applies_it():
-    from edge_depth.tools.fit_edge_select import frame_row, replaced_cells, score
+    from edge_depth.tools.fit_edge_select import frame_row
+    from edge_depth.tools.fit_select import replaced_cells, score
 
     left, right = textured_pair()
     gt = np.full((H, W), TRUE_DISPARITY, np.float32)
@@ -176,5 +177,10 @@ def test_selection_cost_times_both_stages_on_the_same_frames(tmp_path):
     assert set(result) == {"lidar_select", "edge_select"}
     for r in result.values():
         assert r["calls"] == 4 and 0 < r["median_ms"] <= r["p90_ms"]
+    # another fit of the LiDAR selection, timed in the same rounds
+    result = measure(DEFAULT_BUNDLE, tmp_path / "s", frames=2, rounds=1, runtime="onnxruntime",
+                     against=DEFAULT_BUNDLE)
+    assert set(result) == {"lidar_select", "edge_select", "lidar_select_against"}
+    assert result["lidar_select_against"]["calls"] == 2
     with pytest.raises(SystemExit, match="no scene folders"):
         measure(DEFAULT_BUNDLE, tmp_path, frames=2, rounds=1, runtime="onnxruntime")

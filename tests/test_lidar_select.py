@@ -10,11 +10,15 @@ from edge_depth.errors import ConfigError
 from edge_depth.runtime.lidar_select import (
     CELL_PX,
     FEATURES,
+    SIDE_FEATURES,
     LidarSelect,
+    Perceptron,
+    available,
     cell_lidar,
     cell_pixels,
     cell_shape,
     selection_features,
+    tanh32,
 )
 
 H, W = 96, 160
@@ -162,12 +166,10 @@ def test_fit_learns_a_choice_that_lowers_the_error_it_is_scored_on():
         n = 4000  # cells of one known pixel each
         x = rng.normal(size=(n, len(FEATURES))).astype(np.float32)
         lidar_better = x[:, 0] + 0.3 * x[:, 5] > 0
-        err_net = np.where(lidar_better, 5.0, 0.2)
-        err_lidar = np.where(lidar_better, 0.2, 5.0)
-        gain = err_net - err_lidar
-        rows.append(dict(features=x, label=gain > 0, weight=np.abs(gain), gain=gain,
-                         bad3_gain=(err_net > 3).astype(float) - (err_lidar > 3), known=n,
-                         err_sum=float(err_net.sum()), bad3=int((err_net > 3).sum())))
+        err = np.stack([np.where(lidar_better, 5.0, 0.2), np.where(lidar_better, 0.2, 5.0)], 1)
+        rows.append(dict(features=x, err=err, capped=err, bad3=(err > 3).astype(float),
+                         known=n, err_sum=float(err[:, 0].sum()),
+                         bad3_sum=int((err[:, 0] > 3).sum())))
     select = fit(rows[1:], hidden=8, steps=200, seed=0)
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before == pytest.approx((2.6, 50.0), abs=1.5)
@@ -297,7 +299,7 @@ def test_replaced_pixels_get_the_calibrated_confidence_and_the_rest_keep_the_net
 
 
 def test_the_confidence_fit_recovers_a_known_calibration():
-    from edge_depth.tools.fit_select import chosen_cells, fit_confidence
+    from edge_depth.tools.fit_select import calibrate, replaced_cells
 
     rng = np.random.default_rng(3)
     chooser = cost_chooser()  # logit = 100 · relu(cost5 difference) − 10
@@ -308,9 +310,131 @@ def test_the_confidence_fit_recovers_a_known_calibration():
         z = chooser.logit(x)
         pixels = np.full(len(x), 4)
         within1 = rng.binomial(4, 1 / (1 + np.exp(-(0.1 * z - 0.5))))
-        rows.append(dict(features=x, pixels=pixels, within1=within1.astype(float)))
-    scale, bias = fit_confidence(rows, chooser)
+        rows.append(dict(features=x, pixels=pixels,
+                         within1=np.stack([4 - within1, within1], 1).astype(float)))
+    calibrated = calibrate(chooser, rows, [], {})
+    scale, bias = calibrated.confidence_scale, calibrated.confidence_bias
     assert scale == pytest.approx(0.1, abs=0.01) and bias == pytest.approx(-0.5, abs=0.1)
-    z, n, k = chosen_cells(rows, chooser)
+    z, n, k = replaced_cells(rows, chooser)
     assert np.all(z > 0) and len(z) == sum(int((chooser.logit(r["features"]) > 0).sum())
                                            for r in rows)
+
+
+def side_chooser(take: int) -> LidarSelect:
+    """With the network's sides as candidates: prefers candidate `take` (1 the LiDAR point,
+    2 the near side, 3 the far side) wherever it is available, never the others."""
+    f = len(FEATURES) + len(SIDE_FEATURES)
+    b2 = np.full(3, -5.0, np.float32)
+    b2[take - 1] = 5.0
+    return LidarSelect(mean=np.zeros(f, np.float32), std=np.ones(f, np.float32),
+                       w1=np.zeros((f, 1), np.float32), b1=np.zeros(1, np.float32),
+                       w2=np.zeros((1, 3), np.float32), b2=b2, side_cells=3,
+                       confidence_scale=1.0, confidence_bias=0.0)
+
+
+def block_frame() -> tuple[np.ndarray, ...]:
+    """A plane at TRUE_DISPARITY the LiDAR agrees with, and a network that put a block 6 px
+    nearer on it (cells 15–29 × 20–49)."""
+    left, right = textured_pair()
+    disparity = np.full((H, W), TRUE_DISPARITY, np.float32)
+    disparity[30:60, 40:100] = TRUE_DISPARITY + 6
+    return left, right, disparity, np.full((H, W), 0.5, np.float32), lidar_rows(TRUE_DISPARITY)
+
+
+def test_with_sides_a_cell_can_take_the_networks_near_side_where_the_lidar_agrees():
+    left, right, disparity, confidence, sparse = block_frame()
+    features, cells, values = selection_features(left, right, disparity, confidence, sparse,
+                                                 side_cells=3)
+    assert features.shape == (len(cells), len(FEATURES) + len(SIDE_FEATURES))
+    assert values.shape == (len(cells), 3)
+    hc, wc = cell_shape((H, W))
+    ring = np.zeros((hc, wc), bool)
+    ring[14:31, 19:51] = True
+    ring[15:30, 20:50] = False  # the cells around the block: only their near side differs
+    rows = np.isin(cells, np.flatnonzero(ring))
+    assert rows.sum() == ring.sum() == 94
+    assert np.all(available(features)[rows] == [False, True, False])
+    np.testing.assert_array_equal(values[rows, 1], TRUE_DISPARITY + 6)
+    out, trust, replaced = side_chooser(2).apply(left, right, disparity, confidence, sparse)
+    assert replaced == 94 * CELL_PX * CELL_PX  # the ring grows the block by a cell
+    np.testing.assert_array_equal(out[28:62, 38:102], TRUE_DISPARITY + 6)
+    np.testing.assert_array_equal(out[:, :38], TRUE_DISPARITY)
+    np.testing.assert_allclose(trust[28, 38], 1 / (1 + np.exp(-5.0)), rtol=1e-6)
+    # the LiDAR point where it is a candidate: the block's cells
+    out, _, replaced = side_chooser(1).apply(left, right, disparity, confidence, sparse)
+    assert replaced == 30 * 60
+    np.testing.assert_array_equal(out, TRUE_DISPARITY)
+
+
+def test_a_selection_with_sides_survives_model_json_and_refuses_a_mismatch():
+    left, right, disparity, confidence, sparse = block_frame()
+    chooser = side_chooser(3)
+    meta = chooser.to_meta()
+    again = LidarSelect.from_meta(meta)
+    assert again.side_cells == 3 and again.b2.shape == (3,)
+    np.testing.assert_array_equal(again.apply(left, right, disparity, confidence, sparse)[0],
+                                  chooser.apply(left, right, disparity, confidence, sparse)[0])
+    with pytest.raises(ConfigError, match="lidar_select"):
+        LidarSelect.from_meta({**meta, "w2": [[0.0]]})
+    with pytest.raises(ConfigError, match=r"older feature set \(17 features; this engine "
+                       r"computes 22\)"):
+        LidarSelect.from_meta({**meta, "features": list(FEATURES)})
+
+
+def test_the_fitting_tool_scores_sides_exactly_as_the_engine_applies_them():
+    from edge_depth.tools.fit_select import frame_row, replaced_cells, score
+
+    left, right, disparity, confidence, sparse = block_frame()
+    gt = np.full((H, W), TRUE_DISPARITY, np.float32)
+    gt[:, :20] = 0  # unknown
+    gt[29:61, 39:101] = TRUE_DISPARITY + 6  # the truth's block is a pixel wider: cells half in
+    row = frame_row("rig", left, right, disparity, confidence, sparse, gt, side_cells=3)
+    for take in (1, 2, 3):
+        out, _, replaced = side_chooser(take).apply(left, right, disparity, confidence, sparse)
+        err = np.abs(out - gt)[gt > 0]
+        epe, bad3 = score([row], side_chooser(take))
+        assert epe == pytest.approx(float(err.mean()), rel=1e-5)
+        assert bad3 == pytest.approx(100.0 * float((err > 3).mean()), rel=1e-5)
+        margins, pixels, _ = replaced_cells([row], side_chooser(take))
+        assert pixels.sum() == replaced and np.all(margins == 5.0)
+
+
+def test_fit_with_sides_learns_which_candidate_to_take():
+    pytest.importorskip("torch")
+    from edge_depth.tools.fit_select import fit, score
+
+    rng = np.random.default_rng(0)
+    names = FEATURES + SIDE_FEATURES
+    rows = []
+    for _ in range(4):
+        n = 4000  # cells of one known pixel each
+        x = rng.normal(size=(n, len(names))).astype(np.float32)
+        for name in ("log_disagreement", "near_minus_net", "net_minus_far"):  # all available
+            x[:, names.index(name)] = np.log1p(rng.uniform(2, 6, n))
+        best = np.select([x[:, 0] > 0.5, x[:, 1] > 0.5, x[:, 2] > 0.5], [1, 2, 3], 0)
+        err = np.full((n, 4), 5.0)
+        err[np.arange(n), best] = 0.2
+        rows.append(dict(source="things", features=x, err=err, capped=err,
+                         bad3=(err > 3).astype(float), known=n, err_sum=float(err[:, 0].sum()),
+                         bad3_sum=int((err[:, 0] > 3).sum())))
+    select = fit(rows[1:], hidden=16, steps=300, seed=0, side_cells=3)
+    assert select.side_cells == 3 and select.w2.shape == (16, 3)
+    before, after = score(rows[:1], None), score(rows[:1], select)
+    assert before[0] > 3.0 and after[0] < 0.8 and after[1] < 12.0
+
+
+def test_the_vectorised_helpers_match_numpy():
+    x = np.linspace(-60, 60, 2001, dtype=np.float32).reshape(3, -1)[:, :-1]
+    out = tanh32(x)
+    assert out.dtype == np.float32 and out.shape == x.shape
+    np.testing.assert_allclose(out, np.tanh(x.astype(np.float64)), atol=3e-7)
+    rng = np.random.default_rng(1)
+    mean, std = rng.normal(size=5), rng.uniform(0.5, 2, 5)
+    w1, b1, w2, b2 = rng.normal(size=(5, 7)), rng.normal(size=7), rng.normal(size=(7, 3)), \
+        rng.normal(size=3)
+    features = rng.normal(size=(5000, 5)).astype(np.float32)  # beyond the 4096 tiled rows
+    expected = np.maximum(((features - mean) / std) @ w1 + b1, 0) @ w2 + b2
+    scorer = Perceptron(mean, std, w1, b1, w2, b2)
+    np.testing.assert_allclose(scorer(features[:10]), expected[:10], rtol=1e-4, atol=1e-4)
+    np.testing.assert_allclose(scorer(features), expected, rtol=1e-4, atol=1e-4)
+    assert scorer(features[:0]).shape == (0, 3)

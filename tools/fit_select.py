@@ -3,8 +3,8 @@ it in the bundle's model.json.
 
     python tools/fit_select.py BUNDLE --data data/things_select [--frames 300] [--rig-share 0.4]
         [--holdout 0.25] [--max-disagreement 16] [--max-confidence 0.9]
-        [--lidar projected|gt] [--runtime onnxruntime]
-        [--dry-run]
+        [--lidar projected|gt] [--runtime onnxruntime] [--side-cells 0] [--blend 1]
+        [--confirm DIR [--confirm-frames 250] [--confirm-seed 1]] [--dry-run]
 
 Each frame is a things sample the network never trained on (or, `--rig-share` of them, a rig
 frame from training seeds), at the bundle's size, with a LiDAR pattern drawn as in training
@@ -19,7 +19,14 @@ choice). A held-out share of the frames reports what the fitted choice does to E
 bad-3 there, over all of them and per source (rig / things: a mix can hide a loss on the
 rarer one); nothing from the evaluation sets is read. Last, the confidence the engine gives
 the pixels the choice replaces is fitted on the same frames: sigmoid(a · logit + b) as the
-share of those pixels within 1 px of the truth (held-out: predicted vs measured).
+share of those pixels within 1 px of the truth (held-out: predicted vs measured). With
+`--confirm`, the stored fit is also scored on frames from another folder and seed.
+
+`--side-cells 3 --blend 0.5` fits the four-candidate variant (docs/experiments.md, session
+22): the network's own near and far sides are candidates too, at the cells where they
+differ as well; each candidate's label is whether it is nearer the truth than the network,
+errors above 16 px counting at half their excess. More accurate on every synthetic set, but
+1.65× the shipped stage's cost: not the shipped recipe.
 """
 
 from __future__ import annotations
@@ -34,10 +41,12 @@ from pathlib import Path
 import numpy as np
 
 from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
+from edge_depth.runtime.edge_select import SIDE_CELLS
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_select import (
     CELL_PX,
     LidarSelect,
+    available,
     cell_pixels,
     selection_features,
 )
@@ -46,6 +55,7 @@ from edge_depth.sim.gt_lidar import GtLidarPattern
 from edge_depth.sim.things_store import list_things, read_things
 
 MAX_WEIGHT_PX = 8.0  # a pixel's share of its cell's weight (how much nearer), capped
+MAX_ERROR_PX = 16.0  # a pixel's error, capped, in `candidate_row`'s capped sums
 
 
 def frames(data: Path, count: int, rig_share: float, size: tuple[int, int], seed: int,
@@ -96,31 +106,43 @@ def known_cell_pixels(cells: np.ndarray, disparity: np.ndarray, gt: np.ndarray
 
 def frame_row(source: str, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
               confidence: np.ndarray, sparse: np.ndarray, gt: np.ndarray,
-              max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> dict:
-    """One frame's candidate cells' features, labels and weights, and what EPE/bad-3 need to
-    score a choice: over the frame's known pixels the network's summed error and bad-3 count,
-    and per candidate cell how much taking the LiDAR lowers each (`gain`, `bad3_gain`, summed
-    over the cell's known pixels)."""
-    features, cells, lidar = selection_features(left, right, disparity, confidence, sparse,
-                                                max_disagreement_px, max_confidence)
+              max_disagreement_px: float = np.inf, max_confidence: float = np.inf,
+              side_cells: int = 0) -> dict:
+    """One frame's candidate cells (`selection_features`) as `candidate_row` scores them."""
+    features, cells, values = selection_features(left, right, disparity, confidence, sparse,
+                                                 max_disagreement_px, max_confidence,
+                                                 side_cells)
+    return candidate_row(source, features, cells, values.reshape(len(cells), -1), disparity,
+                         gt)
+
+
+def candidate_row(source: str, features: np.ndarray, cells: np.ndarray, values: np.ndarray,
+                  disparity: np.ndarray, gt: np.ndarray) -> dict:
+    """What fitting and scoring a per-cell choice need: the features, and per cell (rows)
+    and candidate (columns: the network's, then each of values' (N, C)) the summed error,
+    the same capped per pixel at MAX_ERROR_PX, the bad-3 count and the pixels within 1 px
+    over the cell's known pixels; and the frame's own totals (known pixels, the network's
+    summed error and bad-3 count)."""
     gt, known, err_net, pixels, owner = known_cell_pixels(cells, disparity, gt)
-    err_lidar = np.abs(lidar[owner] - gt[pixels])
-    gain = np.bincount(owner, err_net[pixels] - err_lidar, minlength=len(cells))
-    bad3_gain = np.bincount(owner, (err_net[pixels] > 3).astype(np.float64) - (err_lidar > 3),
-                            minlength=len(cells))
-    return dict(source=source, features=features, label=gain > 0,
-                weight=np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX),
-                gain=gain, bad3_gain=bad3_gain,
+    errors = [err_net[pixels]] + [np.abs(values[owner, i] - gt[pixels])
+                                  for i in range(values.shape[1])]
+
+    def per_cell(weights: np.ndarray) -> np.ndarray:
+        return np.bincount(owner, weights, minlength=len(cells))
+
+    return dict(source=source, features=features,
+                err=np.stack([per_cell(e) for e in errors], 1),
+                capped=np.stack([per_cell(np.minimum(e, MAX_ERROR_PX)) for e in errors], 1),
+                bad3=np.stack([per_cell((e > 3).astype(np.float64)) for e in errors], 1),
+                within1=np.stack([per_cell((e < 1).astype(np.float64)) for e in errors], 1),
                 pixels=np.bincount(owner, minlength=len(cells)),
-                within1=np.bincount(owner, (err_lidar < 1).astype(np.float64),
-                                    minlength=len(cells)),
-                known=int(known.sum()),
-                err_sum=float(err_net[known].sum()), bad3=int((err_net[known] > 3).sum()))
+                known=int(known.sum()), err_sum=float(err_net[known].sum()),
+                bad3_sum=int((err_net[known] > 3).sum()))
 
 
 def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
             max_disagreement_px: float = np.inf, lidar_source: str = "projected",
-            max_confidence: float = np.inf) -> list[dict]:
+            max_confidence: float = np.inf, side_cells: int = 0) -> list[dict]:
     """`frame_row` for each of `frames`, through the bundle (progress on stderr)."""
     out = []
     start = time.perf_counter()
@@ -128,7 +150,7 @@ def collect(engine: Engine, data: Path, count: int, rig_share: float, seed: int,
                                                                  engine.size, seed, lidar_source)):
         result = engine.infer(left, right, sparse)
         out.append(frame_row(source, left, right, result.disparity, result.confidence, sparse,
-                             gt, max_disagreement_px, max_confidence))
+                             gt, max_disagreement_px, max_confidence, side_cells))
         if (i + 1) % 20 == 0 or i + 1 == count:
             print(f"fit_select: {i + 1}/{count} frames ({time.perf_counter() - start:.0f} s)",
                   file=sys.stderr, flush=True)
@@ -171,43 +193,48 @@ def fit_perceptron(x: np.ndarray, y: np.ndarray, w: np.ndarray, hidden: int, ste
             second.weight.detach().numpy().T.copy(), second.bias.detach().numpy().copy())
 
 
-def fit(rows: list[dict], hidden: int, steps: int, seed: int,
-        max_disagreement_px: float = np.inf, max_confidence: float = np.inf) -> LidarSelect:
-    """Weighted logistic loss, one hidden ReLU layer, Adam (`fit_perceptron`)."""
+def candidate_gains(rows: list[dict], blend: float) -> tuple[np.ndarray, np.ndarray]:
+    """(features (N, F), gain (N, C)): per cell how much lower each candidate's summed error
+    is than the network's, with each pixel's error above MAX_ERROR_PX counted at `blend` of
+    its excess (1: the raw error; 0: capped)."""
     x = np.concatenate([r["features"] for r in rows])
-    y = np.concatenate([r["label"] for r in rows]).astype(np.float32)
-    w = np.concatenate([r["weight"] for r in rows]).astype(np.float32)
-    mean, std, w1, b1, w2, b2 = fit_perceptron(x, y[:, None], w[:, None], hidden, steps, seed)
-    return LidarSelect(mean=mean, std=std, w1=w1, b1=b1, w2=w2[:, 0].copy(), b2=float(b2[0]),
+    cost = np.concatenate([r["capped"] + blend * (r["err"] - r["capped"]) for r in rows])
+    return x, cost[:, :1] - cost[:, 1:]
+
+
+def fit(rows: list[dict], hidden: int, steps: int, seed: int,
+        max_disagreement_px: float = np.inf, max_confidence: float = np.inf,
+        side_cells: int = 0, blend: float = 1.0) -> LidarSelect:
+    """Weighted logistic losses, one hidden ReLU layer, Adam (`fit_perceptron`): per
+    candidate, whether it is nearer the truth than the network over the cell, weighted by how
+    much (`candidate_gains`, capped at MAX_WEIGHT_PX a pixel); a candidate that is not
+    `available` at a cell carries no loss there."""
+    x, gain = candidate_gains(rows, blend)
+    weight = np.minimum(np.abs(gain), MAX_WEIGHT_PX * CELL_PX * CELL_PX)
+    if side_cells:
+        weight = weight * available(x, max_disagreement_px)
+    mean, std, w1, b1, w2, b2 = fit_perceptron(x, gain > 0, weight, hidden, steps, seed)
+    if not side_cells:
+        w2, b2 = w2[:, 0].copy(), float(b2[0])
+    return LidarSelect(mean=mean, std=std, w1=w1, b1=b1, w2=w2, b2=b2,
                        max_disagreement_px=max_disagreement_px,
-                       max_confidence=max_confidence)
+                       max_confidence=max_confidence, side_cells=side_cells)
 
 
-def chosen_cells(rows: list[dict], select: LidarSelect) -> tuple[np.ndarray, np.ndarray,
-                                                                  np.ndarray]:
-    """Over the cells the choice takes: (logits, known pixels, of those within 1 px)."""
-    logits, pixels, within1 = [], [], []
+def replaced_cells(rows: list[dict], select) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Over the cells the choice replaces (`select.choose`: LidarSelect's or EdgeSelect's):
+    (margins: the chosen logit over the network's, known pixels, of those within 1 px)."""
+    margins, pixels, within1 = [], [], []
     for r in rows:
         if len(r["features"]):
-            z = select.logit(r["features"])
-            take = (z > 0) & (r["pixels"] > 0)
-            logits.append(z[take])
+            choice, margin = select.choose(r["features"])
+            take = (choice > 0) & (r["pixels"] > 0)
+            margins.append(margin[take])
             pixels.append(r["pixels"][take])
-            within1.append(r["within1"][take])
-    if not logits:
+            within1.append(r["within1"][take, choice[take]])
+    if not margins:
         return np.zeros(0, np.float32), np.zeros(0), np.zeros(0)
-    return np.concatenate(logits), np.concatenate(pixels), np.concatenate(within1)
-
-
-def fit_confidence(rows: list[dict], select: LidarSelect) -> tuple[float, float]:
-    """(scale, bias) such that sigmoid(scale · logit + bias) is the share of a chosen cell's
-    pixels within 1 px of the truth: a two-parameter weighted logistic fit (Newton), the
-    confidence the engine gives the pixels it replaced."""
-    z, n, k = chosen_cells(rows, select)
-    if not len(z):
-        raise SystemExit("fit_select: the choice took no cell on the fitting frames; "
-                         "nothing to calibrate its confidence on")
-    return logistic_share(z, n, k)
+    return np.concatenate(margins), np.concatenate(pixels), np.concatenate(within1)
 
 
 def logistic_share(z: np.ndarray, n: np.ndarray, k: np.ndarray) -> tuple[float, float]:
@@ -226,15 +253,17 @@ def logistic_share(z: np.ndarray, n: np.ndarray, k: np.ndarray) -> tuple[float, 
     return float(theta[0]), float(theta[1])
 
 
-def score(rows: list[dict], select: LidarSelect | None) -> tuple[float, float]:
-    """Mean EPE and bad-3 % over the frames' known pixels, with or without the choice."""
+def score(rows: list[dict], select) -> tuple[float, float]:
+    """Mean EPE and bad-3 % over the frames' known pixels, with or without the choice
+    (`select.choose`: LidarSelect's or EdgeSelect's; None: the network's values)."""
     epe, bad3 = [], []
     for r in rows:
-        err_sum, bad = r["err_sum"], float(r["bad3"])
+        err_sum, bad = r["err_sum"], float(r["bad3_sum"])
         if select is not None and len(r["features"]):
-            take = select.logit(r["features"]) > 0
-            err_sum -= float(r["gain"][take].sum())
-            bad -= float(r["bad3_gain"][take].sum())
+            choice, _ = select.choose(r["features"])
+            cells = np.arange(len(choice))
+            err_sum -= float((r["err"][:, 0] - r["err"][cells, choice]).sum())
+            bad -= float((r["bad3"][:, 0] - r["bad3"][cells, choice]).sum())
         epe.append(err_sum / max(r["known"], 1))
         bad3.append(100.0 * bad / max(r["known"], 1))
     return float(np.mean(epe)), float(np.mean(bad3))
@@ -281,22 +310,56 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--max-confidence", type=float, default=0.9,
                    help="act only on cells whose mean confidence is below this (0 = any cell)")
+    p.add_argument("--confirm", type=Path, help="also score on frames from this folder")
+    p.add_argument("--confirm-frames", type=int, default=250)
+    p.add_argument("--confirm-seed", type=int, default=1)
+    p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
+
+
+def calibrate(select, fit_rows: list[dict], hold_rows: list[dict], heldout: dict):
+    """`select` with the confidence of the pixels it replaces fitted on fit_rows
+    (`logistic_share` of the margins); on hold_rows, predicted vs measured share within 1 px
+    printed and added to `heldout` (when it replaces any)."""
+    z, n, k = replaced_cells(fit_rows, select)
+    if not len(z):
+        raise SystemExit("the choice replaced no cell on the fitting frames; nothing to "
+                         "calibrate its confidence on")
+    scale, bias = logistic_share(z, n, k)
+    select = replace(select, confidence_scale=scale, confidence_bias=bias)
+    z, n, k = replaced_cells(hold_rows, select)
+    if len(z):
+        predicted = float((n * select.chosen_confidence(z)).sum() / n.sum())
+        heldout["replaced_within_1px"] = dict(predicted=predicted,
+                                              measured=float(k.sum() / n.sum()),
+                                              pixels=int(n.sum()))
+        print(f"held-out replaced pixels ({int(n.sum())}): within 1 px {k.sum() / n.sum():.3f},"
+              f" confidence predicts {predicted:.3f}")
+    return select
 
 
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    # defaults: the variant the held-out frames chose on stage 15's bundle (docs/experiments.md,
-    # sessions 18-20), the one the shipped bundle holds
     add_fit_arguments(p)
+    # defaults: the variant the held-out frames chose (docs/experiments.md, sessions 18-20),
+    # the one the shipped bundle holds
     p.add_argument("--max-disagreement", type=float, default=16.0,
-                   help="px: act only where the candidates differ by at most this (0 = any)")
+                   help="px: the LiDAR point is a candidate where it differs from the "
+                        "network's value by at most this (0 = any)")
+    p.add_argument("--side-cells", type=int, default=0,
+                   help=f"the network's near / far sides (max / min over this many cells "
+                        f"square, odd; {SIDE_CELLS} in session 22) are candidates too: more "
+                        "accurate, 1.65× the cost (not shipped); 0: the LiDAR point only")
+    p.add_argument("--blend", type=float, default=1.0,
+                   help="a pixel's error above 16 px counts at this share of its excess in "
+                        "the fit (1: raw errors, the shipped recipe; 0.5 with sides)")
     p.add_argument("--lidar", choices=("projected", "gt"), default="projected",
                    help="things frames' LiDAR: projected from the right view (default) or "
                         "exact GT rows")
-    p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
     args = p.parse_args(argv)
     if args.frames < 5 or not 0 < args.holdout < 1:
         raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
+    if args.side_cells and (args.side_cells < 3 or args.side_cells % 2 == 0):
+        raise SystemExit("--side-cells: 0, or an odd number ≥ 3")
     # fit on the network's own outputs, without a selection the bundle may already hold
     engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
                     lidar_select=False)
@@ -304,29 +367,32 @@ def main(argv: list[str] | None = None) -> int:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     cap = args.max_disagreement or np.inf
     gate = args.max_confidence or np.inf
-    rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, cap, args.lidar,
-                   gate)
+
+    def rows_of(data: Path, count: int, seed: int) -> list[dict]:
+        return collect(engine, data, count, args.rig_share, seed, cap, args.lidar, gate,
+                       args.side_cells)
+
+    def fitted(rows: list[dict]) -> LidarSelect:
+        return fit(rows, args.hidden, args.steps, args.seed, cap, gate, args.side_cells,
+                   args.blend)
+
+    rows = rows_of(args.data, args.frames, args.seed)
     n_hold = max(1, int(round(len(rows) * args.holdout)))
     fit_rows, hold_rows = rows[n_hold:], rows[:n_hold]
-    select = fit(fit_rows, args.hidden, args.steps, args.seed, cap, gate)
+    select = fitted(fit_rows)
     heldout = report("held-out", hold_rows, score, select)
-    scale, bias = fit_confidence(fit_rows, select)
-    z, n, k = chosen_cells(hold_rows, select)
-    if len(z):
-        trust = replace(select, confidence_scale=scale, confidence_bias=bias).chosen_confidence(z)
-        predicted = float((n * trust).sum() / n.sum())
-        heldout["chosen_within_1px"] = dict(predicted=predicted, measured=float(k.sum() / n.sum()),
-                                            pixels=int(n.sum()))
-        print(f"held-out chosen pixels ({int(n.sum())}): within 1 px {k.sum() / n.sum():.3f}, "
-              f"confidence predicts {predicted:.3f}")
-    select = fit(rows, args.hidden, args.steps, args.seed, cap, gate)  # stored: every frame
-    scale, bias = fit_confidence(rows, select)
-    select = replace(select, confidence_scale=scale, confidence_bias=bias)
+    calibrate(select, fit_rows, hold_rows, heldout)
+    select = calibrate(fitted(rows), rows, [], {})  # stored: fitted on every frame
+    confirmed = None
+    if args.confirm is not None:
+        confirmed = report("confirmation", rows_of(args.confirm, args.confirm_frames,
+                                                   args.confirm_seed), score, select)
     if args.dry_run:
         return 0
     store(args.bundle, "lidar_select", dict(select.to_meta(), frames=args.frames,
                                             data=str(args.data), rig_share=args.rig_share,
-                                            lidar=args.lidar, seed=args.seed, heldout=heldout))
+                                            lidar=args.lidar, seed=args.seed, blend=args.blend,
+                                            heldout=heldout, confirmation=confirmed))
     return 0
 
 

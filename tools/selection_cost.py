@@ -1,9 +1,11 @@
 """Time a bundle's two selections on the same frames, alternately: the LiDAR selection on the
 network's outputs with each scene's LiDAR, the edge selection on its outputs with the LiDAR
-zeroed (the frames each runs on in the engine).
+zeroed (the frames each runs on in the engine); with `--against OTHER_BUNDLE`, that bundle's
+LiDAR selection too, in the same rounds on the same network outputs (two fits of the stage
+compared).
 
-    python tools/selection_cost.py DATA_DIR [--bundle DIR] [--frames 12] [--rounds 8]
-        [--runtime onnxruntime] [--json OUT]
+    python tools/selection_cost.py DATA_DIR [--bundle DIR] [--against DIR] [--frames 12]
+        [--rounds 8] [--runtime onnxruntime] [--json OUT]
 
 Prints the median and p90 ms per call of each (the network runs once per frame, untimed).
 """
@@ -22,14 +24,20 @@ from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 
-def measure(bundle: Path, data: Path, frames: int, rounds: int, runtime: str) -> dict:
-    """{'lidar_select' | 'edge_select': {median_ms, p90_ms, calls}}."""
+def measure(bundle: Path, data: Path, frames: int, rounds: int, runtime: str,
+            against: Path | None = None) -> dict:
+    """{'lidar_select' | 'edge_select' [| 'lidar_select_against']: {median_ms, p90_ms,
+    calls}}."""
     engine = Engine(bundle, precision="int8", threads=2, runtime=runtime, lidar_select=False,
                     edge_select=False)
     stages = Engine(bundle, precision="int8", threads=2, runtime=runtime)
     if stages.select is None or stages.edge_select is None:
         raise SystemExit(f"{bundle}: needs both selections in model.json (tools/fit_select.py, "
                          "tools/fit_edge_select.py)")
+    other = None if against is None else Engine(against, precision="int8", threads=2,
+                                                runtime=runtime).select
+    if against is not None and other is None:
+        raise SystemExit(f"{against}: has no LiDAR selection to compare")
     cases = []
     for folder in list_scene_folders(data)[:frames]:
         scene = read_scene_folder(folder)
@@ -43,6 +51,8 @@ def measure(bundle: Path, data: Path, frames: int, rounds: int, runtime: str) ->
     if not cases:
         raise SystemExit(f"{data}: no scene folders")
     times: dict[str, list[float]] = {"lidar_select": [], "edge_select": []}
+    if other is not None:
+        times["lidar_select_against"] = []
     for _ in range(rounds):
         for left, right, sparse, with_lidar, stereo in cases:
             t = time.perf_counter()
@@ -51,6 +61,10 @@ def measure(bundle: Path, data: Path, frames: int, rounds: int, runtime: str) ->
             t = time.perf_counter()
             stages.edge_select.apply(left, right, stereo.disparity, stereo.confidence)
             times["edge_select"].append((time.perf_counter() - t) * 1000)
+            if other is not None:
+                t = time.perf_counter()
+                other.apply(left, right, with_lidar.disparity, with_lidar.confidence, sparse)
+                times["lidar_select_against"].append((time.perf_counter() - t) * 1000)
     return {k: dict(median_ms=float(np.median(v)), p90_ms=float(np.percentile(v, 90)),
                     calls=len(v)) for k, v in times.items()}
 
@@ -59,12 +73,15 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("data", type=Path)
     p.add_argument("--bundle", type=Path, default=DEFAULT_BUNDLE)
+    p.add_argument("--against", type=Path,
+                   help="also time this bundle's LiDAR selection (same network outputs)")
     p.add_argument("--frames", type=int, default=12)
     p.add_argument("--rounds", type=int, default=8)
     p.add_argument("--runtime", default="onnxruntime")
     p.add_argument("--json", type=Path)
     args = p.parse_args(argv)
-    result = measure(args.bundle, args.data, args.frames, args.rounds, args.runtime)
+    result = measure(args.bundle, args.data, args.frames, args.rounds, args.runtime,
+                     args.against)
     for name, r in result.items():
         print(f"{name}: median {r['median_ms']:.2f} ms, p90 {r['p90_ms']:.2f} ms "
               f"({r['calls']} calls)")

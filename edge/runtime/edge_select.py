@@ -31,11 +31,16 @@ import numpy as np
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.lidar_select import (
     CELL_PX,
-    MIN_DISAGREEMENT_PX,
+    LOG_MIN_DISAGREEMENT,
+    Perceptron,
     cell_mean,
     cell_pixels,
+    grey_side,
     local_range,
     log1p32,
+    side_keys,
+    sides_differ,
+    unpack_key,
     warped_cost,
 )
 
@@ -44,26 +49,7 @@ FEATURES = ("log_cost5_net", "log_cost9_net", "log_cost5_near", "log_cost5_far",
             "cost9_net_minus_far", "near_minus_net", "net_minus_far", "confidence",
             "log_net_range3", "log_gradient", "log_grey_range5", "grey_side")
 CANDIDATES = ("network", "near side", "far side")
-_APART = log1p32(MIN_DISAGREEMENT_PX)  # sides_apart's threshold, in the features' space
 SIDE_CELLS = 3  # the sides' values: max / min of the cell means over this many cells square
-
-
-def _side_keys(net: np.ndarray, grey: np.ndarray, side_cells: int
-               ) -> tuple[np.ndarray, np.ndarray]:
-    """Per cell the largest and smallest key over side_cells × side_cells cells, a key
-    packing the cell's disparity in quarter pixels × 256 and its grey level (whole numbers,
-    exact in float32 below 2^24: up to 16 000 px)."""
-    kernel = np.ones((side_cells, side_cells), np.uint8)
-    level = np.clip(np.rint(grey), 0, 255)
-    key = (np.rint(np.maximum(net, 0.0) * 4.0) * 256.0 + level).astype(np.float32)
-    return cv2.dilate(key, kernel), cv2.erode(key, kernel)
-
-
-def _unpack(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A side key → (disparity px, grey level); floor and subtract, not np.divmod (3×
-    slower): exact on these whole numbers."""
-    quarters = np.floor(key * np.float32(1 / 256))
-    return quarters / 4.0, key - quarters * 256.0
 
 
 def side_values(net: np.ndarray, grey: np.ndarray, side_cells: int
@@ -71,15 +57,9 @@ def side_values(net: np.ndarray, grey: np.ndarray, side_cells: int
     """(near, far, near_grey, far_grey): per cell the largest and the smallest cell-mean
     disparity over side_cells × side_cells cells around it (to 1/4 px), and the grey level
     (0–255, whole levels) of the cell each was taken from."""
-    top, bottom = _side_keys(net, grey, side_cells)
-    (near, near_grey), (far, far_grey) = _unpack(top), _unpack(bottom)
+    top, bottom = side_keys(net, grey, side_cells)
+    (near, near_grey), (far, far_grey) = unpack_key(top), unpack_key(bottom)
     return near, far, near_grey, far_grey
-
-
-def grey_side(grey: np.ndarray, near_grey: np.ndarray, far_grey: np.ndarray) -> np.ndarray:
-    """Per cell, in [-1, 1]: > 0 where its grey level is closer to the near side's cell's
-    than to the far side's — which side of an image edge the cell is on."""
-    return np.tanh((np.abs(grey - far_grey) - np.abs(grey - near_grey)) / 16.0)
 
 
 def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
@@ -95,15 +75,12 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     values (N, 2) float32 the near and far sides' disparities there)."""
     net = cell_mean(disparity)
     grey_l = cell_mean(left)
-    top, bottom = _side_keys(net, grey_l, side_cells)
-    near, far = _unpack(top)[0], _unpack(bottom)[0]
+    top, bottom = side_keys(net, grey_l, side_cells)
+    near, far = unpack_key(top)[0], unpack_key(bottom)[0]
     trust = cell_mean(confidence)
     # a cell where neither side lies more than MIN_DISAGREEMENT_PX from the network's value
-    # would never change (`EdgeSelect.choose`): left out here (a 1e-3 px slack keeps every
-    # cell that choose's log-space test could pass)
-    apart = MIN_DISAGREEMENT_PX - 1e-3
-    candidate = ((near - far) > MIN_DISAGREEMENT_PX) & (trust < max_confidence) & \
-        (((near - net) > apart) | ((net - far) > apart))
+    # would never change (`EdgeSelect.choose`): left out here
+    candidate = sides_differ(near, far, net) & (trust < max_confidence)
     cells = np.flatnonzero(candidate)
     if not len(cells):
         return (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
@@ -124,8 +101,8 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                trust.ravel()[cells],
                log1p32(local_range(net, 3).ravel()[cells]), log1p32(gradient),
                log1p32(local_range(grey_l, 5).ravel()[cells]),
-               grey_side(grey_l.ravel()[cells], _unpack(top.ravel()[cells])[1],
-                         _unpack(bottom.ravel()[cells])[1]))
+               grey_side(grey_l.ravel()[cells], unpack_key(top.ravel()[cells])[1],
+                         unpack_key(bottom.ravel()[cells])[1]))
     out = np.empty((len(cells), len(FEATURES)), np.float32)
     for i, column in enumerate(columns):
         out[:, i] = column
@@ -139,8 +116,8 @@ def sides_apart(features: np.ndarray) -> np.ndarray:
     than MIN_DISAGREEMENT_PX (read back from the features)."""
     # the features are log1p of the gaps: compared in that space (no expm1, no gather)
     out = np.empty((len(features), 2), bool)
-    out[:, 0] = features[:, FEATURES.index("near_minus_net")] > _APART
-    out[:, 1] = features[:, FEATURES.index("net_minus_far")] > _APART
+    out[:, 0] = features[:, FEATURES.index("near_minus_net")] > LOG_MIN_DISAGREEMENT
+    out[:, 1] = features[:, FEATURES.index("net_minus_far")] > LOG_MIN_DISAGREEMENT
     return out
 
 
@@ -206,33 +183,12 @@ class EdgeSelect:
                                     bias=float(self.confidence_bias)))
 
     @cached_property
-    def _folded(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(w1, b1, w2) with the standardisation folded into the first layer, float32."""
-        w1 = np.ascontiguousarray(self.w1 / self.std[:, None], np.float32)
-        b1 = (self.b1 - (self.mean / self.std) @ self.w1).astype(np.float32)
-        return w1, b1, np.ascontiguousarray(self.w2, np.float32)
-
-    def _biases(self, n: int) -> tuple[np.ndarray, np.ndarray]:
-        """The two layers' biases tiled to n rows, for gemm's own add (kept, grown as
-        frames need: one broadcast add and ReLU pass over the hidden layer cost ~0.7 ms a
-        frame more than gemm's add and OpenCV's threshold)."""
-        tiles = self.__dict__.get("_tiles")
-        if tiles is None or len(tiles[0]) < n:
-            _, b1, _ = self._folded
-            rows = max(n, 4096)
-            tiles = (np.tile(b1, (rows, 1)), np.tile(self.b2.astype(np.float32), (rows, 1)))
-            self.__dict__["_tiles"] = tiles  # a cache on a frozen dataclass
-        return tiles[0][:n], tiles[1][:n]
+    def _scorer(self) -> Perceptron:
+        return Perceptron(self.mean, self.std, self.w1, self.b1, self.w2, self.b2)
 
     def logits(self, features: np.ndarray) -> np.ndarray:
-        """(N, F) → (N, 3) logits over CANDIDATES (OpenCV's gemm: see LidarSelect.logit)."""
-        if not len(features):
-            return np.zeros((0, len(CANDIDATES)), np.float32)
-        w1, _, w2 = self._folded
-        b1, b2 = self._biases(len(features))
-        hidden = cv2.gemm(np.ascontiguousarray(features, np.float32), w1, 1.0, b1, 1.0)
-        cv2.threshold(hidden, 0.0, 0.0, cv2.THRESH_TOZERO, dst=hidden)  # ReLU
-        return cv2.gemm(hidden, w2, 1.0, b2, 1.0)
+        """(N, F) → (N, 3) logits over CANDIDATES."""
+        return self._scorer(features)
 
     def choose(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(N, F) → (the candidate chosen per cell, its logit's margin over the network's).

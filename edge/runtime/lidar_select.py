@@ -41,6 +41,10 @@ FEATURES = ("cost5_net_minus_lidar", "cost9_net_minus_lidar", "log_cost5_net",
             "log_distance_to_lidar", "log_gradient", "log_point_residual",
             "log_grey_step_to_point", "log_net_range3", "log_net_range7",
             "log_lidar_range3", "log_lidar_range7", "log_grey_range5", "rows_to_point")
+# with the network's own sides as candidates too (`side_cells` > 0; session 22)
+SIDE_FEATURES = ("near_minus_net", "net_minus_far", "grey_side", "log_lidar_to_near",
+                 "log_lidar_to_far")
+CANDIDATES = ("network", "LiDAR point", "near side", "far side")
 CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
 MIN_DISAGREEMENT_PX = 0.5  # below this the two candidates are the same value
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
@@ -63,6 +67,18 @@ def log1p32(x) -> np.ndarray:
     per frame (docs/experiments.md, session 21); the two agree to 1 ulp."""
     x = np.asarray(x, np.float32)
     return cv2.log(x.reshape(-1) + np.float32(1.0)).reshape(x.shape)
+
+
+def tanh32(x) -> np.ndarray:
+    """tanh in float32, same shape, from OpenCV's vectorised exp (numpy's tanh is a scalar
+    loop on an AVX2 host, 4× slower; the two agree to 2e-7)."""
+    x = np.asarray(x, np.float32)
+    e = cv2.exp(x.reshape(-1) * np.float32(2.0)).reshape(x.shape)
+    return np.float32(1.0) - np.float32(2.0) / (e + np.float32(1.0))
+
+
+# MIN_DISAGREEMENT_PX in the space of the features that are log1p of a gap
+LOG_MIN_DISAGREEMENT = log1p32(MIN_DISAGREEMENT_PX)
 
 
 def local_range(image: np.ndarray, size: int) -> np.ndarray:
@@ -94,6 +110,39 @@ def cell_mean(image: np.ndarray) -> np.ndarray:
     return cv2.resize(padded, (wc, hc), interpolation=cv2.INTER_AREA)
 
 
+def side_keys(net: np.ndarray, grey: np.ndarray, side_cells: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Per cell the largest and smallest key over side_cells × side_cells cells, a key
+    packing the cell's disparity in quarter pixels × 256 and its grey level (whole numbers,
+    exact in float32 below 2^24: up to 16 000 px)."""
+    kernel = np.ones((side_cells, side_cells), np.uint8)
+    level = np.clip(np.rint(grey), 0, 255)
+    key = (np.rint(np.maximum(net, 0.0) * 4.0) * 256.0 + level).astype(np.float32)
+    return cv2.dilate(key, kernel), cv2.erode(key, kernel)
+
+
+def unpack_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A side key → (disparity px, grey level); floor and subtract, not np.divmod (3×
+    slower): exact on these whole numbers."""
+    quarters = np.floor(key * np.float32(1 / 256))
+    return quarters / 4.0, key - quarters * 256.0
+
+
+def grey_side(grey: np.ndarray, near_grey: np.ndarray, far_grey: np.ndarray) -> np.ndarray:
+    """Per cell, in [-1, 1]: > 0 where its grey level is closer to the near side's cell's
+    than to the far side's — which side of an image edge the cell is on."""
+    return tanh32((np.abs(grey - far_grey) - np.abs(grey - near_grey)) / 16.0)
+
+
+def sides_differ(near: np.ndarray, far: np.ndarray, net: np.ndarray) -> np.ndarray:
+    """Cells whose near and far sides differ by more than MIN_DISAGREEMENT_PX and one of
+    which lies that far from the network's value (a 1e-3 px slack keeps every cell whose
+    log-space test in `available` could pass): the others could never change."""
+    apart = MIN_DISAGREEMENT_PX - 1e-3
+    return ((near - far) > MIN_DISAGREEMENT_PX) & \
+        (((near - net) > apart) | ((net - far) > apart))
+
+
 def cell_lidar(sparse: np.ndarray) -> np.ndarray:
     """The sparse disparity (0 or non-finite = none) per cell: the largest (the nearest
     surface) of the cell's points, 0 where it has none."""
@@ -115,8 +164,8 @@ def cell_lidar(sparse: np.ndarray) -> np.ndarray:
 
 def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                        confidence: np.ndarray, sparse: np.ndarray,
-                       max_disagreement_px: float = np.inf, max_confidence: float = np.inf
-                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                       max_disagreement_px: float = np.inf, max_confidence: float = np.inf,
+                       side_cells: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scorer's inputs at the cells where the two candidates differ (by more than
     MIN_DISAGREEMENT_PX, at most max_disagreement_px) and the network's confidence is below
     max_confidence.
@@ -130,9 +179,18 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     (max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map
     say whether the cell sits at an edge of either: without them the scorer could not tell a
     network that missed an edge from a LiDAR point across one, and a cap of 8 px on the
-    disagreement had to keep the large ones out (docs/experiments.md, session 20)."""
-    empty = (np.zeros((0, len(FEATURES)), np.float32), np.zeros(0, np.int64),
-             np.zeros(0, np.float32))
+    disagreement had to keep the large ones out (docs/experiments.md, session 20).
+
+    side_cells > 0: the network's own near and far sides (the largest and smallest of its
+    cell means over side_cells × side_cells cells) are candidates too. The cells are then
+    also those where the sides differ (`sides_differ`), below the same confidence gate;
+    SIDE_FEATURES are appended (how far each side lies from the network's value, which
+    side's grey the cell resembles, how far the LiDAR point lies from each side); and the
+    third item is (N, 3): the LiDAR point's, the near side's and the far side's values
+    (`available` says which of them are candidates at each cell)."""
+    n_features = len(FEATURES) + (len(SIDE_FEATURES) if side_cells else 0)
+    empty = (np.zeros((0, n_features), np.float32), np.zeros(0, np.int64),
+             np.zeros((0, 3) if side_cells else 0, np.float32))
     lidar_cells = cell_lidar(sparse)
     valid = lidar_cells > 0
     if not valid.any():
@@ -146,15 +204,19 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     signed = nearest - net.ravel()
     gap = np.abs(signed)
     trust = cell_mean(confidence).ravel()
-    candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px) & \
-        (trust < max_confidence)
-    cells = np.flatnonzero(candidate)
+    candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px)
+    grey_l = cell_mean(left)
+    if side_cells:
+        top, bottom = side_keys(net, grey_l, side_cells)
+        near, far = unpack_key(top)[0], unpack_key(bottom)[0]
+        candidate |= sides_differ(near, far, net).ravel()
+    cells = np.flatnonzero(candidate & (trust < max_confidence))
     if not len(cells):
         return empty
     point = index[cells]
     lidar = points[point]
     signed = signed[cells]
-    grey_l, grey_r = cell_mean(left), cell_mean(right)
+    grey_r = cell_mean(right)
     wc = net.shape[1]
     point_cell = np.flatnonzero(valid.ravel())[point]
     # the two disparity maps' local ranges in one pass each (2 channels)
@@ -170,7 +232,7 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
                 np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
     columns = (net5 - lid5, net9 - lid9, log1p32(net5), log1p32(lid5),
-               log1p32(np.abs(signed)), np.tanh(signed / 8.0),
+               log1p32(np.abs(signed)), tanh32(signed / 8.0),
                trust[cells],
                log1p32(CELL_PX * distance.ravel()[cells]), log1p32(gradient),
                log1p32(np.abs(residual[point])),
@@ -178,12 +240,36 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
                log1p32(range3[:, 0]), log1p32(range7[:, 0]),
                log1p32(range3[:, 1]), log1p32(range7[:, 1]),
                log1p32(local_range(grey_l, 5).ravel()[cells]),
-               np.tanh((cells // wc - point_cell // wc) / 4.0))
+               tanh32((cells // wc - point_cell // wc) / 4.0))
+    values = lidar
+    if side_cells:
+        net_c, near_c, far_c = net.ravel()[cells], near.ravel()[cells], far.ravel()[cells]
+        columns += (  # ≥ 0 but for the quarter-pixel rounding, or a negative network value
+            log1p32(np.maximum(near_c - net_c, 0)), log1p32(np.maximum(net_c - far_c, 0)),
+            grey_side(grey_l.ravel()[cells], unpack_key(top.ravel()[cells])[1],
+                      unpack_key(bottom.ravel()[cells])[1]),
+            log1p32(np.abs(lidar - near_c)), log1p32(np.abs(lidar - far_c)))
+        values = np.empty((len(cells), 3), np.float32)
+        values[:, 0], values[:, 1], values[:, 2] = lidar, near_c, far_c
     # each column written once into the float32 result: np.stack + astype took 1.4 ms a frame
-    out = np.empty((len(cells), len(FEATURES)), np.float32)
+    out = np.empty((len(cells), n_features), np.float32)
     for i, column in enumerate(columns):
         out[:, i] = column
-    return out, cells, lidar
+    return out, cells, values
+
+
+def available(features: np.ndarray, max_disagreement_px: float = np.inf) -> np.ndarray:
+    """(N, 3) bool, for features with SIDE_FEATURES: whether the LiDAR point, the near side
+    and the far side are candidates at each cell — each differs from the network's cell value
+    by more than MIN_DISAGREEMENT_PX, the point by at most max_disagreement_px (read back
+    from the features: they are log1p of the gaps, compared in that space)."""
+    gap = features[:, FEATURES.index("log_disagreement")]
+    sides = len(FEATURES)
+    out = np.empty((len(features), 3), bool)
+    out[:, 0] = (gap > LOG_MIN_DISAGREEMENT) & (gap <= log1p32(max_disagreement_px))
+    out[:, 1] = features[:, sides + SIDE_FEATURES.index("near_minus_net")] > LOG_MIN_DISAGREEMENT
+    out[:, 2] = features[:, sides + SIDE_FEATURES.index("net_minus_far")] > LOG_MIN_DISAGREEMENT
+    return out
 
 
 def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
@@ -199,14 +285,50 @@ def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, 
     return ys[inside] * w + xs[inside], owner[inside]
 
 
+class Perceptron:
+    """A fitted scorer, standardise → ReLU layer → linear outputs, with the standardisation
+    folded into the first layer: logits for (N, F) features in two OpenCV gemms, each adding
+    its bias tiled to N rows (kept and grown as frames need: one broadcast add and a ReLU
+    pass over the hidden layer cost ~0.7 ms a frame more than gemm's add and OpenCV's
+    threshold). OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and,
+    on a 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 →
+    23 ms in tools/bench.py while the stage ran; docs/experiments.md, session 18); and
+    (N, F) · (F, K): its feature-major transpose took 3 ms, not 0.7 (session 20)."""
+
+    def __init__(self, mean: np.ndarray, std: np.ndarray, w1: np.ndarray, b1: np.ndarray,
+                 w2: np.ndarray, b2) -> None:
+        self.w1 = np.ascontiguousarray(w1 / std[:, None], np.float32)
+        self.b1 = (b1 - (mean / std) @ w1).astype(np.float32)
+        self.w2 = np.ascontiguousarray(np.reshape(w2, (len(b1), -1)), np.float32)
+        self.b2 = np.asarray(b2, np.float32).reshape(-1)
+        self._tiles = (np.zeros((0, len(self.b1)), np.float32),
+                       np.zeros((0, len(self.b2)), np.float32))
+
+    def __call__(self, features: np.ndarray) -> np.ndarray:
+        """(N, F) → (N, outputs) float32."""
+        n = len(features)
+        if not n:
+            return np.zeros((0, len(self.b2)), np.float32)
+        if len(self._tiles[0]) < n:
+            rows = max(n, 4096)
+            self._tiles = (np.tile(self.b1, (rows, 1)), np.tile(self.b2, (rows, 1)))
+        b1, b2 = self._tiles[0][:n], self._tiles[1][:n]
+        hidden = cv2.gemm(np.ascontiguousarray(features, np.float32), self.w1, 1.0, b1, 1.0)
+        cv2.threshold(hidden, 0.0, 0.0, cv2.THRESH_TOZERO, dst=hidden)  # ReLU
+        return cv2.gemm(hidden, self.w2, 1.0, b2, 1.0)
+
+
 @dataclass(frozen=True)
 class LidarSelect:
-    """The fitted scorer: standardise, ReLU layer, one logit; p(LiDAR is nearer the truth).
-    mean/std (F,), w1 (F, K), b1 (K,), w2 (K,), b2 scalar; max_disagreement_px: cells where
-    the candidates differ by more keep the network's values; max_confidence: so do cells
-    where the network's mean confidence is at least this. confidence_scale/bias: a chosen
-    cell's pixels get the confidence sigmoid(scale · logit + bias), fitted as the share of
-    such pixels within 1 px of the truth (the network's confidence means the same); None
+    """The fitted scorer: standardise, ReLU layer, logits. Without sides (side_cells 0): one
+    logit, p(LiDAR is nearer the truth); with them, three (CANDIDATES after the network's,
+    whose logit is fixed at 0): a cell takes the available candidate of the largest positive
+    logit. mean/std (F,), w1 (F, K), b1 (K,), w2 (K,) or (K, 3), b2 scalar or (3,);
+    max_disagreement_px: a LiDAR point differing from the network's cell value by more is no
+    candidate; max_confidence: cells where the network's mean confidence is at least this
+    keep its values. confidence_scale/bias: a replaced cell's pixels get the confidence
+    sigmoid(scale · logit + bias) (the chosen candidate's logit), fitted as the share of such
+    pixels within 1 px of the truth (the network's confidence means the same); None
     (bundles fitted before session 20) keeps the network's confidence there."""
 
     mean: np.ndarray
@@ -214,21 +336,28 @@ class LidarSelect:
     w1: np.ndarray
     b1: np.ndarray
     w2: np.ndarray
-    b2: float
+    b2: float | np.ndarray
     max_disagreement_px: float = np.inf
     max_confidence: float = np.inf
     confidence_scale: float | None = None
     confidence_bias: float | None = None
+    side_cells: int = 0
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        return FEATURES + SIDE_FEATURES if self.side_cells else FEATURES
 
     @classmethod
     def from_meta(cls, entry: dict) -> LidarSelect:
         """From model.json's `lidar_select` (ConfigError naming what is wrong)."""
         try:
-            if list(entry["features"]) != list(FEATURES):
+            side_cells = int(entry.get("side_cells") or 0)
+            expected = FEATURES + SIDE_FEATURES if side_cells else FEATURES
+            if list(entry["features"]) != list(expected):
                 fitted = list(entry["features"])
-                which = "an older" if fitted == list(FEATURES[:len(fitted)]) else "another"
+                which = "an older" if fitted == list(expected[:len(fitted)]) else "another"
                 raise ValueError(f"fitted on {which} feature set ({len(fitted)} features; "
-                                 f"this engine computes {len(FEATURES)}): refit it with "
+                                 f"this engine computes {len(expected)}): refit it with "
                                  "`python tools/fit_select.py BUNDLE --data THINGS_DIR`, or "
                                  "run without it (`[engine] lidar_select = false`)")
             if entry.get("cell_px") != CELL_PX:
@@ -236,19 +365,22 @@ class LidarSelect:
                                  f"{CELL_PX} (refit with tools/fit_select.py)")
             arrays = {k: np.asarray(entry[k], np.float32) for k in ("mean", "std", "w1",
                                                                      "b1", "w2")}
+            b2 = np.asarray(entry["b2"], np.float32) if side_cells else float(entry["b2"])
             cap, gate = entry.get("max_disagreement_px"), entry.get("max_confidence")
             calibration = entry.get("confidence")
             scale, bias = (None, None) if calibration is None else \
                 (float(calibration["scale"]), float(calibration["bias"]))
-            out = cls(b2=float(entry["b2"]), **arrays,
+            out = cls(b2=b2, **arrays,
                       max_disagreement_px=np.inf if cap is None else float(cap),
                       max_confidence=np.inf if gate is None else float(gate),
-                      confidence_scale=scale, confidence_bias=bias)
-            f, k = len(FEATURES), out.b1.shape[0]
+                      confidence_scale=scale, confidence_bias=bias, side_cells=side_cells)
+            f, k = len(expected), out.b1.shape[0]
+            outputs = (k, len(CANDIDATES) - 1) if side_cells else (k,)
             if out.mean.shape != (f,) or out.std.shape != (f,) or out.w1.shape != (f, k) \
-                    or out.w2.shape != (k,) or not np.all(out.std > 0) \
+                    or out.w2.shape != outputs or np.shape(b2) != outputs[1:] \
+                    or not np.all(out.std > 0) \
                     or not out.max_disagreement_px > MIN_DISAGREEMENT_PX \
-                    or not out.max_confidence > 0 \
+                    or not out.max_confidence > 0 or not (side_cells == 0 or side_cells >= 3) \
                     or (scale is not None and not (np.isfinite(scale) and np.isfinite(bias))):
                 raise ValueError("shapes or scales do not match")
         except (KeyError, TypeError, ValueError) as exc:
@@ -257,47 +389,54 @@ class LidarSelect:
         return out
 
     def to_meta(self) -> dict:
-        return dict(features=list(FEATURES), cell_px=CELL_PX, mean=self.mean.tolist(),
-                    std=self.std.tolist(), w1=self.w1.tolist(), b1=self.b1.tolist(),
-                    w2=self.w2.tolist(), b2=float(self.b2),
-                    max_disagreement_px=None if np.isinf(self.max_disagreement_px)
-                    else float(self.max_disagreement_px),
-                    max_confidence=None if np.isinf(self.max_confidence)
-                    else float(self.max_confidence),
-                    confidence=None if self.confidence_scale is None
-                    else dict(scale=float(self.confidence_scale),
-                              bias=float(self.confidence_bias)))
+        out = dict(features=list(self.features), cell_px=CELL_PX, mean=self.mean.tolist(),
+                   std=self.std.tolist(), w1=self.w1.tolist(), b1=self.b1.tolist(),
+                   w2=self.w2.tolist(),
+                   b2=np.asarray(self.b2).tolist() if self.side_cells else float(self.b2),
+                   max_disagreement_px=None if np.isinf(self.max_disagreement_px)
+                   else float(self.max_disagreement_px),
+                   max_confidence=None if np.isinf(self.max_confidence)
+                   else float(self.max_confidence),
+                   confidence=None if self.confidence_scale is None
+                   else dict(scale=float(self.confidence_scale),
+                             bias=float(self.confidence_bias)))
+        if self.side_cells:
+            out.update(side_cells=int(self.side_cells), candidates=list(CANDIDATES))
+        return out
 
     @cached_property
-    def _folded(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """(w1, b1, w2 as a column) with the standardisation folded into the first layer,
-        float32 and contiguous: computed once, not per frame."""
-        w1 = np.ascontiguousarray(self.w1 / self.std[:, None], np.float32)
-        b1 = (self.b1 - (self.mean / self.std) @ self.w1).astype(np.float32)
-        return w1, b1, np.ascontiguousarray(self.w2.reshape(-1, 1), np.float32)
+    def _scorer(self) -> Perceptron:
+        return Perceptron(self.mean, self.std, self.w1, self.b1, self.w2, self.b2)
 
     def logit(self, features: np.ndarray) -> np.ndarray:
-        """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth (the
-        standardisation folded into the first layer: one matmul)."""
-        if not len(features):
-            return np.zeros(0, np.float32)
-        w1, b1, w2 = self._folded
-        # OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and, on a
-        # 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 → 23
-        # ms in tools/bench.py while the stage ran; docs/experiments.md, session 18); and
-        # (N, F) · (F, K): its feature-major transpose took 3 ms, not 0.7 (session 20)
-        features = np.ascontiguousarray(features, np.float32)
-        hidden = cv2.gemm(features, w1, 1.0, None, 0.0)
-        hidden += b1
-        np.maximum(hidden, 0.0, out=hidden)
-        return cv2.gemm(hidden, w2, 1.0, None, 0.0)[:, 0] + np.float32(self.b2)
+        """(N, F) → (N,) logit that the LiDAR candidate is nearer the truth, or with sides
+        (N, 3) one per candidate after the network."""
+        out = self._scorer(features)
+        return out if self.side_cells else out[:, 0]
 
     def probability(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N,) probability that the LiDAR candidate is nearer the truth."""
         return 1.0 / (1.0 + np.exp(-self.logit(features)))
 
+    def choose(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(N, F) → (the candidate chosen per cell: 0 keeps the network's value, else
+        CANDIDATES' index; the chosen logit, 0 where the network's is kept). A candidate
+        that is not `available` is never chosen; ties go to the earlier candidate."""
+        logits = self.logit(features)
+        if not self.side_cells:
+            take = logits > 0  # p > 0.5
+            return take.astype(np.int64), np.where(take, logits, 0)
+        logits = np.where(available(features, self.max_disagreement_px), logits, -np.inf)
+        best = logits[:, 0].copy()
+        choice = np.where(best > 0, 1, 0)
+        for i in (1, 2):  # a 3-wide argmax written out (numpy's took ~2 ms for 23 k cells)
+            better = logits[:, i] > np.maximum(best, 0)
+            choice[better] = i + 1
+            np.maximum(best, logits[:, i], out=best)
+        return choice, np.where(choice > 0, best, 0).astype(np.float32)
+
     def chosen_confidence(self, logits: np.ndarray) -> np.ndarray | None:
-        """The confidence of cells whose LiDAR value was taken, from their logits (None
+        """The confidence of cells whose value was replaced, from their chosen logits (None
         without a fitted calibration)."""
         if self.confidence_scale is None:
             return None
@@ -309,21 +448,22 @@ class LidarSelect:
               ) -> tuple[np.ndarray, np.ndarray, int]:
         """(disparity (H, W) with the chosen cells' pixels replaced, the confidence with
         theirs replaced by `chosen_confidence` (when fitted), how many pixels were)."""
-        features, cells, lidar = selection_features(left, right, disparity, confidence,
-                                                    sparse, self.max_disagreement_px,
-                                                    self.max_confidence)
+        features, cells, values = selection_features(left, right, disparity, confidence,
+                                                     sparse, self.max_disagreement_px,
+                                                     self.max_confidence, self.side_cells)
         if not len(features):
             return disparity, confidence, 0
-        logits = self.logit(features)
-        take = logits > 0  # p > 0.5
-        if not take.any():
+        choice, margin = self.choose(features)
+        rows = np.flatnonzero(choice)
+        if not len(rows):
             return disparity, confidence, 0
+        chosen = values[rows] if values.ndim == 1 else values[rows, choice[rows] - 1]
         # only the chosen cells' pixels are written (a copy, then a scatter): a full-frame
         # resize and np.where per output cost ~1.5 ms
-        pixels, owner = cell_pixels(cells[take], disparity.shape)
+        pixels, owner = cell_pixels(cells[rows], disparity.shape)
         disparity = disparity.astype(np.float32, copy=True)
-        disparity.ravel()[pixels] = lidar[take][owner]
-        trust = self.chosen_confidence(logits[take])
+        disparity.ravel()[pixels] = chosen[owner]
+        trust = self.chosen_confidence(margin[rows])
         if trust is not None:
             confidence = confidence.astype(np.float32, copy=True)
             confidence.ravel()[pixels] = trust[owner]
