@@ -184,3 +184,18 @@ def test_selection_cost_times_both_stages_on_the_same_frames(tmp_path):
     assert result["lidar_select_against"]["calls"] == 2
     with pytest.raises(SystemExit, match="no scene folders"):
         measure(DEFAULT_BUNDLE, tmp_path, frames=2, rounds=1, runtime="onnxruntime")
+
+
+def test_the_fit_tools_fit_on_the_networks_own_outputs():
+    """A refit of a bundle that holds both selections must not see either's choices."""
+    import argparse
+
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.tools.fit_select import fitting_engine
+
+    args = argparse.Namespace(bundle=DEFAULT_BUNDLE, frames=300, holdout=0.25, threads=1,
+                              runtime="onnxruntime")
+    engine = fitting_engine(args)
+    assert engine.select is None and engine.edge_select is None and engine.has_confidence
+    with pytest.raises(SystemExit, match="--frames"):
+        fitting_engine(argparse.Namespace(**{**vars(args), "frames": 4}))

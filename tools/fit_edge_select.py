@@ -44,6 +44,7 @@ from edge_depth.tools.fit_select import (
     candidate_gains,
     candidate_row,
     fit_perceptron,
+    fitting_engine,
     frames,
     report,
     score,
@@ -108,14 +109,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--min-margin", type=float, default=0.0,
                    help="a side is taken only where its logit is at least this")
     args = p.parse_args(argv)
-    if args.frames < 5 or not 0 < args.holdout < 1:
-        raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
     if args.side_cells < 3 or args.side_cells % 2 == 0:
         raise SystemExit("--side-cells: an odd number ≥ 3")
-    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
-                    lidar_select=False)
-    if not engine.has_confidence:
-        raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
+    engine = fitting_engine(args)
     gate = args.max_confidence or np.inf
     rows = collect(engine, args.data, args.frames, args.rig_share, args.seed, args.side_cells,
                    gate)

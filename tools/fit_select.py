@@ -316,6 +316,19 @@ def add_fit_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--dry-run", action="store_true", help="fit and report, write nothing")
 
 
+def fitting_engine(args: argparse.Namespace) -> Engine:
+    """Both fit tools' checks of their shared arguments, and the bundle's int8 engine without
+    either selection it may already hold: the fits are on the network's own outputs (an
+    engine with its edge selection on fitted a refit of that stage on its own choices)."""
+    if args.frames < 5 or not 0 < args.holdout < 1:
+        raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
+    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
+                    lidar_select=False, edge_select=False)
+    if not engine.has_confidence:
+        raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
+    return engine
+
+
 def calibrate(select, fit_rows: list[dict], hold_rows: list[dict], heldout: dict):
     """`select` with the confidence of the pixels it replaces fitted on fit_rows
     (`logistic_share` of the margins); on hold_rows, predicted vs measured share within 1 px
@@ -356,15 +369,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="things frames' LiDAR: projected from the right view (default) or "
                         "exact GT rows")
     args = p.parse_args(argv)
-    if args.frames < 5 or not 0 < args.holdout < 1:
-        raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
     if args.side_cells and (args.side_cells < 3 or args.side_cells % 2 == 0):
         raise SystemExit("--side-cells: 0, or an odd number ≥ 3")
-    # fit on the network's own outputs, without a selection the bundle may already hold
-    engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
-                    lidar_select=False)
-    if not engine.has_confidence:
-        raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
+    engine = fitting_engine(args)
     cap = args.max_disagreement or np.inf
     gate = args.max_confidence or np.inf
 
