@@ -12,11 +12,10 @@ from edge_depth.runtime.edge_select import (
     FEATURES,
     EdgeSelect,
     edge_features,
-    grey_side,
     side_values,
 )
-from edge_depth.runtime.lidar_select import cell_shape
-from tests.test_lidar_select import TRUE_DISPARITY, H, W, textured_pair
+from edge_depth.runtime.lidar_select import cell_shape, grey_side
+from tests.test_lidar_select import TRUE_DISPARITY, H, W, one_pixel_cells, textured_pair
 
 BLOCK = (slice(40, 44), slice(60, 64))  # 2 × 2 cells: each cell's 3 × 3 window sees the plane
 
@@ -158,9 +157,7 @@ def test_fit_learns_a_choice_that_lowers_the_error():
         best = np.where(x[:, 4] > 0.5, 1, np.where(x[:, 6] > 0.5, 2, 0))  # near / far / net
         err = np.full((n, 3), 5.0)
         err[np.arange(n), best] = 0.2
-        rows.append(dict(source="things", features=x, err=err, capped=err,
-                         bad3=(err > 3).astype(float), known=n, err_sum=float(err[:, 0].sum()),
-                         bad3_sum=int((err[:, 0] > 3).sum())))
+        rows.append(one_pixel_cells(x, err))
     select = fit(rows[1:], hidden=8, steps=300, seed=0, side_cells=3, max_confidence=0.9)
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before[0] > 1.5 and after[0] < 0.6 and after[1] < 10.0

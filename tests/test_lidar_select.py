@@ -42,6 +42,14 @@ def lidar_rows(value: float) -> np.ndarray:
     return sparse
 
 
+def one_pixel_cells(x: np.ndarray, err: np.ndarray) -> dict:
+    """A fitting tool's row (`candidate_row`'s keys) of cells of one known pixel each:
+    features x (N, F), err (N, 1 + candidates), the network's first."""
+    return dict(source="things", features=x, err=err, capped=err, bad3=(err > 3).astype(float),
+                known=len(x), err_sum=float(err[:, 0].sum()),
+                bad3_sum=int((err[:, 0] > 3).sum()))
+
+
 def cost_chooser() -> LidarSelect:
     """Takes the LiDAR where its 5×5 matching cost is lower than the network's by > 0.1."""
     f = len(FEATURES)
@@ -167,9 +175,7 @@ def test_fit_learns_a_choice_that_lowers_the_error_it_is_scored_on():
         x = rng.normal(size=(n, len(FEATURES))).astype(np.float32)
         lidar_better = x[:, 0] + 0.3 * x[:, 5] > 0
         err = np.stack([np.where(lidar_better, 5.0, 0.2), np.where(lidar_better, 0.2, 5.0)], 1)
-        rows.append(dict(features=x, err=err, capped=err, bad3=(err > 3).astype(float),
-                         known=n, err_sum=float(err[:, 0].sum()),
-                         bad3_sum=int((err[:, 0] > 3).sum())))
+        rows.append(one_pixel_cells(x, err))
     select = fit(rows[1:], hidden=8, steps=200, seed=0)
     before, after = score(rows[:1], None), score(rows[:1], select)
     assert before == pytest.approx((2.6, 50.0), abs=1.5)
@@ -414,9 +420,7 @@ def test_fit_with_sides_learns_which_candidate_to_take():
         best = np.select([x[:, 0] > 0.5, x[:, 1] > 0.5, x[:, 2] > 0.5], [1, 2, 3], 0)
         err = np.full((n, 4), 5.0)
         err[np.arange(n), best] = 0.2
-        rows.append(dict(source="things", features=x, err=err, capped=err,
-                         bad3=(err > 3).astype(float), known=n, err_sum=float(err[:, 0].sum()),
-                         bad3_sum=int((err[:, 0] > 3).sum())))
+        rows.append(one_pixel_cells(x, err))
     select = fit(rows[1:], hidden=16, steps=300, seed=0, side_cells=3)
     assert select.side_cells == 3 and select.w2.shape == (16, 3)
     before, after = score(rows[:1], None), score(rows[:1], select)

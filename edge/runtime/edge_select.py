@@ -35,9 +35,10 @@ from edge_depth.runtime.lidar_select import (
     Perceptron,
     cell_mean,
     cell_pixels,
-    grey_side,
+    cell_sides,
     local_range,
     log1p32,
+    side_columns,
     side_keys,
     sides_differ,
     unpack_key,
@@ -75,8 +76,8 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     values (N, 2) float32 the near and far sides' disparities there)."""
     net = cell_mean(disparity)
     grey_l = cell_mean(left)
-    top, bottom = side_keys(net, grey_l, side_cells)
-    near, far = unpack_key(top)[0], unpack_key(bottom)[0]
+    sides = cell_sides(net, grey_l, side_cells)
+    near, far = sides[:2]
     trust = cell_mean(confidence)
     # a cell where neither side lies more than MIN_DISAGREEMENT_PX from the network's value
     # would never change (`EdgeSelect.choose`): left out here
@@ -90,19 +91,14 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     costs = [[c.ravel()[cells] for c in warped_cost(grey_l, grey_r, d / CELL_PX, (3, 5))]
              for d in (net, near, far)]
     (net5, net9), (near5, near9), (far5, far9) = costs
-    net_c, near_c, far_c = net.ravel()[cells], near.ravel()[cells], far.ravel()[cells]
+    near_c, far_c, near_gap, far_gap, grey_side_c = side_columns(cells, net, grey_l, sides)
     gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
                 np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
     columns = (log1p32(net5), log1p32(net9), log1p32(near5), log1p32(far5),
                net5 - near5, net9 - near9, net5 - far5, net9 - far9,
-               # ≥ 0 but for the quarter-pixel rounding, or a negative network value
-               # (the sides are taken from max(disparity, 0))
-               log1p32(np.maximum(near_c - net_c, 0)), log1p32(np.maximum(net_c - far_c, 0)),
-               trust.ravel()[cells],
+               near_gap, far_gap, trust.ravel()[cells],
                log1p32(local_range(net, 3).ravel()[cells]), log1p32(gradient),
-               log1p32(local_range(grey_l, 5).ravel()[cells]),
-               grey_side(grey_l.ravel()[cells], unpack_key(top.ravel()[cells])[1],
-                         unpack_key(bottom.ravel()[cells])[1]))
+               log1p32(local_range(grey_l, 5).ravel()[cells]), grey_side_c)
     out = np.empty((len(cells), len(FEATURES)), np.float32)
     for i, column in enumerate(columns):
         out[:, i] = column

@@ -134,6 +134,28 @@ def grey_side(grey: np.ndarray, near_grey: np.ndarray, far_grey: np.ndarray) -> 
     return tanh32((np.abs(grey - far_grey) - np.abs(grey - near_grey)) / 16.0)
 
 
+def cell_sides(net: np.ndarray, grey: np.ndarray, side_cells: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(near, far, their keys top, bottom): per cell the largest and smallest cell-mean
+    disparity over side_cells × side_cells cells (`side_keys`, to 1/4 px)."""
+    top, bottom = side_keys(net, grey, side_cells)
+    return unpack_key(top)[0], unpack_key(bottom)[0], top, bottom
+
+
+def side_columns(cells: np.ndarray, net: np.ndarray, grey: np.ndarray,
+                 sides: tuple[np.ndarray, ...]) -> tuple[np.ndarray, ...]:
+    """At the given cells, from `cell_sides`: (near, far, and the features both selections
+    read from them: how far each lies from the network's value, log1p — ≥ 0 but for the
+    quarter-pixel rounding, or a negative network value, the sides being taken from
+    max(disparity, 0) —, and `grey_side`)."""
+    near, far, top, bottom = sides
+    net_c, near_c, far_c = (m.ravel()[cells] for m in (net, near, far))
+    return (near_c, far_c, log1p32(np.maximum(near_c - net_c, 0)),
+            log1p32(np.maximum(net_c - far_c, 0)),
+            grey_side(grey.ravel()[cells], unpack_key(top.ravel()[cells])[1],
+                      unpack_key(bottom.ravel()[cells])[1]))
+
+
 def sides_differ(near: np.ndarray, far: np.ndarray, net: np.ndarray) -> np.ndarray:
     """Cells whose near and far sides differ by more than MIN_DISAGREEMENT_PX and one of
     which lies that far from the network's value (a 1e-3 px slack keeps every cell whose
@@ -207,9 +229,8 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px)
     grey_l = cell_mean(left)
     if side_cells:
-        top, bottom = side_keys(net, grey_l, side_cells)
-        near, far = unpack_key(top)[0], unpack_key(bottom)[0]
-        candidate |= sides_differ(near, far, net).ravel()
+        sides = cell_sides(net, grey_l, side_cells)
+        candidate |= sides_differ(*sides[:2], net).ravel()
     cells = np.flatnonzero(candidate & (trust < max_confidence))
     if not len(cells):
         return empty
@@ -243,12 +264,9 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
                tanh32((cells // wc - point_cell // wc) / 4.0))
     values = lidar
     if side_cells:
-        net_c, near_c, far_c = net.ravel()[cells], near.ravel()[cells], far.ravel()[cells]
-        columns += (  # ≥ 0 but for the quarter-pixel rounding, or a negative network value
-            log1p32(np.maximum(near_c - net_c, 0)), log1p32(np.maximum(net_c - far_c, 0)),
-            grey_side(grey_l.ravel()[cells], unpack_key(top.ravel()[cells])[1],
-                      unpack_key(bottom.ravel()[cells])[1]),
-            log1p32(np.abs(lidar - near_c)), log1p32(np.abs(lidar - far_c)))
+        near_c, far_c, *side_features = side_columns(cells, net, grey_l, sides)
+        columns += (*side_features, log1p32(np.abs(lidar - near_c)),
+                    log1p32(np.abs(lidar - far_c)))
         values = np.empty((len(cells), 3), np.float32)
         values[:, 0], values[:, 1], values[:, 2] = lidar, near_c, far_c
     # each column written once into the float32 result: np.stack + astype took 1.4 ms a frame
