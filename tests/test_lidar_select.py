@@ -17,8 +17,11 @@ from edge_depth.runtime.lidar_select import (
     cell_lidar,
     cell_pixels,
     cell_shape,
+    feature_matrix,
+    key_disparity,
     selection_features,
     tanh32,
+    unpack_key,
 )
 
 H, W = 96, 160
@@ -128,6 +131,9 @@ def test_cells_cover_an_odd_sized_image_and_take_the_nearest_surface():
     pixels, owner = cell_pixels(np.array([0, 11]), (5, 7))  # cell 11: the corner (2, 3)
     np.testing.assert_array_equal(pixels[owner == 0], [0, 1, 7, 8])
     np.testing.assert_array_equal(pixels[owner == 1], [4 * 7 + 6])  # cut to one pixel
+    pixels, owner = cell_pixels(np.array([0, 5]), (4, 6))  # no cut cells: the quick path
+    np.testing.assert_array_equal(pixels, [0, 1, 6, 7, 16, 17, 22, 23])
+    np.testing.assert_array_equal(owner, [0, 0, 0, 0, 1, 1, 1, 1])
     assert CELL_PX == 2
 
 
@@ -442,3 +448,11 @@ def test_the_vectorised_helpers_match_numpy():
     np.testing.assert_allclose(scorer(features[:10]), expected[:10], rtol=1e-4, atol=1e-4)
     np.testing.assert_allclose(scorer(features), expected, rtol=1e-4, atol=1e-4)
     assert scorer(features[:0]).shape == (0, 3)
+    for n in (1, 6):  # the features' interleave, from float64 and strided columns too
+        columns = [rng.normal(size=n), rng.normal(size=(n, 2)).astype(np.float32)[:, 1],
+                   np.arange(n, dtype=np.float32)]
+        matrix = feature_matrix(columns)
+        assert matrix.dtype == np.float32 and matrix.shape == (n, 3)
+        np.testing.assert_array_equal(matrix, np.stack(columns, 1).astype(np.float32))
+    keys = np.arange(0, 2**24, 97, dtype=np.float32)
+    np.testing.assert_array_equal(key_disparity(keys), unpack_key(keys)[0])

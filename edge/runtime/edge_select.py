@@ -36,6 +36,7 @@ from edge_depth.runtime.lidar_select import (
     cell_mean,
     cell_pixels,
     cell_sides,
+    feature_matrix,
     local_range,
     log1p32,
     side_columns,
@@ -99,12 +100,9 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                near_gap, far_gap, trust.ravel()[cells],
                log1p32(local_range(net, 3).ravel()[cells]), log1p32(gradient),
                log1p32(local_range(grey_l, 5).ravel()[cells]), grey_side_c)
-    out = np.empty((len(cells), len(FEATURES)), np.float32)
-    for i, column in enumerate(columns):
-        out[:, i] = column
     values = np.empty((len(cells), 2), np.float32)
     values[:, 0], values[:, 1] = near_c, far_c
-    return out, cells, values
+    return feature_matrix(columns), cells, values
 
 
 def sides_apart(features: np.ndarray) -> np.ndarray:

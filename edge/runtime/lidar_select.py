@@ -47,6 +47,11 @@ SIDE_FEATURES = ("near_minus_net", "net_minus_far", "grey_side", "log_lidar_to_n
 CANDIDATES = ("network", "LiDAR point", "near side", "far side")
 CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
 MIN_DISAGREEMENT_PX = 0.5  # below this the two candidates are the same value
+# a cell the LiDAR point is no candidate for is scored for its sides only if one lies this far
+# from the network's value: with 0.5 px, the cells whose sides lie nearer were 10 % of the
+# stage's cells and held 6.5 % of the sides' oracle bad-3 gain at such cells (60 fitting
+# frames; docs/experiments.md, session 23)
+SIDE_ONLY_MIN_PX = 1.0
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
 
 
@@ -55,9 +60,9 @@ def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
     """Mean |left(x, y) − right(x − d, y)| (grey levels) over each window size; (H, W) each.
     left/right (H, W) float32 grey; disparity (H, W) px; bilinear in the right image; a pixel
     whose x − d falls left of the image costs OUT_OF_VIEW_COST."""
-    error = np.abs(left - warp_right_to_left(right, disparity))
+    error = cv2.absdiff(left, warp_right_to_left(right, disparity))
     out_of_view = np.arange(left.shape[1], dtype=np.float32)[None, :] < disparity
-    error[out_of_view] = OUT_OF_VIEW_COST
+    np.copyto(error, np.float32(OUT_OF_VIEW_COST), where=out_of_view)  # 2× a boolean index
     return [cv2.blur(error, (k, k)) for k in windows]
 
 
@@ -128,6 +133,14 @@ def unpack_key(key: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return quarters / 4.0, key - quarters * 256.0
 
 
+def key_disparity(key: np.ndarray) -> np.ndarray:
+    """A side key's disparity alone (`unpack_key`'s first item, without the grey level's
+    two passes)."""
+    quarters = np.floor(key * np.float32(1 / 256))
+    quarters *= np.float32(0.25)
+    return quarters
+
+
 def grey_side(grey: np.ndarray, near_grey: np.ndarray, far_grey: np.ndarray) -> np.ndarray:
     """Per cell, in [-1, 1]: > 0 where its grey level is closer to the near side's cell's
     than to the far side's — which side of an image edge the cell is on."""
@@ -139,7 +152,7 @@ def cell_sides(net: np.ndarray, grey: np.ndarray, side_cells: int
     """(near, far, their keys top, bottom): per cell the largest and smallest cell-mean
     disparity over side_cells × side_cells cells (`side_keys`, to 1/4 px)."""
     top, bottom = side_keys(net, grey, side_cells)
-    return unpack_key(top)[0], unpack_key(bottom)[0], top, bottom
+    return key_disparity(top), key_disparity(bottom), top, bottom
 
 
 def side_columns(cells: np.ndarray, net: np.ndarray, grey: np.ndarray,
@@ -156,11 +169,13 @@ def side_columns(cells: np.ndarray, net: np.ndarray, grey: np.ndarray,
                       unpack_key(bottom.ravel()[cells])[1]))
 
 
-def sides_differ(near: np.ndarray, far: np.ndarray, net: np.ndarray) -> np.ndarray:
+def sides_differ(near: np.ndarray, far: np.ndarray, net: np.ndarray,
+                 min_px: float = MIN_DISAGREEMENT_PX) -> np.ndarray:
     """Cells whose near and far sides differ by more than MIN_DISAGREEMENT_PX and one of
-    which lies that far from the network's value (a 1e-3 px slack keeps every cell whose
-    log-space test in `available` could pass): the others could never change."""
-    apart = MIN_DISAGREEMENT_PX - 1e-3
+    which lies more than min_px from the network's value (a 1e-3 px slack keeps every cell
+    whose log-space test in `available` could pass): the others could never change, or
+    (min_px larger) would change by too little to be worth scoring."""
+    apart = min_px - 1e-3
     return ((near - far) > MIN_DISAGREEMENT_PX) & \
         (((near - net) > apart) | ((net - far) > apart))
 
@@ -230,7 +245,7 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     grey_l = cell_mean(left)
     if side_cells:
         sides = cell_sides(net, grey_l, side_cells)
-        candidate |= sides_differ(*sides[:2], net).ravel()
+        candidate |= sides_differ(*sides[:2], net, SIDE_ONLY_MIN_PX).ravel()
     cells = np.flatnonzero(candidate & (trust < max_confidence))
     if not len(cells):
         return empty
@@ -269,11 +284,15 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
                     log1p32(np.abs(lidar - far_c)))
         values = np.empty((len(cells), 3), np.float32)
         values[:, 0], values[:, 1], values[:, 2] = lidar, near_c, far_c
-    # each column written once into the float32 result: np.stack + astype took 1.4 ms a frame
-    out = np.empty((len(cells), n_features), np.float32)
-    for i, column in enumerate(columns):
-        out[:, i] = column
-    return out, cells, values
+    return feature_matrix(columns), cells, values
+
+
+def feature_matrix(columns) -> np.ndarray:
+    """N-long columns → (N, len(columns)) float32, interleaved by OpenCV's merge: writing each
+    into a strided column of an empty array took 1.0 ms a frame at 17 k cells × 22, the merge
+    0.2 (np.stack + astype 1.4; docs/experiments.md, session 23)."""
+    columns = [np.ascontiguousarray(c, np.float32).reshape(-1) for c in columns]
+    return cv2.merge(columns).reshape(len(columns[0]), len(columns))
 
 
 def available(features: np.ndarray, max_disagreement_px: float = np.inf) -> np.ndarray:
@@ -295,6 +314,11 @@ def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, 
     `cells` each belongs to); cells cut by the image's border give fewer."""
     h, w = shape
     wc = cell_shape(shape)[1]
+    if h % CELL_PX == 0 and w % CELL_PX == 0:  # no cut cells (the usual case): one add
+        first = (cells // wc) * (CELL_PX * w) + (cells % wc) * CELL_PX
+        offsets = (np.arange(CELL_PX)[:, None] * w + np.arange(CELL_PX)[None, :]).ravel()
+        return ((first[:, None] + offsets[None, :]).ravel(),
+                np.repeat(np.arange(len(cells)), CELL_PX * CELL_PX))
     y0, x0 = (cells // wc) * CELL_PX, (cells % wc) * CELL_PX
     dy, dx = np.divmod(np.arange(CELL_PX * CELL_PX), CELL_PX)
     ys, xs = y0[:, None] + dy[None, :], x0[:, None] + dx[None, :]
