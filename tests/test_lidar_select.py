@@ -13,6 +13,7 @@ from edge_depth.runtime.lidar_select import (
     SIDE_FEATURES,
     LidarSelect,
     Perceptron,
+    Scratch,
     available,
     cell_lidar,
     cell_pixels,
@@ -454,5 +455,12 @@ def test_the_vectorised_helpers_match_numpy():
         matrix = feature_matrix(columns)
         assert matrix.dtype == np.float32 and matrix.shape == (n, 3)
         np.testing.assert_array_equal(matrix, np.stack(columns, 1).astype(np.float32))
+    scratch = Scratch()  # the same values into one reused buffer, grown when a frame needs
+    first = feature_matrix([np.arange(5.0), np.ones(5)], scratch)
+    np.testing.assert_array_equal(first, [[i, 1] for i in range(5)])
+    again = feature_matrix([np.zeros(7), np.arange(7.0)], scratch)
+    assert np.shares_memory(first, again)
+    np.testing.assert_array_equal(again, [[0, i] for i in range(7)])
+    assert not np.shares_memory(feature_matrix([np.zeros(9000)] * 2, scratch), again)
     keys = np.arange(0, 2**24, 97, dtype=np.float32)
     np.testing.assert_array_equal(key_disparity(keys), unpack_key(keys)[0])

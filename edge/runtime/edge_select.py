@@ -33,6 +33,7 @@ from edge_depth.runtime.lidar_select import (
     CELL_PX,
     LOG_MIN_DISAGREEMENT,
     Perceptron,
+    Scratch,
     cell_mean,
     cell_pixels,
     cell_sides,
@@ -66,7 +67,7 @@ def side_values(net: np.ndarray, grey: np.ndarray, side_cells: int
 
 def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                   confidence: np.ndarray, side_cells: int = SIDE_CELLS,
-                  max_confidence: float = np.inf
+                  max_confidence: float = np.inf, scratch: Scratch | None = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scorer's inputs at the cells whose network confidence is below max_confidence,
     whose near and far sides differ by more than MIN_DISAGREEMENT_PX and one of which lies
@@ -74,7 +75,8 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 
     left/right (H, W) grey, disparity and confidence (H, W) the network's outputs. Returns
     (features (N, len(FEATURES)) float32, cells (N,) flat indices over the cell grid,
-    values (N, 2) float32 the near and far sides' disparities there)."""
+    values (N, 2) float32 the near and far sides' disparities there); with `scratch`, the
+    features lie in its buffer until its next use (`feature_matrix`)."""
     net = cell_mean(disparity)
     grey_l = cell_mean(left)
     sides = cell_sides(net, grey_l, side_cells)
@@ -102,7 +104,7 @@ def edge_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                log1p32(local_range(grey_l, 5).ravel()[cells]), grey_side_c)
     values = np.empty((len(cells), 2), np.float32)
     values[:, 0], values[:, 1] = near_c, far_c
-    return feature_matrix(columns), cells, values
+    return feature_matrix(columns, scratch), cells, values
 
 
 def sides_apart(features: np.ndarray) -> np.ndarray:
@@ -180,6 +182,10 @@ class EdgeSelect:
     def _scorer(self) -> Perceptron:
         return Perceptron(self.mean, self.std, self.w1, self.b1, self.w2, self.b2)
 
+    @cached_property
+    def _scratch(self) -> Scratch:
+        return Scratch()
+
     def logits(self, features: np.ndarray) -> np.ndarray:
         """(N, F) → (N, 3) logits over CANDIDATES."""
         return self._scorer(features)
@@ -210,7 +216,8 @@ class EdgeSelect:
         """(disparity with the replaced cells' pixels set to their side's value, the
         confidence with theirs from `chosen_confidence`, how many pixels were replaced)."""
         features, cells, values = edge_features(left, right, disparity, confidence,
-                                                self.side_cells, self.max_confidence)
+                                                self.side_cells, self.max_confidence,
+                                                self._scratch)
         if not len(features):
             return disparity, confidence, 0
         choice, margin = self.choose(features)
