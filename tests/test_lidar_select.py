@@ -23,6 +23,8 @@ from edge_depth.runtime.lidar_select import (
     selection_features,
     tanh32,
     unpack_key,
+    warp_error,
+    warp_error_at,
 )
 
 H, W = 96, 160
@@ -455,6 +457,12 @@ def test_the_vectorised_helpers_match_numpy():
         matrix = feature_matrix(columns)
         assert matrix.dtype == np.float32 and matrix.shape == (n, 3)
         np.testing.assert_array_equal(matrix, np.stack(columns, 1).astype(np.float32))
+    left, right = (rng.uniform(0, 255, (6, 9)).astype(np.float32) for _ in range(2))
+    disparity = rng.uniform(-1, 12, (6, 9)).astype(np.float32)  # some read beyond the border
+    pixels = np.array([0, 8, 17, 30, 53])
+    np.testing.assert_array_equal(warp_error_at(left, right, pixels, disparity.ravel()[pixels]),
+                                  warp_error(left, right, disparity).ravel()[pixels])
+    assert np.any(warp_error(left, right, disparity) == 255.0)
     scratch = Scratch()  # the same values into one reused buffer, grown when a frame needs
     first = feature_matrix([np.arange(5.0), np.ones(5)], scratch)
     np.testing.assert_array_equal(first, [[i, 1] for i in range(5)])

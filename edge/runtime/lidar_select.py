@@ -56,14 +56,35 @@ SIDE_ONLY_MIN_PX = 1.0
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
 
 
-def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                windows: tuple[int, ...]) -> list[np.ndarray]:
-    """Mean |left(x, y) − right(x − d, y)| (grey levels) over each window size; (H, W) each.
-    left/right (H, W) float32 grey; disparity (H, W) px; bilinear in the right image; a pixel
-    whose x − d falls left of the image costs OUT_OF_VIEW_COST."""
+def warp_error(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
+    """|left(x, y) − right(x − d, y)| (grey levels), (H, W) float32. left/right (H, W) float32
+    grey; disparity (H, W) px; bilinear in the right image; a pixel whose x − d falls left of
+    the image costs OUT_OF_VIEW_COST."""
     error = cv2.absdiff(left, warp_right_to_left(right, disparity))
     out_of_view = np.arange(left.shape[1], dtype=np.float32)[None, :] < disparity
     np.copyto(error, np.float32(OUT_OF_VIEW_COST), where=out_of_view)  # 2× a boolean index
+    return error
+
+
+def warp_error_at(left: np.ndarray, right: np.ndarray, pixels: np.ndarray,
+                  disparity: np.ndarray) -> np.ndarray:
+    """`warp_error` at the given flat pixels only, for their own disparities (N,): the same
+    values, for a map that differs from a warped one at those pixels alone."""
+    w = left.shape[1]
+    x = (pixels % w).astype(np.float32)
+    disparity = np.asarray(disparity, np.float32)
+    sample = cv2.remap(right, (x - disparity).reshape(1, -1),
+                       (pixels // w).astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
+                       borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(-1)
+    error = np.abs(left.ravel()[pixels] - sample)
+    np.copyto(error, np.float32(OUT_OF_VIEW_COST), where=x < disparity)
+    return error
+
+
+def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                windows: tuple[int, ...]) -> list[np.ndarray]:
+    """Mean `warp_error` over each window size; (H, W) each."""
+    error = warp_error(left, right, disparity)
     return [cv2.blur(error, (k, k)) for k in windows]
 
 
@@ -264,12 +285,14 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     both = cv2.merge([net, nearest.reshape(net.shape)])
     range3 = local_range(both, 3).reshape(-1, 2)[cells]
     range7 = local_range(both, 7).reshape(-1, 2)[cells]
-    lidar_map = net.copy()
-    lidar_map.ravel()[cells] = lidar  # where they agree the cost is not used
-    # disparities in cell units for the warp; windows 3 and 5 cells ≈ 5 and 9 pixels
-    net5, net9 = (c.ravel()[cells] for c in warped_cost(grey_l, grey_r, net / CELL_PX, (3, 5)))
-    lid5, lid9 = (c.ravel()[cells] for c in warped_cost(grey_l, grey_r, lidar_map / CELL_PX,
-                                                        (3, 5)))
+    # disparities in cell units for the warp; windows 3 and 5 cells ≈ 5 and 9 pixels. The
+    # LiDAR candidate's map is the network's but at these cells (where they agree its cost is
+    # not used), so its error is the network's but there (a full second warp cost more)
+    net_error = warp_error(grey_l, grey_r, net / CELL_PX)
+    lidar_error = net_error.copy()
+    lidar_error.ravel()[cells] = warp_error_at(grey_l, grey_r, cells, lidar / CELL_PX)
+    net5, net9 = (cv2.blur(net_error, (k, k)).ravel()[cells] for k in (3, 5))
+    lid5, lid9 = (cv2.blur(lidar_error, (k, k)).ravel()[cells] for k in (3, 5))
     gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
                 np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
     columns = (net5 - lid5, net9 - lid9, log1p32(net5), log1p32(lid5),
