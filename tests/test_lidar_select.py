@@ -463,6 +463,11 @@ def test_the_vectorised_helpers_match_numpy():
     np.testing.assert_array_equal(warp_error_at(left, right, pixels, disparity.ravel()[pixels]),
                                   warp_error(left, right, disparity).ravel()[pixels])
     assert np.any(warp_error(left, right, disparity) == 255.0)
+    left, right = (rng.uniform(0, 255, (200, 320)).astype(np.float32) for _ in range(2))
+    disparity = rng.uniform(-1, 40, (200, 320)).astype(np.float32)
+    pixels = np.arange(0, 64000, 1)[rng.random(64000) < 0.7]  # more than remap's 32 767
+    np.testing.assert_array_equal(warp_error_at(left, right, pixels, disparity.ravel()[pixels]),
+                                  warp_error(left, right, disparity).ravel()[pixels])
     scratch = Scratch()  # the same values into one reused buffer, grown when a frame needs
     first = feature_matrix([np.arange(5.0), np.ones(5)], scratch)
     np.testing.assert_array_equal(first, [[i, 1] for i in range(5)])

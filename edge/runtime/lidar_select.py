@@ -54,6 +54,7 @@ MIN_DISAGREEMENT_PX = 0.5  # below this the two candidates are the same value
 # frames; docs/experiments.md, session 23)
 SIDE_ONLY_MIN_PX = 1.0
 OUT_OF_VIEW_COST = 255.0  # a candidate that reads the right image left of its border
+REMAP_ROW = 4096  # `warp_error_at`'s samples per remap row
 
 
 def warp_error(left: np.ndarray, right: np.ndarray, disparity: np.ndarray) -> np.ndarray:
@@ -70,12 +71,16 @@ def warp_error_at(left: np.ndarray, right: np.ndarray, pixels: np.ndarray,
                   disparity: np.ndarray) -> np.ndarray:
     """`warp_error` at the given flat pixels only, for their own disparities (N,): the same
     values, for a map that differs from a warped one at those pixels alone."""
-    w = left.shape[1]
+    w, n = left.shape[1], len(pixels)
     x = (pixels % w).astype(np.float32)
     disparity = np.asarray(disparity, np.float32)
-    sample = cv2.remap(right, (x - disparity).reshape(1, -1),
-                       (pixels // w).astype(np.float32).reshape(1, -1), cv2.INTER_LINEAR,
-                       borderMode=cv2.BORDER_CONSTANT, borderValue=0).reshape(-1)
+    # the maps as rows of REMAP_ROW (remap takes images under 32 767 wide), the last padded
+    rows = -(-n // REMAP_ROW)
+    map_x, map_y = (np.zeros(rows * REMAP_ROW, np.float32) for _ in range(2))
+    map_x[:n], map_y[:n] = x - disparity, pixels // w
+    sample = cv2.remap(right, map_x.reshape(rows, REMAP_ROW), map_y.reshape(rows, REMAP_ROW),
+                       cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                       borderValue=0).reshape(-1)[:n]
     error = np.abs(left.ravel()[pixels] - sample)
     np.copyto(error, np.float32(OUT_OF_VIEW_COST), where=x < disparity)
     return error
