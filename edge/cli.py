@@ -31,6 +31,18 @@ def _positive_int(text: str) -> int:
     return value
 
 
+def _view_spread(text: str) -> float:
+    """0 (one response for both cameras) to 4 (gain ±48 %): beyond, a view's gain could reach
+    zero."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 4, got {text!r}") from None
+    if not 0.0 <= value <= 4.0:
+        raise argparse.ArgumentTypeError(f"expected a number from 0 to 4, got {text!r}")
+    return value
+
+
 class _Parser(argparse.ArgumentParser):
     """argparse that reports errors on one line and exits with status 2."""
 
@@ -152,6 +164,10 @@ def build_parser() -> argparse.ArgumentParser:
                             "64-beam LiDAR, a world no shipped model trained on")
     synth.add_argument("--workers", type=_positive_int, default=1,
                        help="rendering processes (--world things)")
+    synth.add_argument("--view-spread", type=_view_spread, default=1.0,
+                       help="--world things: how much the two cameras' responses differ "
+                            "(gain ±12 %%, gamma ±6 %%, blur ±0.3 px, vignetting ±0.05, times "
+                            "this; 1 = the world the shipped model trained on)")
     synth.add_argument("--scene-folders", action="store_true",
                        help="--world things: write scene folders for evaluation (16 GT rows "
                             "as the LiDAR) instead of training pairs")
@@ -281,12 +297,13 @@ def main(argv: list[str] | None = None) -> int:
             if args.world == "things" and args.scene_folders:
                 from edge_depth.sim.export import things_folders_command
 
-                return things_folders_command(args.out, args.count, args.seed, args.size)
+                return things_folders_command(args.out, args.count, args.seed, args.size,
+                                              args.view_spread)
             if args.world == "things":
                 from edge_depth.sim.export import things_command
 
                 return things_command(args.out, args.count, args.seed, args.size,
-                                      args.workers)
+                                      args.workers, args.view_spread)
             return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
         if args.command == "calibrate":
             from edge_depth.calibrate import run

@@ -65,6 +65,9 @@ def test_synth_writes_scene_folders_that_match_the_rig(tmp_path, capsys):
     (["--count", "0"], "positive"),
     (["--count", "-3"], "positive"),
     (["--lidar", "beams7"], "invalid choice"),
+    (["--view-spread", "-0.5"], "from 0 to 4"),
+    (["--view-spread", "nan"], "from 0 to 4"),
+    (["--view-spread", "wide"], "from 0 to 4"),
 ])
 def test_bad_arguments_exit_non_zero_with_one_line_and_write_nothing(tmp_path, capsys, args,
                                                                        reason):

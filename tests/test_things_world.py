@@ -104,6 +104,24 @@ def test_camera_response_changes_gain_between_views_but_keeps_structure():
     assert np.corrcoef(image.ravel(), darker.ravel())[0, 1] > 0.99
 
 
+def test_view_spread_scales_how_the_two_cameras_differ_and_keeps_the_scene():
+    base = CameraResponse.random(np.random.default_rng(3))
+    same = [base.for_view(v, np.random.default_rng(5), spread=0.0) for v in ("left", "right")]
+    assert same[0] == same[1] == base  # one response for both cameras
+    full = base.for_view("left", np.random.default_rng(5))  # spread 1: as rendered before
+    rng = np.random.default_rng(5)
+    assert full.exposure == base.exposure * float(rng.uniform(0.88, 1.12))
+    assert full.gamma == base.gamma * float(rng.uniform(0.94, 1.06))
+    quarter = base.for_view("left", np.random.default_rng(5), spread=0.25)
+    assert quarter.exposure - base.exposure == pytest.approx((full.exposure - base.exposure) / 4)
+    cfg = WorldConfig(width=96, height=64)
+    a = make_things_sample(7, cfg)
+    b = make_things_sample(7, WorldConfig(width=96, height=64, view_spread=0.0))
+    np.testing.assert_array_equal(a.disp_left, b.disp_left)  # same scene, other cameras
+    assert np.array_equal(a.left, make_things_sample(7, cfg).left)
+    assert not np.array_equal(a.right, b.right)
+
+
 def test_store_round_trips_disparity_to_a_sixty_fourth_of_a_pixel(tmp_path):
     assert generate(tmp_path, 2, 10, SMALL) == 2
     assert generate(tmp_path, 2, 10, SMALL) == 0       # already there: skipped

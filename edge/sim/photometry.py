@@ -35,13 +35,19 @@ class CameraResponse:
                    read_noise=float(rng.uniform(0.3, 3.0)), shot_noise=float(rng.uniform(0, 3)),
                    jpeg_quality=int(rng.integers(50, 96)) if rng.random() < 0.3 else 0)
 
-    def for_view(self, view: str, rng: np.random.Generator) -> CameraResponse:
+    def for_view(self, view: str, rng: np.random.Generator,
+                 spread: float = 1.0) -> CameraResponse:
         """This response as one camera of the pair sees it: gain within ±12 %, gamma ±6 %,
-        blur ±0.3 px, vignetting ±0.05 (left and right draw independently)."""
-        return replace(self, exposure=self.exposure * float(rng.uniform(0.88, 1.12)),
-                       gamma=self.gamma * float(rng.uniform(0.94, 1.06)),
-                       blur_sigma_px=max(0.0, self.blur_sigma_px + float(rng.uniform(-.3, .3))),
-                       vignetting=max(0.0, self.vignetting + float(rng.uniform(-.05, .05))))
+        blur ±0.3 px, vignetting ±0.05, each range times `spread` (left and right draw
+        independently; the same draws for any spread, so a seed keeps its scene)."""
+        def draw(low: float, high: float, centre: float) -> float:
+            value = float(rng.uniform(low, high))  # as rendered before `spread` (bit-exact)
+            return value if spread == 1.0 else centre + (value - centre) * spread
+
+        return replace(self, exposure=self.exposure * draw(0.88, 1.12, 1.0),
+                       gamma=self.gamma * draw(0.94, 1.06, 1.0),
+                       blur_sigma_px=max(0.0, self.blur_sigma_px + draw(-.3, .3, 0.0)),
+                       vignetting=max(0.0, self.vignetting + draw(-.05, .05, 0.0)))
 
 
 def apply_camera(radiance: np.ndarray, response: CameraResponse, rng: np.random.Generator,

@@ -46,6 +46,10 @@ class WorldConfig:
     min_objects: int = 4
     max_objects: int = 22
     max_disparity_range_px: tuple[float, float] = (40.0, 140.0)
+    # how much the two cameras' responses differ (`CameraResponse.for_view`'s ranges times
+    # this): 1 is the world every shipped model trained on, where SGBM's own matches are
+    # 3-4x less reliable than on the rig or a real pair (docs/experiments.md, session 23)
+    view_spread: float = 1.0
 
     @property
     def cx(self) -> float:
@@ -310,7 +314,8 @@ def make_things_sample(seed: int, cfg: WorldConfig | None = None,
         occ[view] = scene.occlusion(view, depth)
     metered = float(radiance["left"].mean())
     for view in ("left", "right"):
-        images[view] = apply_camera(radiance[view], response.for_view(view, camera_rng),
+        images[view] = apply_camera(radiance[view],
+                                    response.for_view(view, camera_rng, cfg.view_spread),
                                     camera_rng, metered)
     return ThingsSample(seed, images["left"], images["right"], disp["left"], disp["right"],
                         occ["left"], occ["right"])
