@@ -413,7 +413,8 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     import shutil
 
     from edge_depth.baselines import lidar_nearest
-    from edge_depth.runtime.lidar_select import FEATURES, LidarSelect, cell_lidar, cell_mean
+    from edge_depth.runtime.cells import cell_lidar, cell_mean
+    from edge_depth.runtime.lidar_select import FEATURES, LidarSelect
 
     bundle = tmp_path / "bundle"
     shutil.copytree(small_bundle[0], bundle)
@@ -455,8 +456,8 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
 def test_engine_runs_the_edge_selection_only_on_frames_without_lidar(small_bundle, tmp_path):
     import shutil
 
+    from edge_depth.runtime.cells import cell_mean
     from edge_depth.runtime.edge_select import FEATURES, EdgeSelect, side_values
-    from edge_depth.runtime.lidar_select import cell_mean
 
     bundle = tmp_path / "bundle"
     shutil.copytree(small_bundle[0], bundle)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
+from edge_depth.runtime.cells import cell_shape, grey_side
 from edge_depth.runtime.edge_select import (
     CANDIDATES,
     FEATURES,
@@ -14,7 +15,6 @@ from edge_depth.runtime.edge_select import (
     edge_features,
     side_values,
 )
-from edge_depth.runtime.lidar_select import cell_shape, grey_side
 from tests.test_lidar_select import TRUE_DISPARITY, H, W, one_pixel_cells, textured_pair
 
 BLOCK = (slice(40, 44), slice(60, 64))  # 2 × 2 cells: each cell's 3 × 3 window sees the plane

@@ -7,24 +7,26 @@ import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.lidar_select import (
+from edge_depth.runtime.cells import (
     CELL_PX,
-    FEATURES,
-    SIDE_FEATURES,
-    LidarSelect,
     Perceptron,
     Scratch,
-    available,
     cell_lidar,
     cell_pixels,
     cell_shape,
     feature_matrix,
     key_disparity,
-    selection_features,
     tanh32,
     unpack_key,
     warp_error,
     warp_error_at,
+)
+from edge_depth.runtime.lidar_select import (
+    FEATURES,
+    SIDE_FEATURES,
+    LidarSelect,
+    available,
+    selection_features,
 )
 
 H, W = 96, 160

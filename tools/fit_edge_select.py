@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_depth.runtime.cells import CELL_PX
 from edge_depth.runtime.edge_select import (
     CANDIDATES,
     SIDE_CELLS,
@@ -36,7 +37,6 @@ from edge_depth.runtime.edge_select import (
     sides_apart,
 )
 from edge_depth.runtime.engine import Engine
-from edge_depth.runtime.lidar_select import CELL_PX
 from edge_depth.tools.fit_select import (
     MAX_WEIGHT_PX,
     add_fit_arguments,

@@ -41,15 +41,10 @@ from pathlib import Path
 import numpy as np
 
 from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
+from edge_depth.runtime.cells import CELL_PX, cell_pixels
 from edge_depth.runtime.edge_select import SIDE_CELLS
 from edge_depth.runtime.engine import Engine
-from edge_depth.runtime.lidar_select import (
-    CELL_PX,
-    LidarSelect,
-    available,
-    cell_pixels,
-    selection_features,
-)
+from edge_depth.runtime.lidar_select import LidarSelect, available, selection_features
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.sim.gt_lidar import GtLidarPattern
 from edge_depth.sim.things_store import list_things, read_things

@@ -29,7 +29,7 @@ import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.lidar_select import (
+from edge_depth.runtime.cells import (
     CELL_PX,
     LOG_MIN_DISAGREEMENT,
     Perceptron,
