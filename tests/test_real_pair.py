@@ -47,6 +47,27 @@ def test_aloe_folder_follows_the_recipe(tmp_path):
     assert not (tmp_path / "tex" / "aloeL.jpg").exists()
 
 
+def test_motorcycle_folder_is_the_real_pair_from_scikit_image(tmp_path):
+    out = tmp_path / "moto"
+    assert real_pairs.main(["--motorcycle", "--out", str(out)]) == 0
+    scene = read_scene_folder(out)
+    assert scene.left.shape == scene.right.shape == (400, 640)
+    known = np.isfinite(scene.disp)
+    assert 0.85 < known.mean() < 0.95
+    assert 7.0 < scene.disp[known].min() and scene.disp[known].max() < 61.0
+    ys, xs = np.nonzero(scene.sparse)
+    np.testing.assert_array_equal(np.unique(ys), np.rint((np.arange(16) + 0.5) * 25))
+    # the GT is this pair's: the right view warped by it lands on the left view
+    grid_x = (np.arange(640)[None, :] - np.where(known, scene.disp, 0)).astype(np.float32)
+    grid_y = np.repeat(np.arange(400, dtype=np.float32)[:, None], 640, 1)
+    warped = cv2.remap(scene.right.astype(np.float32), grid_x, grid_y, cv2.INTER_LINEAR)
+    left = scene.left.astype(np.float32)
+    inside = known & (grid_x > 0)
+    assert np.median(np.abs(warped - left)[inside]) < 5.0
+    assert np.median(np.abs(scene.right.astype(np.float32) - left)[inside]) > 10.0
+    assert json.loads((out / "meta.json").read_text())["evaluation_only"] is False
+
+
 def test_evaluate_scores_the_fusion_and_the_stereo_only_net(tmp_path):
     src = tmp_path / "doc"
     fake_opencv_doc(src, np.random.default_rng(1))
