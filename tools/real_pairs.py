@@ -85,7 +85,11 @@ def build_motorcycle(out: Path, rows: int = 16, seed: int = 0) -> dict:
     """Write the motorcycle scene folder from scikit-image's copy; returns its meta.json."""
     from skimage import data
 
-    left, right, disp = data.stereo_motorcycle()
+    try:
+        left, right, disp = data.stereo_motorcycle()
+    except Exception as exc:   # a scikit-image without the files would try to download them
+        raise SystemExit(f"scikit-image's stereo_motorcycle is not available here ({exc}); "
+                         "scikit-image 0.26 ships it in its wheel") from exc
     left = centre_crop(cv2.cvtColor(left, cv2.COLOR_RGB2GRAY), SIZE)
     right = centre_crop(cv2.cvtColor(right, cv2.COLOR_RGB2GRAY), SIZE)
     gt = centre_crop(np.where(np.isfinite(disp), disp, 0).astype(np.float32), SIZE)
