@@ -192,6 +192,32 @@ def test_training_stream_flips_swap_views_and_lidar_matches_the_gt(tmp_path):
             assert float(err.median()) < 1.0
 
 
+def test_photometric_augmentation_draws_per_camera_as_often_as_asked():
+    import torch
+
+    from edge_depth.model.things_data import photometric
+
+    image = torch.linspace(0, 255, 64 * 96).reshape(1, 64, 96)
+    rng = np.random.default_rng(3)
+    differ = {share: sum(not torch.equal(*photometric(image, image.clone(), rng, share))
+                         for _ in range(200)) for share in (0.0, 0.2, 1.0)}
+    assert differ[0.0] == 0                       # both views always share one change
+    assert differ[1.0] == 200
+    assert 50 < differ[0.2] < 95                  # 1 - 0.8^2 = 36 % of 200 = 72
+
+
+def test_asymmetric_share_is_checked_and_applies_to_things_data_only(tmp_path, capsys):
+    from edge_depth.tools import train
+
+    for extra in (["--data", "things:x", "--asymmetric-share", "1.5"],
+                  ["--asymmetric-share", "0.1"]):
+        with pytest.raises(SystemExit):
+            train.main(["--out", str(tmp_path / "r"), "--steps", "1"] + extra)
+    err = capsys.readouterr().err
+    assert "--asymmetric-share must be within 0-1, got 1.5" in err
+    assert "--asymmetric-share applies to --data things:DIR only" in err
+
+
 def test_things_stream_refuses_an_empty_folder(tmp_path):
     from edge_depth.model.things_data import ThingsTrainSet
 
