@@ -229,7 +229,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     e = config.engine
     engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
                     scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
-                    lidar_select=e.lidar_select, edge_select=e.edge_select)
+                    lidar_select=e.lidar_select, edge_select=e.edge_select,
+                    edge_match=e.edge_match)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()

@@ -41,6 +41,10 @@
                                 # the nearest LiDAR point (if it has one; README)
     edge_select = true          # on frames without LiDAR points, the bundle's per-cell
                                 # choice of an edge's near or far side (if it has one)
+    edge_match = 0              # opt-in: N (a multiple of 16, above the scene's largest
+                                # disparity) runs StereoBM with N disparities and takes its
+                                # value where the network is unsure at its edges; better on
+                                # real pairs, ~0.45x SGBM's time more (README); 0 = off
 
     [log]
     out = "logs/depth.mcap"
@@ -118,6 +122,7 @@ class EngineConfig:
     pipelined: bool = False
     lidar_select: bool = True
     edge_select: bool = True
+    edge_match: int = 0
 
     @property
     def bf16_choice(self) -> bool | None:

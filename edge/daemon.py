@@ -253,6 +253,8 @@ class Pipeline:
             timings["replaced_pct"] = 100.0 * result.selected_px / result.disparity.size
         if result.edge_px is not None:  # the share the edge selection (no LiDAR) replaced
             timings["edge_replaced_pct"] = 100.0 * result.edge_px / result.disparity.size
+        if result.matched_px is not None:  # the share the opt-in block matching replaced
+            timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -288,9 +290,10 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct")
+NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct")
 # the selections' per-frame shares: timings key -> the closing line's name
-SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)"}
+SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
+              "matched_pct": "Edge matching (opt-in)"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:

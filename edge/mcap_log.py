@@ -118,7 +118,8 @@ JSON_SCHEMAS = {
                                                          "items": {"type": "integer"}},
         # per frame that ran it, the % of pixels each selection replaced
         "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
-        "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}}}},
+        "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
+        "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}}}},
 }
 
 

@@ -231,7 +231,9 @@ class Runner:
                 iterations=[t["iterations"] for t in window],
                 lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)],
                 edge_select_replaced_pct=[round(s, 2) for s in
-                                          replaced_shares(window, "edge_replaced_pct")]))
+                                          replaced_shares(window, "edge_replaced_pct")],
+                edge_match_replaced_pct=[round(s, 2) for s in
+                                         replaced_shares(window, "matched_pct")]))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

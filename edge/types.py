@@ -119,7 +119,8 @@ class DepthResult:
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
-    replaced by a side's value (None when it did not run).
+    replaced by a side's value (None when it did not run). matched_px: pixels the opt-in
+    full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off).
     """
 
     stamp_ns: int
@@ -131,6 +132,7 @@ class DepthResult:
     confidence: np.ndarray | None = None
     selected_px: int | None = None
     edge_px: int | None = None
+    matched_px: int | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

@@ -105,7 +105,7 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     result = json.loads(out.read_text())
     stages = result["stages"]
     for stage in ("rectify", "project_filter", "sgbm", "log", "frame", "encoder", "step",
-                  "upsample", "engine_int8_4"):
+                  "upsample", "engine_int8_4", "edge_match"):
         assert 0 < stages[stage]["median_ms"] <= stages[stage]["p95_ms"], stage
     assert stages["sgbm"]["runs"] == 2
     assert result["sgbm_ms"] == stages["sgbm"]["median_ms"]
@@ -120,6 +120,9 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000
     assert "int8 engine / SGBM" in md.read_text()
+    assert result["ratios"]["edge_match_vs_sgbm"] == pytest.approx(
+        stages["edge_match"]["median_ms"] / result["sgbm_ms"])
+    assert "opt-in edge_match stage / SGBM" in md.read_text()
     # two runs: the median of the per-run ratios, and how busy the machine was in each
     assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
     assert result["ratio_median"] == pytest.approx(
@@ -128,6 +131,8 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert share is None or 0.0 <= share <= 1.0
     assert result["runs"][0]["busy"] == (share is not None and share > bench.BUSY_SHARE)
     assert "2 runs: int8 engine / SGBM per run" in md.read_text()
+    assert "opt-in edge_match stage / SGBM per run" in md.read_text()
+    assert all(r["edge_match_vs_sgbm"] > 0 for r in result["runs"])
 
 
 def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):

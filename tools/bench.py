@@ -37,6 +37,7 @@ import numpy as np
 from edge_depth.baselines import make_sgbm, sgbm_disparity
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.runtime.edge_match import EdgeMatch
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.types import LidarScan
@@ -163,6 +164,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
     pairs = [(s.left, s.right) for s in samples]
     matcher = make_sgbm()
+    edge_match = EdgeMatch(64)
     engines = {p: Engine(bundle, p, threads, meta, runtime=runtime, bf16=bf16)
                for p in ("fp32", "int8")}
     default_iters = int(meta.get("default_iters", 4))
@@ -194,6 +196,10 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                                                  s.T_cam_lidar),
                                   [(s,) for s in dense]),
                "sgbm": (lambda a, b: sgbm_disparity(a, b, matcher), pairs),
+               # the opt-in stage alone ([engine] edge_match, off by default; the engine
+               # rows above run without it), at SGBM's 64 disparities
+               "edge_match": (lambda a, b, r: edge_match.apply(a, b, r.disparity, r.confidence),
+                              [(x[0], x[1], r) for x, r in zip(inputs, results, strict=True)]),
                "log": (lambda r, x: logger.log_result(r, x[2], rig.focal_px,
                                                       (rig.cx, rig.cy)),
                        list(zip(results, inputs, strict=True))),
@@ -234,7 +240,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             int8_vs_sgbm=engine_ms["int8"][key] / sgbm_ms,
             fp32_vs_sgbm=engine_ms["fp32"][key] / sgbm_ms,
             int8_speedup=engine_ms["fp32"][key] / engine_ms["int8"][key],
-            frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key])
+            frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key],
+            edge_match_vs_sgbm=out["edge_match"]["median_ms"] / sgbm_ms)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -247,7 +254,8 @@ def markdown(summary: dict) -> str:
     lines = [f"| stage ({w}x{h}, {summary['threads']} threads, {summary['runtime']}"
              f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}) | median ms | p95 ms |",
              "|---|---|---|"]
-    names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm"]
+    names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm",
+             "edge_match"]
     names += sorted(k for k in st if k.startswith("engine_"))
     for name in names:
         if name in st:
@@ -258,6 +266,9 @@ def markdown(summary: dict) -> str:
         lines.append(f"int8 engine / SGBM: **{r['int8_vs_sgbm']:.2f}x** (fp32 "
                      f"{r['fp32_vs_sgbm']:.2f}x; int8 speed-up x{r['int8_speedup']:.2f}); "
                      f"daemon frame / engine: {r['frame_vs_engine']:.2f}x")
+        if "edge_match_vs_sgbm" in r:
+            lines.append(f"opt-in edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
+                         "(not in the engine rows; it would add to them)")
     if "replay_peak_rss_mb" in summary:
         lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
     lines.append(f"(project_filter: 64-beam scans, {summary['points_64_beams']} points; "
@@ -271,6 +282,11 @@ def markdown(summary: dict) -> str:
                      f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
                      f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
                      f"{max(ratios):.2f}x)")
+        matched = [r["edge_match_vs_sgbm"] for r in summary["runs"] if "edge_match_vs_sgbm" in r]
+        if matched:
+            lines.append(f"opt-in edge_match stage / SGBM per run "
+                         f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
+                         f"{float(np.median(matched)):.2f}x")
         if busy:
             lines.append(f"**busy machine in run(s) {busy}: other processes took over "
                          f"{BUSY_SHARE:.0%} of the CPU; do not trust this ratio, rerun on a "
@@ -342,6 +358,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs > 1 and all("ratios" in r for r in runs):
         summary["runs"] = [dict(int8_vs_sgbm=r["ratios"]["int8_vs_sgbm"], sgbm_ms=r["sgbm_ms"],
                                 engine_int8_ms=r["ratios"]["int8_vs_sgbm"] * r["sgbm_ms"],
+                                edge_match_vs_sgbm=r["ratios"]["edge_match_vs_sgbm"],
                                 **r["machine"]) for r in runs]
         summary["ratio_median"] = float(np.median([r["int8_vs_sgbm"] for r in summary["runs"]]))
     table = markdown(summary)

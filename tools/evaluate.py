@@ -80,11 +80,13 @@ class BundleNet:
     """An exported bundle run by the robot-side engine (ONNX Runtime or OpenVINO)."""
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
-                 bf16: bool | None = None, lidar_select: bool = True) -> None:
+                 bf16: bool | None = None, lidar_select: bool = True,
+                 edge_match: int = 0) -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
-                             lidar_select=lidar_select, edge_select=lidar_select)
+                             lidar_select=lidar_select, edge_select=lidar_select,
+                             edge_match=edge_match)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -92,18 +94,18 @@ class BundleNet:
 
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True):
-    return BundleNet(model, precision, runtime, bf16, lidar_select) if model.is_dir() \
-        else TorchNet(model)
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0):
+    return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match) \
+        if model.is_dir() else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0
              ) -> dict[str, dict[str, float]]:
     net = None
     if {"net", "net-nolidar"} & set(methods):
-        net = load_net(model, precision, runtime, bf16, lidar_select)
+        net = load_net(model, precision, runtime, bf16, lidar_select, edge_match)
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -192,6 +194,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
+    p.add_argument("--edge-match", type=int, default=0, metavar="N",
+                   help="a bundle: the opt-in full-resolution block matching at the network's "
+                        "uncertain edges with N disparities (a multiple of 16; 0 = off)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     args = p.parse_args(argv)
@@ -207,12 +212,16 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
     if {"net", "net-nolidar"} & set(methods) and not args.model.exists():
         p.error(f"--model {args.model}: no such checkpoint or bundle")
+    if args.edge_match < 0 or args.edge_match % 16:
+        p.error(f"--edge-match: 0 or a positive multiple of 16, got {args.edge_match}")
+    if args.edge_match and not args.model.is_dir():
+        p.error("--edge-match is a stage of the engine: give a bundle (--model DIR)")
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
-                       bf16, not args.no_select)
+                       bf16, not args.no_select, args.edge_match)
     print(markdown_table(summary))
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))

@@ -19,6 +19,7 @@ import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
+from edge_depth.runtime.edge_match import EdgeMatch
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -53,12 +54,15 @@ class Engine:
     `bf16` (OpenVINO only): run the graphs in `BF16_GRAPHS` in bf16; None = where the CPU
     has it natively. `lidar_select`: run the bundle's LiDAR selection
     (`edge.runtime.lidar_select`) when it has one; `edge_select`: on frames without LiDAR
-    points, its edge selection (`edge.runtime.edge_select`) when it has one."""
+    points, its edge selection (`edge.runtime.edge_select`) when it has one. `edge_match`:
+    0 (off) or StereoBM's disparity count for the opt-in full-resolution matching at the
+    network's uncertain edges (`edge.runtime.edge_match`), after the selections."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
-                 lidar_select: bool = True, edge_select: bool = True) -> None:
+                 lidar_select: bool = True, edge_select: bool = True,
+                 edge_match: int = 0) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -101,6 +105,7 @@ class Engine:
             if lidar_select and "lidar_select" in self.meta else None
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
+        self.edge_match = EdgeMatch(int(edge_match)) if edge_match else None
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -209,6 +214,14 @@ class Engine:
                 buf["left"][0, 0], buf["right"][0, 0], disp, confidence, buf["sparse"][0, 0])
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
+        matched = None
+        if self.edge_match is not None and confidence is not None:
+            t = time.perf_counter()
+            disp, share = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
+                                                confidence)
+            matched = int(round(share * disp.size))
+            timings["edge_match"] = (time.perf_counter() - t) * 1000
+            up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
         self._upsample_ms = up_ms if self._upsample_ms == 0 else 0.8 * self._upsample_ms + \
             0.2 * up_ms
@@ -221,7 +234,7 @@ class Engine:
         timings["engine"] = (time.perf_counter() - t_engine) * 1000
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=len(step_ms), timings_ms=timings, confidence=confidence,
-                           selected_px=selected, edge_px=edge_px)
+                           selected_px=selected, edge_px=edge_px, matched_px=matched)
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,

@@ -1,0 +1,108 @@
+"""The opt-in full-resolution block matching at the network's uncertain edges
+(`edge.runtime.edge_match`): where it swaps, what it leaves, how it is switched on."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from edge_depth.errors import ConfigError
+from edge_depth.runtime.edge_match import EdgeMatch
+
+BAR = slice(150, 162)      # a thin foreground bar's columns in the left view
+BACKGROUND, FOREGROUND = 10, 30
+
+
+def thin_bar_pair():
+    """A textured wall at 10 px and a 12 px wide bar at 30 px in front of it (320x200, no
+    noise), with what a 1/8-resolution network makes of it: the wall's 10 px everywhere but
+    a blurred bump where the bar is, unsure (confidence 0.5) within 16 px of the bar."""
+    rng = np.random.default_rng(0)
+    h, w = 200, 320
+    wall = cv2.GaussianBlur(rng.uniform(0, 255, (h, w + 64)).astype(np.float32), (0, 0), 1.2)
+    bar = cv2.GaussianBlur(rng.uniform(0, 255, (h, w + 64)).astype(np.float32), (0, 0), 1.2)
+    xs = np.arange(w)
+    left = wall[:, xs + 32].copy()
+    left[:, BAR] = bar[:, xs[BAR] + 32]
+    right = wall[:, xs + 32 + BACKGROUND].copy()
+    seen = (xs + FOREGROUND >= BAR.start) & (xs + FOREGROUND < BAR.stop)
+    right[:, seen] = bar[:, xs[seen] + FOREGROUND + 32]
+    to8 = lambda im: cv2.normalize(im, None, 0, 255, cv2.NORM_MINMAX).astype(np.uint8)  # noqa: E731
+    gt = np.full((h, w), BACKGROUND, np.float32)
+    gt[:, BAR] = FOREGROUND
+    coarse = cv2.resize(gt, (w // 8, h // 8), interpolation=cv2.INTER_AREA)
+    network = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR)  # the bar smeared
+    confidence = np.ones((h, w), np.float32)
+    confidence[:, BAR.start - 16:BAR.stop + 16] = 0.5
+    return to8(left), to8(right), gt, network, confidence
+
+
+def test_it_recovers_a_thin_bar_and_leaves_confident_pixels_alone():
+    left, right, gt, network, confidence = thin_bar_pair()
+    out, share = EdgeMatch(64).apply(left, right, network, confidence)
+    inner = (slice(20, 180), slice(BAR.start + 2, BAR.stop - 2))    # away from the bar's edges
+    assert np.mean(np.abs(network[inner] - FOREGROUND) > 1.0) > 0.5  # the network blurs it
+    assert np.median(np.abs(out[inner] - FOREGROUND)) < 0.5         # matched back
+    assert np.mean(np.abs(out[inner] - FOREGROUND) < 1.0) > 0.8
+    sure = confidence >= 0.9
+    np.testing.assert_array_equal(out[sure], network[sure])         # never where it is sure
+    changed = out != network
+    assert share == pytest.approx(changed.mean(), abs=1e-9) and 0 < share < 0.2
+
+
+def test_flat_uncertain_areas_are_not_swapped():
+    # unsure everywhere, but the network's disparity is flat: no edge of its own, no swap
+    left, right, _, _, _ = thin_bar_pair()
+    flat = np.full(left.shape, 12.0, np.float32)
+    out, share = EdgeMatch(64).apply(left, right, flat, np.zeros_like(flat))
+    assert share == 0.0 and np.array_equal(out, flat)
+
+
+@pytest.mark.parametrize("count", [0, -16, 50])
+def test_disparity_count_must_be_a_positive_multiple_of_16(count):
+    with pytest.raises(ConfigError, match="edge_match"):
+        EdgeMatch(count)
+
+
+def test_engine_runs_it_after_the_selections_only_when_asked(engine):
+    from edge_depth.runtime.engine import Engine
+
+    left, right, gt, _, _ = thin_bar_pair()
+    big = lambda im: cv2.resize(im, (640, 400), interpolation=cv2.INTER_NEAREST)  # noqa: E731
+    sparse = np.zeros((400, 640), np.float32)
+    sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0                     # disparities double too
+    plain = engine.infer(big(left), big(right), sparse)
+    assert plain.matched_px is None and "edge_match" not in plain.timings_ms
+    matched = Engine(precision="int8", threads=2, edge_match=128).infer(
+        big(left), big(right), sparse)
+    assert matched.matched_px is not None and matched.matched_px > 0
+    assert matched.timings_ms["edge_match"] > 0
+    # the same stage applied to the engine's output without it
+    expected, share = EdgeMatch(128).apply(big(left), big(right), plain.disparity,
+                                           plain.confidence)
+    np.testing.assert_array_equal(matched.disparity, expected)
+    assert matched.matched_px == round(share * expected.size)
+
+
+def test_config_and_evaluate_take_it(tmp_path):
+    from edge_depth.config import load_robot_config
+    from edge_depth.tools import evaluate
+
+    path = tmp_path / "c.toml"
+    path.write_text("[engine]\nedge_match = 64\n")
+    assert load_robot_config(path).engine.edge_match == 64
+    with pytest.raises(SystemExit):
+        evaluate.main([str(tmp_path), "--edge-match", "40"])
+
+
+def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
+    from edge_depth.daemon import replaced_shares, selection_summary, summarise
+
+    timings = [dict(engine=50.0, edge_match=9.0, matched_pct=4.0),
+               dict(engine=52.0, edge_match=11.0, matched_pct=0.0)]
+    assert set(summarise(timings)) == {"engine", "edge_match"}   # the share is no latency
+    assert replaced_shares(timings, "matched_pct") == [4.0, 0.0]
+    assert selection_summary(timings) == ("Edge matching (opt-in): replaced a median 2.0 % of "
+                                          "each frame's pixels (p95 3.8 %; none in 1 of 2 "
+                                          "frames)")
