@@ -4,10 +4,12 @@ The network works at 1/8 resolution; on real pairs all of its bad-3 loss against
 LiDAR fusion lies at depth edges, where thin structures (leaves, spokes, cables) are finer
 than its grid (docs/experiments.md, session 24). This stage runs OpenCV's StereoBM over the
 frame and takes its left-right-checked value where the network is unsure at its own edges:
-confidence below `max_confidence` and the network's disparity ranging over more than
-`min_range_px` within `window` × `window` pixels. Everything else keeps the network's value.
+confidence below `max_confidence`, the network's disparity ranging over more than
+`min_range_px` within `window` × `window` pixels, and the matched value warping the right view
+onto the left better than the network's (mean |difference| over `photo_window` ×
+`photo_window`). Everything else keeps the network's value.
 
-It costs about 0.45× SGBM's time (64 disparities, this project's 2-core hosts), which issue
+It costs about 0.6× SGBM's time (64 disparities, `tools/bench.py` on a 2-core host), which issue
 11's budget does not have, so it is off by default (`[engine] edge_match = 0`). Its
 parameters were chosen on the Middlebury motorcycle pair (`tools/real_pairs.py
 --motorcycle`); Aloe was only reported. On the synthetic worlds it costs EPE (there SGBM-like
@@ -22,11 +24,13 @@ import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError
+from edge_depth.runtime.cells import warped_cost
 
 BLOCK_PX = 7
 MAX_CONFIDENCE = 0.9
 MIN_RANGE_PX = 1.0
 WINDOW_PX = 5
+PHOTO_WINDOW_PX = 5
 
 
 @dataclass
@@ -38,6 +42,7 @@ class EdgeMatch:
     max_confidence: float = MAX_CONFIDENCE
     min_range_px: float = MIN_RANGE_PX
     window_px: int = WINDOW_PX
+    photo_window_px: int = PHOTO_WINDOW_PX
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:
@@ -69,6 +74,11 @@ class EdgeMatch:
         spread = cv2.dilate(disparity, self._kernel) - cv2.erode(disparity, self._kernel)
         take = (matched > 0) & (confidence < self.max_confidence) & \
             (spread > self.min_range_px)
+        if take.any():  # only where the matched value explains the pair better
+            grey = [np.asarray(im, np.float32) for im in (left, right)]
+            window = (self.photo_window_px,)
+            take &= warped_cost(*grey, matched, window)[0] < \
+                warped_cost(*grey, disparity, window)[0]
         return np.where(take, matched, disparity).astype(np.float32), float(take.mean())
 
 
