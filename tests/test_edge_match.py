@@ -40,7 +40,7 @@ def thin_bar_pair():
 
 def test_it_recovers_a_thin_bar_and_leaves_confident_pixels_alone():
     left, right, gt, network, confidence = thin_bar_pair()
-    out, share = EdgeMatch(64).apply(left, right, network, confidence)
+    out, count = EdgeMatch(64).apply(left, right, network, confidence)
     inner = (slice(20, 180), slice(BAR.start + 2, BAR.stop - 2))    # away from the bar's edges
     assert np.mean(np.abs(network[inner] - FOREGROUND) > 1.0) > 0.5  # the network blurs it
     assert np.median(np.abs(out[inner] - FOREGROUND)) < 0.5         # matched back
@@ -48,23 +48,23 @@ def test_it_recovers_a_thin_bar_and_leaves_confident_pixels_alone():
     sure = confidence >= 0.9
     np.testing.assert_array_equal(out[sure], network[sure])         # never where it is sure
     changed = out != network
-    assert share == pytest.approx(changed.mean(), abs=1e-9) and 0 < share < 0.2
+    assert count == changed.sum() and 0 < count < 0.2 * out.size
 
 
 def test_flat_uncertain_areas_are_not_swapped():
     # unsure everywhere, but the network's disparity is flat: no edge of its own, no swap
     left, right, _, _, _ = thin_bar_pair()
     flat = np.full(left.shape, 12.0, np.float32)
-    out, share = EdgeMatch(64).apply(left, right, flat, np.zeros_like(flat))
-    assert share == 0.0 and np.array_equal(out, flat)
+    out, count = EdgeMatch(64).apply(left, right, flat, np.zeros_like(flat))
+    assert count == 0 and np.array_equal(out, flat)
 
 
 def test_a_network_value_that_explains_the_pair_is_kept():
     # the exact disparity, unsure everywhere and with edges: the matched values warp the
     # right view no better than it, so (nearly) nothing is swapped and nothing gets worse
     left, right, gt, _, _ = thin_bar_pair()
-    out, share = EdgeMatch(64).apply(left, right, gt, np.zeros_like(gt))
-    assert share < 0.002          # the gate without the photometric test takes 1.4 %
+    out, count = EdgeMatch(64).apply(left, right, gt, np.zeros_like(gt))
+    assert count < 0.002 * gt.size    # the gate without the photometric test takes 1.4 %
     assert np.mean(out != gt) < 0.002
 
 
@@ -88,10 +88,10 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     assert matched.matched_px is not None and matched.matched_px > 0
     assert matched.timings_ms["edge_match"] > 0
     # the same stage applied to the engine's output without it
-    expected, share = EdgeMatch(128).apply(big(left), big(right), plain.disparity,
+    expected, count = EdgeMatch(128).apply(big(left), big(right), plain.disparity,
                                            plain.confidence)
     np.testing.assert_array_equal(matched.disparity, expected)
-    assert matched.matched_px == round(share * expected.size)
+    assert matched.matched_px == count
 
 
 def test_config_and_evaluate_take_it(tmp_path):

@@ -40,7 +40,9 @@ from edge_depth.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
+from edge_depth.errors import ConfigError
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
+from edge_depth.runtime.edge_match import EdgeMatch
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -212,8 +214,11 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
     if {"net", "net-nolidar"} & set(methods) and not args.model.exists():
         p.error(f"--model {args.model}: no such checkpoint or bundle")
-    if args.edge_match < 0 or args.edge_match % 16:
-        p.error(f"--edge-match: 0 or a positive multiple of 16, got {args.edge_match}")
+    if args.edge_match:
+        try:
+            EdgeMatch(args.edge_match)  # the engine's own check of the count
+        except ConfigError as exc:
+            p.error(f"--edge-match: {exc}")
     if args.edge_match and not args.model.is_dir():
         p.error("--edge-match is a stage of the engine: give a bundle (--model DIR)")
     folders = list_scene_folders(args.data)

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.cells import warped_cost
+from edge_depth.runtime.cells import local_range, warped_cost
 
 BLOCK_PX = 7
 MAX_CONFIDENCE = 0.9
@@ -58,7 +58,6 @@ class EdgeMatch:
         matcher.setSpeckleRange(2)
         matcher.setPreFilterCap(31)
         self._matcher = matcher
-        self._kernel = np.ones((self.window_px, self.window_px), np.uint8)
 
     def matched(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match."""
@@ -68,18 +67,17 @@ class EdgeMatch:
         return out
 
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-              confidence: np.ndarray) -> tuple[np.ndarray, float]:
-        """(disparity with the matched values swapped in, the share of pixels swapped)."""
+              confidence: np.ndarray) -> tuple[np.ndarray, int]:
+        """(disparity with the matched values swapped in, how many pixels were swapped)."""
         matched = self.matched(left, right)
-        spread = cv2.dilate(disparity, self._kernel) - cv2.erode(disparity, self._kernel)
         take = (matched > 0) & (confidence < self.max_confidence) & \
-            (spread > self.min_range_px)
+            (local_range(disparity, self.window_px) > self.min_range_px)
         if take.any():  # only where the matched value explains the pair better
             grey = [np.asarray(im, np.float32) for im in (left, right)]
             window = (self.photo_window_px,)
             take &= warped_cost(*grey, matched, window)[0] < \
                 warped_cost(*grey, disparity, window)[0]
-        return np.where(take, matched, disparity).astype(np.float32), float(take.mean())
+        return np.where(take, matched, disparity).astype(np.float32), int(take.sum())
 
 
 def as_grey8(image: np.ndarray) -> np.ndarray:

@@ -217,9 +217,8 @@ class Engine:
         matched = None
         if self.edge_match is not None and confidence is not None:
             t = time.perf_counter()
-            disp, share = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
-                                                confidence)
-            matched = int(round(share * disp.size))
+            disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
+                                                  confidence)
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
