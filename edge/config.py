@@ -44,7 +44,7 @@
     edge_match = 0              # opt-in: N (a multiple of 16, above the scene's largest
                                 # disparity) runs StereoBM with N disparities and takes its
                                 # value where the network is unsure at its edges; better on
-                                # real pairs, ~0.6x SGBM's time more (README); 0 = off
+                                # real pairs, ~0.8x SGBM's time more (README); 0 = off
 
     [log]
     out = "logs/depth.mcap"

@@ -68,6 +68,39 @@ def test_a_network_value_that_explains_the_pair_is_kept():
     assert np.mean(out != gt) < 0.002
 
 
+def lidar_rows(gt: np.ndarray, every: int = 20) -> np.ndarray:
+    """Exact points on every `every`-th row, all columns (0 = no point)."""
+    sparse = np.zeros_like(gt)
+    sparse[::every] = gt[::every]
+    return sparse
+
+
+def test_the_lidar_point_fills_the_matchers_holes_where_the_image_has_texture():
+    left, right, gt, network, confidence = thin_bar_pair()
+    nothing = np.zeros_like(gt)              # as if StereoBM had found no checked match
+    stage = EdgeMatch(64)
+    out, count = stage.apply(left, right, network, confidence, lidar_rows(gt), matched=nothing)
+    inner = (slice(20, 180), slice(BAR.start + 2, BAR.stop - 2))
+    assert np.mean(np.abs(out[inner] - FOREGROUND) < 1.0) > 0.8    # the points' 30 px
+    sure = confidence >= 0.9
+    np.testing.assert_array_equal(out[sure], network[sure])
+    assert count == (out != network).sum() > 0
+    # without points, or with the matched values present, the points are not used
+    alone, none = stage.apply(left, right, network, confidence, None, matched=nothing)
+    assert none == 0 and np.array_equal(alone, network)
+    found = gt + 0.25                       # a match everywhere: no hole for the points
+    with_points = stage.apply(left, right, network, confidence, lidar_rows(gt), matched=found)
+    without = stage.apply(left, right, network, confidence, None, matched=found)
+    np.testing.assert_array_equal(with_points[0], without[0])
+    assert with_points[1] == without[1] > 0
+    # the same pair at 3 % of its contrast: the warp costs still favour the points, but a
+    # photometric test on so little texture is weak evidence, so nothing is taken
+    faint = [np.rint(128 + 0.03 * (im.astype(np.float32) - 128)).astype(np.uint8)
+             for im in (left, right)]
+    _, faint_count = stage.apply(*faint, network, confidence, lidar_rows(gt), matched=nothing)
+    assert faint_count == 0
+
+
 @pytest.mark.parametrize("count", [0, -16, 50])
 def test_disparity_count_must_be_a_positive_multiple_of_16(count):
     with pytest.raises(ConfigError, match="edge_match"):
@@ -89,7 +122,7 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     assert matched.timings_ms["edge_match"] > 0
     # the same stage applied to the engine's output without it
     expected, count = EdgeMatch(128).apply(big(left), big(right), plain.disparity,
-                                           plain.confidence)
+                                           plain.confidence, sparse)
     np.testing.assert_array_equal(matched.disparity, expected)
     assert matched.matched_px == count
 

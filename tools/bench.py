@@ -198,8 +198,9 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                "sgbm": (lambda a, b: sgbm_disparity(a, b, matcher), pairs),
                # the opt-in stage alone ([engine] edge_match, off by default; the engine
                # rows above run without it), at SGBM's 64 disparities
-               "edge_match": (lambda a, b, r: edge_match.apply(a, b, r.disparity, r.confidence),
-                              [(x[0], x[1], r) for x, r in zip(inputs, results, strict=True)]),
+               "edge_match": (lambda a, b, p, r: edge_match.apply(a, b, r.disparity,
+                                                                  r.confidence, p),
+                              [(*x, r) for x, r in zip(inputs, results, strict=True)]),
                "log": (lambda r, x: logger.log_result(r, x[2], rig.focal_px,
                                                       (rig.cx, rig.cy)),
                        list(zip(results, inputs, strict=True))),

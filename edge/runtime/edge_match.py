@@ -7,12 +7,18 @@ frame and takes its left-right-checked value where the network is unsure at its 
 confidence below `max_confidence`, the network's disparity ranging over more than
 `min_range_px` within `window` × `window` pixels, and the matched value warping the right view
 onto the left better than the network's (mean |difference| over `photo_window` ×
-`photo_window`). Everything else keeps the network's value.
+`photo_window`). Where StereoBM found no checked match inside that gate (its holes: 15 % of
+the frame's pixels on motorcycle), the LiDAR's nearest point is the second candidate, taken
+where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
+right view onto the left clearly better (cost below `point_margin` × the network's).
+Everything else keeps the network's value; frames without points get the block matching alone.
 
-It costs about 0.6× SGBM's time (64 disparities, `tools/bench.py` on a 2-core host), which issue
-11's budget does not have, so it is off by default (`[engine] edge_match = 0`). Its
-parameters were chosen on the Middlebury motorcycle pair (`tools/real_pairs.py
---motorcycle`); Aloe was only reported. On the synthetic worlds it costs EPE (there SGBM-like
+It costs about 0.8× SGBM's time (64 disparities, `tools/bench.py` on a 2-core host; the engine
+runs the block matching beside its graphs, which hides a little of it), which issue 11's budget
+does not have, so it is off by default (`[engine] edge_match = 0`). Its
+parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
+chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
+reported. On the synthetic worlds it costs EPE (there SGBM-like
 matching is 3-4× less reliable than on real pairs): see the README before turning it on.
 """
 
@@ -23,6 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge_depth.baselines import lidar_nearest
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import local_range, warped_cost
 
@@ -31,6 +38,8 @@ MAX_CONFIDENCE = 0.9
 MIN_RANGE_PX = 1.0
 WINDOW_PX = 5
 PHOTO_WINDOW_PX = 5
+POINT_MARGIN = 0.8   # the LiDAR point's 5x5 warp cost must be below this x the network's
+MIN_TEXTURE = 4.0    # ... where the left image's 5x5 mean |d/dx| (grey levels / px) exceeds
 
 
 @dataclass
@@ -43,6 +52,8 @@ class EdgeMatch:
     min_range_px: float = MIN_RANGE_PX
     window_px: int = WINDOW_PX
     photo_window_px: int = PHOTO_WINDOW_PX
+    point_margin: float = POINT_MARGIN
+    min_texture: float = MIN_TEXTURE
 
     def __post_init__(self) -> None:
         if self.num_disparities <= 0 or self.num_disparities % 16:
@@ -67,17 +78,34 @@ class EdgeMatch:
         return out
 
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-              confidence: np.ndarray) -> tuple[np.ndarray, int]:
-        """(disparity with the matched values swapped in, how many pixels were swapped)."""
-        matched = self.matched(left, right)
-        take = (matched > 0) & (confidence < self.max_confidence) & \
+              confidence: np.ndarray, sparse: np.ndarray | None = None,
+              matched: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """(disparity with the matched values swapped in, how many pixels were swapped).
+        `sparse`: the LiDAR's disparity (px, 0 = no point), or None. `matched`:
+        `matched(left, right)` if already computed."""
+        if matched is None:
+            matched = self.matched(left, right)
+        gate = (confidence < self.max_confidence) & \
             (local_range(disparity, self.window_px) > self.min_range_px)
-        if take.any():  # only where the matched value explains the pair better
-            grey = [np.asarray(im, np.float32) for im in (left, right)]
-            window = (self.photo_window_px,)
-            take &= warped_cost(*grey, matched, window)[0] < \
-                warped_cost(*grey, disparity, window)[0]
-        return np.where(take, matched, disparity).astype(np.float32), int(take.sum())
+        if not gate.any():
+            return disparity.astype(np.float32, copy=True), 0
+        grey = [np.asarray(im, np.float32) for im in (left, right)]
+        window = (self.photo_window_px,)
+        network_cost = warped_cost(*grey, disparity, window)[0]
+        found = matched > 0
+        # only where the matched value explains the pair better
+        take = gate & found & (warped_cost(*grey, matched, window)[0] < network_cost)
+        out = np.where(take, matched, disparity).astype(np.float32)
+        holes = gate & ~found
+        if sparse is not None and holes.any() and (sparse > 0).any():
+            point = lidar_nearest(sparse, sparse > 0)
+            gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
+            texture = cv2.blur(gradient, (self.photo_window_px,) * 2)  # mean |d/dx| in window
+            hole_take = holes & (texture > self.min_texture) & \
+                (warped_cost(*grey, point, window)[0] < self.point_margin * network_cost)
+            out[hole_take] = point[hole_take]
+            take |= hole_take
+        return out, int(take.sum())
 
 
 def as_grey8(image: np.ndarray) -> np.ndarray:

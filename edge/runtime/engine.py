@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -19,7 +20,7 @@ import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
-from edge_depth.runtime.edge_match import EdgeMatch
+from edge_depth.runtime.edge_match import EdgeMatch, as_grey8
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -106,6 +107,9 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
         self.edge_match = EdgeMatch(int(edge_match)) if edge_match else None
+        # its block matching needs only the images: it runs beside the network's graphs,
+        # whose small 1/8-resolution tensors leave the second core partly idle
+        self._matching: ThreadPoolExecutor | None = None  # started on first use
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -159,6 +163,13 @@ class Engine:
         finite = np.isfinite(sparse) & (sparse > 0)
         np.copyto(buf["valid"][0, 0], finite, casting="unsafe")
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
+
+        matching = None
+        if self.edge_match is not None and self.has_confidence:  # it gates on the confidence
+            if self._matching is None:
+                self._matching = ThreadPoolExecutor(1, "edge-match")
+            pair = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]  # own copies: the
+            matching = self._matching.submit(self.edge_match.matched, *pair)  # buffers get reused
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
@@ -215,10 +226,11 @@ class Engine:
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
         matched = None
-        if self.edge_match is not None and confidence is not None:
-            t = time.perf_counter()
+        if matching is not None and confidence is not None:
+            t = time.perf_counter()  # from here: the wait for the matching, then the choice
             disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
-                                                  confidence)
+                                                  confidence, buf["sparse"][0, 0],
+                                                  matching.result())
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
