@@ -206,6 +206,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
+    replay.add_argument("--edge-match", type=int, default=0, metavar="N",
+                        help="opt-in: StereoBM with N disparities (a multiple of 16 above the "
+                             "scene's largest) at the network's uncertain edges, as [engine] "
+                             "edge_match (README); 0 = off")
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")
@@ -322,7 +326,7 @@ def main(argv: list[str] | None = None) -> int:
                                   args.calib, topics, args.precision, args.realtime,
                                   args.threads, args.bundle, args.scale, args.profile,
                                   args.runtime, {"auto": None, "on": True,
-                                                 "off": False}[args.bf16])
+                                                 "off": False}[args.bf16], args.edge_match)
         if args.command == "run":
             from edge_depth.commands import run_command
 

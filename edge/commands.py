@@ -38,9 +38,10 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0,
                    profile: str = "foxglove", runtime: str = "auto",
-                   bf16: bool | None = None) -> int:
+                   bf16: bool | None = None, edge_match: int = 0) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
-    EPE / bad-3 per frame and overall where the recording carries ground truth."""
+    EPE / bad-3 per frame and overall where the recording carries ground truth.
+    `edge_match`: the opt-in stage's disparity count, as `[engine] edge_match` (0 = off)."""
     from edge_depth.capture.replay import McapSource, TopicMap
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
@@ -50,7 +51,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     source.check_topics()
     stereo, lidar = replay_calibration(source, calib)
     engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
-                    scale=scale or None, runtime=runtime, bf16=bf16)
+                    scale=scale or None, runtime=runtime, bf16=bf16, edge_match=edge_match)
     log.info("engine: %s", engine.describe())
     stop = StopFlag()
     stop.install()

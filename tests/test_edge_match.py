@@ -148,3 +148,22 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
     assert selection_summary(timings) == ("Edge matching (opt-in): replaced a median 2.0 % of "
                                           "each frame's pixels (p95 3.8 %; none in 1 of 2 "
                                           "frames)")
+
+
+def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recording, tmp_path,
+                                                                          capsys):
+    from edge_depth.cli import main
+    from edge_depth.compare import compare
+
+    plain, matched = tmp_path / "plain.mcap", tmp_path / "matched.mcap"
+    assert main(["replay", str(recording), "--out", str(plain), "--iters", "1"]) == 0
+    assert "Edge matching" not in capsys.readouterr().out
+    assert main(["replay", str(recording), "--out", str(matched), "--iters", "1",
+                 "--edge-match", "64"]) == 0
+    text = capsys.readouterr().out
+    assert "Edge matching (opt-in): replaced a median" in text and "edge_match" in text
+    result = compare(plain, matched)                 # what a user runs: edge-depth compare
+    assert result["frames_compared"] == 3 and 0 < result["beyond_share"] < 0.2
+    assert main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"),
+                 "--edge-match", "50"]) != 0                             # one clear line
+    assert "edge_match: expected 0 (off) or a positive multiple of 16" in capsys.readouterr().err
