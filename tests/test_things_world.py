@@ -122,6 +122,23 @@ def test_view_spread_scales_how_the_two_cameras_differ_and_keeps_the_scene():
     assert not np.array_equal(a.right, b.right)
 
 
+def test_clean_cameras_keep_the_scene_and_make_the_views_agree():
+    from edge_depth.selfcheck import warp_right_to_left
+
+    clean = CameraResponse.random(np.random.default_rng(3)).clean()
+    assert (clean.gamma, clean.vignetting, clean.blur_sigma_px, clean.jpeg_quality) == \
+        (1.0, 0.0, 0.0, 0)
+    errors = []
+    for cfg in (WorldConfig(width=160, height=96),
+                WorldConfig(width=160, height=96, clean_cameras=True)):
+        sample = make_things_sample(11, cfg)
+        seen = (sample.disp_left > 0) & ~sample.occ_left
+        warped = warp_right_to_left(sample.right.astype(np.float32), sample.disp_left)
+        errors.append((sample.disp_left, float(np.abs(sample.left - warped)[seen].mean())))
+    np.testing.assert_array_equal(errors[0][0], errors[1][0])  # the same scene
+    assert errors[1][1] < 0.7 * errors[0][1]                     # the views agree far better
+
+
 def test_store_round_trips_disparity_to_a_sixty_fourth_of_a_pixel(tmp_path):
     assert generate(tmp_path, 2, 10, SMALL) == 2
     assert generate(tmp_path, 2, 10, SMALL) == 0       # already there: skipped

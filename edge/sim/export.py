@@ -52,7 +52,7 @@ def _writable(out: Path) -> None:
 
 
 def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, int],
-                           view_spread: float = 1.0) -> int:
+                           view_spread: float = 1.0, clean_cameras: bool = False) -> int:
     """Things-world pairs as scene folders for evaluation, with the real pair's LiDAR recipe
     (16 rows of the GT, every 2nd column, N(0, 0.1 px); `tools/real_pairs.py`)."""
     import json
@@ -64,7 +64,8 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
     from edge_depth.sim.gt_lidar import GtLidarPattern
     from edge_depth.sim.world import WorldConfig, make_things_sample
 
-    cfg = WorldConfig(width=size[0], height=size[1], view_spread=view_spread)
+    cfg = WorldConfig(width=size[0], height=size[1], view_spread=view_spread,
+                      clean_cameras=clean_cameras)
     _writable(out)
     for i in range(count):
         sample = make_things_sample(seed + i, cfg)
@@ -81,7 +82,7 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
         (folder / "meta.json").write_text(json.dumps(dict(
             focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, cx=cfg.cx, cy=cfg.cy,
             seed=seed + i, generator="edge.sim.world", lidar="16 GT rows, every 2nd column",
-            view_spread=view_spread)))
+            view_spread=view_spread, clean_cameras=clean_cameras)))
         print(f"\rsynth: {i + 1}/{count} things scenes", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
     print(f"wrote {count} things scene folders to {out} ({size[0]}x{size[1]})")
@@ -89,7 +90,8 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
 
 
 def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
-                   workers: int = 1, view_spread: float = 1.0) -> int:
+                   workers: int = 1, view_spread: float = 1.0,
+                   clean_cameras: bool = False) -> int:
     """Render `count` pairs of the things world into OUT/NNNNNNN.npz (seeds seed …), the
     training set of `tools/train.py --data things:OUT`. Pairs already there are kept, so an
     interrupted run continues; `workers` processes render in parallel."""
@@ -98,7 +100,8 @@ def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
     from edge_depth.sim.things_store import generate
     from edge_depth.sim.world import WorldConfig
 
-    cfg = WorldConfig(width=size[0], height=size[1], view_spread=view_spread)
+    cfg = WorldConfig(width=size[0], height=size[1], view_spread=view_spread,
+                      clean_cameras=clean_cameras)
     _writable(out)
     chunk = 25
     starts = list(range(seed, seed + count, chunk))

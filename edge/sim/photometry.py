@@ -35,6 +35,12 @@ class CameraResponse:
                    read_noise=float(rng.uniform(0.3, 3.0)), shot_noise=float(rng.uniform(0, 3)),
                    jpeg_quality=int(rng.integers(50, 96)) if rng.random() < 0.3 else 0)
 
+    def clean(self) -> CameraResponse:
+        """This response at its cleanest: gamma 1, no vignetting, blur or JPEG, read noise
+        0.5 (the exposure kept)."""
+        return replace(self, gamma=1.0, vignetting=0.0, blur_sigma_px=0.0, read_noise=0.5,
+                       shot_noise=0.0, jpeg_quality=0)
+
     def for_view(self, view: str, rng: np.random.Generator,
                  spread: float = 1.0) -> CameraResponse:
         """This response as one camera of the pair sees it: gain within ±12 %, gamma ±6 %,
