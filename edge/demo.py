@@ -38,7 +38,8 @@ def error_map(pred: np.ndarray, gt: np.ndarray, max_error_px: float = 4.0) -> np
     return heat
 
 
-def _label(image: np.ndarray, text: str) -> np.ndarray:
+def labelled(image: np.ndarray, text: str) -> np.ndarray:
+    """A copy of the (H, W, 3) tile with `text` on a black band along its top."""
     out = image.copy()
     cv2.rectangle(out, (0, 0), (out.shape[1], 22), (0, 0, 0), -1)
     cv2.putText(out, text, (6, 16), cv2.FONT_HERSHEY_SIMPLEX, 0.5, (255, 255, 255), 1,
@@ -69,20 +70,20 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
     colours = colorize_disparity(sparse[ys, xs][None], max_d)[0]
     for x, y, c in zip(xs, ys, colours, strict=True):
         cv2.circle(lidar_view, (int(x), int(y)), 1, tuple(int(v) for v in c), -1)
-    top = np.hstack([_label(grey, "left (rectified)"),
-                     _label(lidar_view, "LiDAR projected (disparity)"),
-                     _label(colorize_disparity(pred, max_d), "network (int8)"),
-                     _label(colorize_disparity(gt, max_d), "ground truth")])
-    bottom = np.hstack([_label(error_map(pred, gt), "network |error| (0-4 px)"),
-                        _label(colorize_disparity(sgbm, max_d), "OpenCV SGBM"),
-                        _label(error_map(sgbm, gt), "SGBM |error| (red = hole)"),
-                        _label(colorize_depth(depth), "network depth (0.5-10 m)")])
+    top = np.hstack([labelled(grey, "left (rectified)"),
+                     labelled(lidar_view, "LiDAR projected (disparity)"),
+                     labelled(colorize_disparity(pred, max_d), "network (int8)"),
+                     labelled(colorize_disparity(gt, max_d), "ground truth")])
+    bottom = np.hstack([labelled(error_map(pred, gt), "network |error| (0-4 px)"),
+                        labelled(colorize_disparity(sgbm, max_d), "OpenCV SGBM"),
+                        labelled(error_map(sgbm, gt), "SGBM |error| (red = hole)"),
+                        labelled(colorize_depth(depth), "network depth (0.5-10 m)")])
     rows = [top, bottom]
     if confidence is not None:
         blank = np.zeros_like(grey)
-        rows.append(np.hstack([_label(colorize_confidence(confidence),
+        rows.append(np.hstack([labelled(colorize_confidence(confidence),
                                       "network confidence (error < 1 px)"),
-                               _label(colorize_disparity(np.where(confidence >= 0.9, pred, 0),
+                               labelled(colorize_disparity(np.where(confidence >= 0.9, pred, 0),
                                                          max_d), "network where confidence >= 0.9"),
                                blank, blank]))
     return np.vstack(rows)

@@ -73,10 +73,10 @@ def test_evaluate_scores_the_fusion_and_the_stereo_only_net(tmp_path):
     fake_opencv_doc(src, np.random.default_rng(1))
     real_pairs.main(["--from", str(src), "--out", str(tmp_path / "aloe"), "--textures",
                      str(tmp_path / "tex")])
-    out = tmp_path / "eval.json"
+    out, pic = tmp_path / "eval.json", tmp_path / "errors.png"
     assert evaluate.main([str(tmp_path / "aloe"), "--methods",
                           "net,sgbm,sgbm-filled,sgbm+lidar,lidar-nearest", "--no-lidar",
-                          "--json", str(out)]) == 0
+                          "--json", str(out), "--picture", str(pic)]) == 0
     summary = json.loads(out.read_text())
     assert set(summary) == {"net", "net-nolidar", "sgbm", "sgbm-filled", "sgbm+lidar",
                             "lidar-nearest"}
@@ -86,6 +86,13 @@ def test_evaluate_scores_the_fusion_and_the_stereo_only_net(tmp_path):
     assert summary["sgbm-filled"]["bad3"] < 5.0
     assert summary["lidar-nearest"]["epe"] < 0.2
     assert summary["net-nolidar"]["density"] == 100.0
+    # the picture: left, GT and six error tiles at half size, three to a row
+    tiles = cv2.imread(str(pic))
+    assert tiles.shape == (3 * 200, 3 * 320, 3)
+    nearest = tiles[2 * 200 + 30:3 * 200 - 10, 10:320 - 10]             # lidar-nearest: exact
+    sgbm = tiles[200 + 30:2 * 200 - 10, 10:320 - 10]                     # sgbm: holes in red
+    holes = lambda tile: ((tile[..., 2] > 200) & (tile[..., :2] < 60).all(-1)).mean()  # noqa: E731
+    assert nearest.mean() < 40 and holes(nearest) < 0.01 < holes(sgbm)
 
 
 def test_upsampling_study_reports_the_ceiling_and_the_network_variants(tmp_path):

@@ -2,7 +2,7 @@
 
     python tools/evaluate.py DATA_DIR [--model CHECKPOINT_OR_BUNDLE] [--precision int8]
         [--methods net,sgbm,lidar-nearest,lidar-linear] [--no-lidar] [--iters 4] [--json OUT]
-        [--plot OUT.png]
+        [--plot OUT.png] [--picture OUT.jpg]
 
 Methods: net; net-nolidar (the net with its LiDAR input zeroed: stereo only; --no-lidar adds
 it); sgbm (holes left as holes); sgbm-filled (holes take the row's nearest valid value);
@@ -19,7 +19,9 @@ focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, i
 for a model with a confidence output, its calibration: kept@t, the share of pixels with
 confidence ≥ t (%), and bad1@t, the bad-1 among them, for t = 0.5, 0.7, 0.9;
 `ms` is the median time per pair. `--iters 1,2,4,8` evaluates the network at each count
-(keys net@1, net@2, ...) and plots the EPE-vs-iterations curve with --plot.
+(keys net@1, net@2, ...) and plots the EPE-vs-iterations curve with --plot. `--picture`
+draws the first scene: its left image and GT, then each method's |error| (black = exact,
+white ≥ 4 px, red = hole) with its bad-3 — where a method loses, not only how much.
 """
 
 from __future__ import annotations
@@ -103,8 +105,10 @@ def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0
-             ) -> dict[str, dict[str, float]]:
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0,
+             first: dict | None = None) -> dict[str, dict[str, float]]:
+    """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
+    each method's prediction on it (by method name), for `picture`."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
         net = load_net(model, precision, runtime, bf16, lidar_select, edge_match)
@@ -152,6 +156,11 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
                 m.update(confidence_calibration(pred, scene.disp, confidence))
             m["ms"] = ms
             per_method.setdefault(name, []).append(m)
+            if first is not None and folder == folders[0]:
+                first["scene"] = scene
+                label = name + (" + edge_match" if edge_match and net is not None
+                                and method.startswith("net") else "")
+                first.setdefault("predictions", {})[label] = (pred, m["bad3"])
     summary = {}
     for name, rows in per_method.items():
         summary[name] = {k: _mean([r[k] for r in rows]) for k in rows[0] if k != "ms"}
@@ -175,6 +184,31 @@ def markdown_table(summary: dict[str, dict[str, float]]) -> str:
         lines.append(f"| {name} | " + " | ".join(f"{m[c]:.2f}" if c in m else "–" for c in cols)
                      + " |")
     return "\n".join(lines)
+
+
+def picture(first: dict, columns: int = 3, scale: float = 0.5) -> np.ndarray:
+    """The first scene's tiles (BGR uint8, each `scale` × the scene): left image, GT, then
+    each method's |error| (grey where the GT is unknown)."""
+    import cv2
+
+    from edge_depth.demo import colorize_disparity, error_map, labelled
+
+    scene = first["scene"]
+    known = np.isfinite(scene.disp) & (scene.disp > 0)
+    gt = np.where(known, scene.disp, 0).astype(np.float32)
+    heats = []
+    for pred, _ in first["predictions"].values():
+        heat = error_map(pred, gt)
+        heat[~known] = 64
+        heats.append(heat)
+    images = [cv2.cvtColor(np.asarray(scene.left, np.uint8), cv2.COLOR_GRAY2BGR),
+              colorize_disparity(gt, float(gt.max()))] + heats
+    names = ["left", "ground truth"] + [f"{name}: bad-3 {bad3:.2f} %" for name, (_, bad3)
+                                        in first["predictions"].items()]
+    tiles = [labelled(cv2.resize(im, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA),
+                      name) for im, name in zip(images, names, strict=True)]
+    tiles += [np.zeros_like(tiles[0])] * (-len(tiles) % columns)
+    return np.vstack([np.hstack(tiles[i:i + columns]) for i in range(0, len(tiles), columns)])
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -201,6 +235,8 @@ def main(argv: list[str] | None = None) -> int:
                         "uncertain edges with N disparities (a multiple of 16; 0 = off)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
+    p.add_argument("--picture", type=Path, default=None,
+                   help="the first scene's left image, GT and each method's |error| (JPEG/PNG)")
     args = p.parse_args(argv)
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     if args.no_lidar and "net-nolidar" not in methods:
@@ -225,9 +261,19 @@ def main(argv: list[str] | None = None) -> int:
     if not folders:
         p.error(f"no scene folders under {args.data}")
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
+    first: dict | None = {} if args.picture else None
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
-                       bf16, not args.no_select, args.edge_match)
+                       bf16, not args.no_select, args.edge_match, first)
     print(markdown_table(summary))
+    if args.picture:
+        import cv2
+
+        jpeg = args.picture.suffix.lower() in (".jpg", ".jpeg")
+        if not cv2.imwrite(str(args.picture), picture(first),
+                           [cv2.IMWRITE_JPEG_QUALITY, 85] if jpeg else []):
+            raise SystemExit(f"--picture {args.picture}: could not write it (the extension "
+                             "names the format: .jpg or .png)")
+        print(f"wrote {args.picture} (the first scene, {folders[0]})")
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
     if args.plot and "net" in methods:
