@@ -255,6 +255,8 @@ class Pipeline:
             timings["edge_replaced_pct"] = 100.0 * result.edge_px / result.disparity.size
         if result.matched_px is not None:  # the share the opt-in block matching replaced
             timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
+        if result.match_beyond_px is not None:  # ... and the share beyond its reach
+            timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -290,15 +292,20 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct")
+NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
+               "match_beyond_pct")
+# a frame whose disparity is beyond the opt-in matching's count on more than this % of its
+# pixels is counted (and said in the closing summary): the count is too small for the scene
+BEYOND_PCT = 1.0
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching (opt-in)"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
-    """Per frame that ran the selection (`key`: one of SELECTIONS; default the LiDAR one),
-    the % of its pixels it replaced."""
+    """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
+    the frame's pixels the stage replaced; default the LiDAR selection's) or
+    "match_beyond_pct" (the % beyond the opt-in matching's disparity count)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -313,6 +320,12 @@ def selection_summary(timings: list[dict]) -> str | None:
             lines.append(f"{name}: replaced a median {np.median(shares):.1f} % of each "
                          f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
                          f"{none} of {len(shares)} frames)")
+    beyond = replaced_shares(timings, "match_beyond_pct")
+    if over := [b for b in beyond if b > BEYOND_PCT]:
+        lines.append(f"Edge matching (opt-in): the scene was nearer than its disparity count "
+                     f"reaches in {len(over)} of {len(beyond)} frames (up to {max(over):.1f} % "
+                     "of a frame's pixels; StereoBM cannot match there): raise [engine] "
+                     "edge_match to a multiple of 16 above the scene's largest disparity")
     return "\n".join(lines) or None
 
 

@@ -119,7 +119,9 @@ JSON_SCHEMAS = {
         # per frame that ran it, the % of pixels each selection replaced
         "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
-        "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}}}},
+        "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}},
+        # per frame with the opt-in matching, the % of pixels beyond its disparity count
+        "edge_match_beyond_pct": {"type": "array", "items": {"type": "number"}}}},
 }
 
 

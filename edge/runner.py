@@ -233,7 +233,9 @@ class Runner:
                 edge_select_replaced_pct=[round(s, 2) for s in
                                           replaced_shares(window, "edge_replaced_pct")],
                 edge_match_replaced_pct=[round(s, 2) for s in
-                                         replaced_shares(window, "matched_pct")]))
+                                         replaced_shares(window, "matched_pct")],
+                edge_match_beyond_pct=[round(s, 2) for s in
+                                       replaced_shares(window, "match_beyond_pct")]))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

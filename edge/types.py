@@ -120,7 +120,8 @@ class DepthResult:
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
     replaced by a side's value (None when it did not run). matched_px: pixels the opt-in
-    full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off).
+    full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
+    match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
     """
 
     stamp_ns: int
@@ -133,6 +134,7 @@ class DepthResult:
     selected_px: int | None = None
     edge_px: int | None = None
     matched_px: int | None = None
+    match_beyond_px: int | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

@@ -125,6 +125,11 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
                                            plain.confidence, sparse)
     np.testing.assert_array_equal(matched.disparity, expected)
     assert matched.matched_px == count
+    assert plain.match_beyond_px is None and matched.match_beyond_px == 0   # up to ~60 px
+    # a count below the scene's disparities is counted, not silent
+    short = Engine(precision="int8", threads=2, edge_match=16).infer(big(left), big(right),
+                                                                     sparse)
+    assert short.match_beyond_px == EdgeMatch(16).beyond_px(plain.disparity) > 0
 
 
 def test_config_and_evaluate_take_it(tmp_path):
@@ -148,6 +153,15 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
     assert selection_summary(timings) == ("Edge matching (opt-in): replaced a median 2.0 % of "
                                           "each frame's pixels (p95 3.8 %; none in 1 of 2 "
                                           "frames)")
+    # beyond the matching's disparity count: said only where a frame had more than 1 %
+    timings[0]["match_beyond_pct"], timings[1]["match_beyond_pct"] = 0.4, 0.0
+    assert set(summarise(timings)) == {"engine", "edge_match"}
+    assert "nearer than" not in selection_summary(timings)
+    timings[1]["match_beyond_pct"] = 12.5
+    assert selection_summary(timings).splitlines()[1] == (
+        "Edge matching (opt-in): the scene was nearer than its disparity count reaches in 1 "
+        "of 2 frames (up to 12.5 % of a frame's pixels; StereoBM cannot match there): raise "
+        "[engine] edge_match to a multiple of 16 above the scene's largest disparity")
 
 
 def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recording, tmp_path,

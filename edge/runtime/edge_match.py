@@ -70,6 +70,11 @@ class EdgeMatch:
         matcher.setPreFilterCap(31)
         self._matcher = matcher
 
+    def beyond_px(self, disparity: np.ndarray) -> int:
+        """Pixels whose disparity StereoBM cannot reach (≥ num_disparities − 1): a count too
+        small for the scene fails there without a sound, so the daemon counts it."""
+        return int(np.count_nonzero(disparity >= self.num_disparities - 1))
+
     def matched(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
         """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match."""
         raw = self._matcher.compute(as_grey8(left), as_grey8(right))

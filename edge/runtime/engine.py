@@ -225,8 +225,9 @@ class Engine:
                 buf["left"][0, 0], buf["right"][0, 0], disp, confidence, buf["sparse"][0, 0])
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
-        matched = None
+        matched = beyond = None
         if matching is not None and confidence is not None:
+            beyond = self.edge_match.beyond_px(disp)
             t = time.perf_counter()  # from here: the wait for the matching, then the choice
             disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
                                                   confidence, buf["sparse"][0, 0],
@@ -245,7 +246,8 @@ class Engine:
         timings["engine"] = (time.perf_counter() - t_engine) * 1000
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=len(step_ms), timings_ms=timings, confidence=confidence,
-                           selected_px=selected, edge_px=edge_px, matched_px=matched)
+                           selected_px=selected, edge_px=edge_px, matched_px=matched,
+                           match_beyond_px=beyond)
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
