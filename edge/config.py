@@ -42,7 +42,8 @@
     edge_select = true          # on frames without LiDAR points, the bundle's per-cell
                                 # choice of an edge's near or far side (if it has one)
     edge_match = 0              # opt-in: N (a multiple of 16, above the scene's largest
-                                # disparity) runs StereoBM with N disparities and takes its
+                                # disparity at the network's input size, after scale)
+                                # runs StereoBM with N disparities and takes its
                                 # value where the network is unsure at its edges; better on
                                 # real pairs, ~0.8x SGBM's time more (README); 0 = off
 
