@@ -25,6 +25,20 @@ def noiseless_samples(small_rig):
 
 
 RECORDING_SEED = 1_000_000
+SMALL_BUNDLE = (160, 96)
+
+
+@pytest.fixture(scope="session")
+def small_bundle(tmp_path_factory):
+    """The shipped checkpoint exported at SMALL_BUNDLE (3 iterations): (directory, meta),
+    once per session for the export, quantization and engine tests."""
+    pytest.importorskip("torch")
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+    from edge_depth.tools.export import export
+
+    out = tmp_path_factory.mktemp("bundle")
+    meta = export(DEFAULT_BUNDLE.parent / "sparse_stereo.pt", out, SMALL_BUNDLE, default_iters=3)
+    return out, meta
 
 
 @pytest.fixture(scope="session")
