@@ -107,6 +107,13 @@ def test_disparity_count_must_be_a_positive_multiple_of_16(count):
         EdgeMatch(count)
 
 
+def test_the_engine_refuses_a_count_as_wide_as_its_input():
+    from edge_depth.runtime.engine import Engine
+
+    with pytest.raises(ConfigError, match="below the bundle's input width"):
+        Engine(precision="int8", threads=1, edge_match=640)
+
+
 def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     from edge_depth.runtime.engine import Engine
 

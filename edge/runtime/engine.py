@@ -107,6 +107,9 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
         self.edge_match = EdgeMatch(int(edge_match)) if edge_match else None
+        if edge_match and int(edge_match) >= self.width:  # StereoBM would silently find nothing
+            raise ConfigError("edge_match", f"below the bundle's input width ({self.width} px)",
+                              edge_match)
         # its block matching needs only the images: it runs beside the network's graphs,
         # whose small 1/8-resolution tensors leave the second core partly idle
         self._matching: ThreadPoolExecutor | None = None  # started on first use
