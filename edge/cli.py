@@ -282,6 +282,12 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
     if args.command == "synth" and args.world == "street" and not args.mcap:
         parser.error("synth: --world street writes a recording: give --mcap FILE")
+    if args.command == "synth" and (args.clean_cameras or args.view_spread != 1.0):
+        if args.world != "things":
+            parser.error("synth: --view-spread and --clean-cameras apply to --world things")
+        if args.clean_cameras and args.view_spread != 1.0:
+            parser.error("synth: --clean-cameras gives both views one response: "
+                         "--view-spread does not apply")
     try:
         if args.command == "synth":
             from edge_depth.sim.export import synth_command

@@ -68,6 +68,9 @@ def test_synth_writes_scene_folders_that_match_the_rig(tmp_path, capsys):
     (["--view-spread", "-0.5"], "from 0 to 4"),
     (["--view-spread", "nan"], "from 0 to 4"),
     (["--view-spread", "wide"], "from 0 to 4"),
+    (["--view-spread", "0.5"], "apply to --world things"),            # the rig has no such knob
+    (["--clean-cameras"], "apply to --world things"),
+    (["--world", "things", "--clean-cameras", "--view-spread", "2"], "does not apply"),
 ])
 def test_bad_arguments_exit_non_zero_with_one_line_and_write_nothing(tmp_path, capsys, args,
                                                                        reason):

@@ -229,7 +229,7 @@ class Engine:
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
         matched = beyond = None
-        if matching is not None and confidence is not None:
+        if matching is not None:  # (only with a confidence output)
             beyond = self.edge_match.beyond_px(disp)
             t = time.perf_counter()  # from here: the wait for the matching, then the choice
             disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
