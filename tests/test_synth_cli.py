@@ -59,6 +59,16 @@ def test_synth_writes_scene_folders_that_match_the_rig(tmp_path, capsys):
     assert np.allclose(meta["T_cam_lidar"], expected.T_cam_lidar)
 
 
+def test_progress_in_a_log_is_a_line_per_tenth_not_one_endless_line(tmp_path, capsys):
+    # capsys's stderr is not a terminal, as under nohup or CI
+    assert main(["synth", "--out", str(tmp_path / "s"), "--count", "20", "--seed", "5",
+                 "--size", "32x32"]) == 0
+    err = capsys.readouterr().err
+    lines = err.splitlines()
+    assert "\r" not in err and lines[-1] == "synth: 20/20 scenes"
+    assert lines == [f"synth: {n}/20 scenes" for n in (1, 3, 5, 7, 9, 11, 13, 15, 17, 19, 20)]
+
+
 @pytest.mark.parametrize("args,reason", [
     (["--size", "640by400"], "WxH"),
     (["--size", "8x8"], "16x16"),

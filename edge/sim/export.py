@@ -17,6 +17,28 @@ class OutputError(EdgeError):
     """The output location cannot be written."""
 
 
+class Progress:
+    """`synth: 40/260 things pairs` on stderr: redrawn in place on a terminal; where stderr is
+    a log file (nohup, CI), a line at each tenth of the work instead of one endless line."""
+
+    def __init__(self, count: int, what: str) -> None:
+        self.count, self.what = count, what
+        self.tty = sys.stderr.isatty()
+        self._next = 0
+
+    def __call__(self, done: int) -> None:
+        line = f"synth: {done}/{self.count} {self.what}"
+        if self.tty:
+            print(f"\r{line}", end="", file=sys.stderr, flush=True)
+        elif done >= self._next or done == self.count:
+            print(line, file=sys.stderr, flush=True)
+            self._next = done + max(1, self.count // 10)
+
+    def close(self) -> None:
+        if self.tty:
+            print(file=sys.stderr)
+
+
 def synth_command(out: Path, count: int, seed: int, size: tuple[int, int], lidar: str) -> int:
     """Write `count` scene folders OUT/000000 ... seeded seed, seed+1, ...
 
@@ -26,14 +48,15 @@ def synth_command(out: Path, count: int, seed: int, size: tuple[int, int], lidar
     rig = RigConfig(width=size[0], height=size[1])
     _writable(out)
     written: list[Path] = []
+    progress = Progress(count, "scenes")
     try:
         for i in range(count):
             sample = make_sample(seed + i, rig, lidar)
             folder = out / f"{seed + i:06d}"
             write_scene_folder(folder, sample, lidar_name=lidar)
             written.append(folder)
-            print(f"\rsynth: {i + 1}/{count} scenes", end="", file=sys.stderr, flush=True)
-        print(file=sys.stderr)
+            progress(i + 1)
+        progress.close()
     except BaseException:
         for folder in written:
             shutil.rmtree(folder, ignore_errors=True)
@@ -67,6 +90,7 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
     cfg = WorldConfig(width=size[0], height=size[1], view_spread=view_spread,
                       clean_cameras=clean_cameras)
     _writable(out)
+    progress = Progress(count, "things scenes")
     for i in range(count):
         sample = make_things_sample(seed + i, cfg)
         folder = out / f"{seed + i:07d}"
@@ -83,8 +107,8 @@ def things_folders_command(out: Path, count: int, seed: int, size: tuple[int, in
             focal_px=cfg.focal_px, baseline_m=cfg.baseline_m, cx=cfg.cx, cy=cfg.cy,
             seed=seed + i, generator="edge.sim.world", lidar="16 GT rows, every 2nd column",
             view_spread=view_spread, clean_cameras=clean_cameras)))
-        print(f"\rsynth: {i + 1}/{count} things scenes", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
+        progress(i + 1)
+    progress.close()
     print(f"wrote {count} things scene folders to {out} ({size[0]}x{size[1]})")
     return 0
 
@@ -106,13 +130,14 @@ def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
     chunk = 25
     starts = list(range(seed, seed + count, chunk))
     done = rendered = 0
+    progress = Progress(count, "things pairs")
     with ProcessPoolExecutor(max(1, workers)) as pool:
         jobs = [pool.submit(generate, out, min(chunk, seed + count - s), s, cfg) for s in starts]
         for job in jobs:
             rendered += job.result()
             done = min(done + chunk, count)
-            print(f"\rsynth: {done}/{count} things pairs", end="", file=sys.stderr, flush=True)
-    print(file=sys.stderr)
+            progress(done)
+    progress.close()
     print(f"wrote {rendered} things pairs to {out} ({count - rendered} were already there; "
           f"{size[0]}x{size[1]})")
     return 0
