@@ -26,6 +26,7 @@ from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics
+from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.engine import Engine
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
@@ -294,9 +295,6 @@ def lidar_summary(pipeline: Pipeline) -> str:
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
                "match_beyond_pct")
-# a frame whose disparity is beyond the opt-in matching's count on more than this % of its
-# pixels is counted (and said in the closing summary): the count is too small for the scene
-BEYOND_PCT = 1.0
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching (opt-in)"}

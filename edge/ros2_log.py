@@ -13,7 +13,8 @@ Topics (`ROS2_TOPICS`, under a configurable prefix):
     stereo/points           sensor_msgs/PointCloud2 x y z intensity (depth back-projected)
     lidar/points            sensor_msgs/PointCloud2 x y z intensity, as received
     /tf_static              tf2_msgs/TFMessage: parent → camera_left → camera_right, lidar
-    /diagnostics            diagnostic_msgs/DiagnosticArray (the foxglove profile's counters)
+    /diagnostics            diagnostic_msgs/DiagnosticArray (the foxglove profile's counters;
+                            WARN on errors or an edge_match count short of the scene)
     edge/calibration        std_msgs/String: the calibration file's TOML (first in each file)
     sim/gt_disparity        sensor_msgs/Image 32FC1 (synthetic recordings only)
 Rotation, the free-space check and never-overwrite naming are McapLogger's.
@@ -28,6 +29,7 @@ import numpy as np
 
 from edge_depth.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
 from edge_depth.ros2_msgs import MSGDEFS, header, transform
+from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.topics import ros2_topic
 from edge_depth.types import DepthResult, StereoFrame
 
@@ -170,8 +172,14 @@ class Ros2Logger(McapLogger):
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         flat = {k: json.dumps(v, default=float) for k, v in values.items()}
         errors = sum((values.get("errors") or {}).values())
-        status = {"level": 1 if errors else 0, "name": "edge-depth",  # WARN / OK
-                  "message": f"{values.get('frames', 0)} frames, {errors} errors",
+        message = f"{values.get('frames', 0)} frames, {errors} errors"
+        # the opt-in edge matching's count too small for the scene: a warning, not a number
+        beyond = [b for b in values.get("edge_match_beyond_pct") or [] if b > BEYOND_PCT]
+        if beyond:
+            message += (f", {len(beyond)} frames nearer than [engine] edge_match reaches "
+                        "(raise it)")
+        status = {"level": 1 if errors or beyond else 0, "name": "edge-depth",  # WARN / OK
+                  "message": message,
                   "hardware_id": "", "values": [{"key": k, "value": v}
                                                 for k, v in flat.items()]}
         self._log("diagnostics", {"header": header(stamp_ns, ""), "status": [status]},
