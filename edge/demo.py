@@ -81,10 +81,10 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
     rows = [top, bottom]
     if confidence is not None:
         blank = np.zeros_like(grey)
+        confident = colorize_disparity(np.where(confidence >= 0.9, pred, 0), max_d)
         rows.append(np.hstack([labelled(colorize_confidence(confidence),
-                                      "network confidence (error < 1 px)"),
-                               labelled(colorize_disparity(np.where(confidence >= 0.9, pred, 0),
-                                                         max_d), "network where confidence >= 0.9"),
+                                        "network confidence (error < 1 px)"),
+                               labelled(confident, "network where confidence >= 0.9"),
                                blank, blank]))
     return np.vstack(rows)
 
