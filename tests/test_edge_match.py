@@ -148,6 +148,8 @@ def test_config_and_evaluate_take_it(tmp_path):
     assert load_robot_config(path).engine.edge_match == 64
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-match", "40"])
+    with pytest.raises(SystemExit):    # refused before any scene is evaluated
+        evaluate.main([str(tmp_path), "--picture", str(tmp_path / "errors.gif")])
 
 
 def test_the_closing_summary_and_diagnostics_count_what_it_replaced():

@@ -158,8 +158,8 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
             per_method.setdefault(name, []).append(m)
             if first is not None and folder == folders[0]:
                 first["scene"] = scene
-                label = name + (" + edge_match" if edge_match and net is not None
-                                and method.startswith("net") else "")
+                staged = edge_match and method in ("net", "net-nolidar")
+                label = f"{name} + edge_match" if staged else name
                 first.setdefault("predictions", {})[label] = (pred, m["bad3"])
     summary = {}
     for name, rows in per_method.items():
@@ -255,6 +255,8 @@ def main(argv: list[str] | None = None) -> int:
             EdgeMatch(args.edge_match)  # the engine's own check of the count
         except ConfigError as exc:
             p.error(f"--edge-match: {exc}")
+    if args.picture and args.picture.suffix.lower() not in (".jpg", ".jpeg", ".png"):
+        p.error(f"--picture {args.picture}: name a .jpg or .png file")
     if args.edge_match and not args.model.is_dir():
         p.error("--edge-match is a stage of the engine: give a bundle (--model DIR)")
     folders = list_scene_folders(args.data)
@@ -271,8 +273,8 @@ def main(argv: list[str] | None = None) -> int:
         jpeg = args.picture.suffix.lower() in (".jpg", ".jpeg")
         if not cv2.imwrite(str(args.picture), picture(first),
                            [cv2.IMWRITE_JPEG_QUALITY, 85] if jpeg else []):
-            raise SystemExit(f"--picture {args.picture}: could not write it (the extension "
-                             "names the format: .jpg or .png)")
+            raise SystemExit(f"--picture {args.picture}: could not write it (does its "
+                             "folder exist?)")
         print(f"wrote {args.picture} (the first scene, {folders[0]})")
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
