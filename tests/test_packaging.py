@@ -49,4 +49,7 @@ def test_every_package_folder_is_installed_under_edge_depth():
             sub = init.parent.relative_to(ROOT / folder).parts
             if not any(name + "." + p in folders for p in sub[:1]):
                 expected.add(".".join((name,) + sub))
-    assert set(setuptools["packages"]) == expected
+    data_only = {"edge_depth.models", "edge_depth.models.default"}  # the shipped model
+    assert set(setuptools["packages"]) == expected | data_only
+    assert not any((ROOT / "edge" / p.split(".", 1)[1].replace(".", "/") / "__init__.py").exists()
+                   for p in data_only)
