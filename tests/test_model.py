@@ -109,6 +109,27 @@ def test_upsampling_mask_as_matmul_equals_the_convolutions():
     torch.testing.assert_close(logits, 0.25 * block.mask(hidden), atol=1e-5, rtol=1e-5)
 
 
+def test_the_gru_with_the_contexts_terms_computed_once_is_the_same_step():
+    from edge_depth.model.update import UpdateBlock
+
+    torch.manual_seed(5)
+    block = UpdateBlock(hidden_dim=16, context_dim=8, corr_channels=9, factor=4)
+    hidden, context = torch.randn(2, 16, 5, 7), torch.randn(2, 8, 5, 7)
+    corr, disparity = torch.randn(2, 9, 5, 7), torch.rand(2, 1, 5, 7) * 10
+    expected = block(hidden, hidden[:, :0], context, corr, disparity)
+    terms = block.context_terms(context)
+    assert [t.shape[1] for t in terms] == [32, 16]  # the gates' channels, biases included
+    got = block(hidden, hidden[:, :0], None, corr, disparity, terms)
+    for a, b in zip(got, expected, strict=True):
+        torch.testing.assert_close(a, b, atol=1e-5, rtol=1e-5)
+    # and it is not the same without the context: the terms carry it
+    other = block(hidden, hidden[:, :0], None, corr, disparity,
+                  block.context_terms(torch.zeros_like(context)))
+    assert (other[0] - expected[0]).abs().max() > 1e-3
+    with pytest.raises(ValueError, match="gru_levels 1"):
+        UpdateBlock(16, 8, 9, 4, gru_levels=2).context_terms(context)
+
+
 def test_sparse_downsampling_averages_valid_points_in_low_res_pixels():
     sparse = torch.zeros(1, 1, 8, 16)
     valid = torch.zeros(1, 1, 8, 16)

@@ -24,7 +24,10 @@ import numpy as np
 from edge_depth.cli import parse_size
 
 ENCODER_INPUTS = ["left", "right", "sparse", "valid"]
-STATE = ["corr", "context", "weights", "centre", "sparse_low", "valid_low"]
+# the context enters the step as the GRU's two fixed terms, computed once per frame by the
+# encoder graph (`UpdateBlock.context_terms`; bundles before session 26 fed "context" itself,
+# and the engine runs both: it feeds the step whatever it asks for by name)
+STATE = ["corr", "context_zr", "context_q", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
@@ -55,7 +58,8 @@ def build_graphs(net):
 
         def forward(self, left, right, sparse, valid):
             s = self.net.encode(left, right, sparse, valid)
-            return (s["disparity"], s["hidden"], s["corr"], s["context"], s["weights"],
+            context_zr, context_q = self.net.update.context_terms(s["context"])
+            return (s["disparity"], s["hidden"], s["corr"], context_zr, context_q, s["weights"],
                     s["centre"], s["sparse"], s["valid"],
                     *[s[k] for k in QUARTER if k in s])
 
@@ -64,9 +68,10 @@ def build_graphs(net):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, corr, context, weights, centre, sparse, valid):
-            state = dict(corr=corr, context=context, weights=weights, centre=centre,
-                         sparse=sparse, valid=valid)
+        def forward(self, disparity, hidden, corr, context_zr, context_q, weights, centre,
+                    sparse, valid):
+            state = dict(corr=corr, context_zr=context_zr, context_q=context_q,
+                         weights=weights, centre=centre, sparse=sparse, valid=valid)
             d, h, _, _ = self.net.step(state, disparity, hidden, hidden[:, :0])
             return d, h
 
@@ -167,8 +172,9 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
     x = torch.zeros(1, 1, h, w)
     with torch.no_grad():
         enc_out = encoder(x, x, x, x)
-        d, hidden, corr, context, weights, centre, sparse_low, valid_low, *quarter = enc_out
-        step_args = (d, hidden, corr, context, weights, centre, sparse_low, valid_low)
+        d, hidden, *state = enc_out[:2 + len(STATE)]
+        quarter = enc_out[2 + len(STATE):]
+        step_args = (d, hidden, *state)
         graphs = [
             ("encoder.onnx", encoder, (x, x, x, x), ENCODER_INPUTS,
              ["disparity", "hidden", *STATE, *QUARTER[:len(quarter)]]),

@@ -116,8 +116,9 @@ class SparseStereoNet(nn.Module):
         """One GRU iteration; returns (disparity, hidden, hidden_low, upsampling mask)."""
         cfg = self.config
         corr = lookup_flat(state["corr"], disparity, cfg.corr_radius, cfg.corr_levels)
-        hidden, hidden_low, delta, mask = self.update(hidden, hidden_low, state["context"],
-                                                      corr, disparity)
+        terms = (state["context_zr"], state["context_q"]) if "context_zr" in state else None
+        hidden, hidden_low, delta, mask = self.update(hidden, hidden_low, state.get("context"),
+                                                      corr, disparity, terms)
         disparity = self._propagate(disparity + delta, state["weights"], state["centre"],
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask

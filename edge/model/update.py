@@ -13,11 +13,30 @@ class ConvGRU(nn.Module):
         self.convzr = nn.Conv2d(hidden_dim + input_dim, 2 * hidden_dim, 3, 1, 1)
         self.convq = nn.Conv2d(hidden_dim + input_dim, hidden_dim, 3, 1, 1)
 
-    def forward(self, h: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-        hx = torch.cat([h, x], 1)
-        z, r = torch.sigmoid(self.convzr(hx)).chunk(2, 1)
-        q = torch.tanh(self.convq(torch.cat([r * h, x], 1)))
+    def forward(self, h: torch.Tensor, x: torch.Tensor,
+                fixed: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+        """`fixed`: `fixed_terms(c)` of the input's last channels c, which then stay out of
+        `x` — the same result (convolutions are linear in their input channels)."""
+        if fixed is None:
+            hx = torch.cat([h, x], 1)
+            z, r = torch.sigmoid(self.convzr(hx)).chunk(2, 1)
+            q = torch.tanh(self.convq(torch.cat([r * h, x], 1)))
+        else:
+            n = h.shape[1] + x.shape[1]
+            zr = F.conv2d(torch.cat([h, x], 1), self.convzr.weight[:, :n], padding=1)
+            z, r = torch.sigmoid(zr + fixed[0]).chunk(2, 1)
+            q = torch.tanh(F.conv2d(torch.cat([r * h, x], 1), self.convq.weight[:, :n],
+                                    padding=1) + fixed[1])
         return (1 - z) * h + z * q
+
+    def fixed_terms(self, c: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The gates' share from input channels that stay the same over the iterations (the
+        context: the last `c.shape[1]` input channels), biases included: computed once per
+        frame instead of once per iteration (the step graph's convolutions lose a quarter of
+        their input channels)."""
+        k = c.shape[1]
+        return (F.conv2d(c, self.convzr.weight[:, -k:], self.convzr.bias, padding=1),
+                F.conv2d(c, self.convq.weight[:, -k:], self.convq.bias, padding=1))
 
 
 class MotionEncoder(nn.Module):
@@ -54,8 +73,20 @@ class UpdateBlock(nn.Module):
         self.mask = nn.Sequential(nn.Conv2d(hidden_dim, 64, 3, 1, 1), nn.ReLU(),
                                   nn.Conv2d(64, 9 * factor * factor, 1))
 
-    def forward(self, hidden, hidden_low, context, corr, disparity):
+    def context_terms(self, context: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The GRU's fixed terms from the context (`ConvGRU.fixed_terms`), for `forward`'s
+        `context_terms`; gru_levels 1 only (the half-resolution GRU sees the context too)."""
+        if self.gru_levels != 1:
+            raise ValueError("the context's fixed terms need gru_levels 1")
+        return self.gru.fixed_terms(context)
+
+    def forward(self, hidden, hidden_low, context, corr, disparity, context_terms=None):
+        """`context_terms`: `self.context_terms(context)`, computed once per frame; then
+        `context` is not read (None is fine)."""
         motion = self.motion(corr, disparity)
+        if context_terms is not None:
+            hidden = self.gru(hidden, motion, context_terms)
+            return hidden, hidden_low, self.delta(hidden), self.upsampling_mask(hidden)
         x = torch.cat([motion, context], 1)
         if self.gru_levels == 2:
             hidden_low = self.gru_low(hidden_low, F.avg_pool2d(x, 2))
