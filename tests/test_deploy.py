@@ -53,6 +53,30 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     assert float(np.abs(one.disparity - ref).mean()) > 0.01
 
 
+def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_bundle,
+                                                                           tmp_path):
+    import onnx
+
+    from edge_depth.errors import ConfigError
+
+    bundle, _ = small_bundle
+    names = lambda path, part: [v.name for v in getattr(onnx.load(str(path)).graph, part)]  # noqa: E731
+    # since session 26 the step reads the GRU's context terms, which the encoder computes once
+    assert {"context_zr", "context_q"} <= set(names(bundle / "step.onnx", "input"))
+    assert "context" not in names(bundle / "step.onnx", "input")
+    assert {"context_zr", "context_q"} <= set(names(bundle / "encoder.onnx", "output"))
+    # the shipped bundle predates it (the step reads "context"): the engine runs both layouts
+    assert "context" in names(DEFAULT_BUNDLE / "step.onnx", "input")
+    # a step from one export with an encoder from the other: refused when the bundle loads
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for f in bundle.iterdir():
+        (mixed / f.name).write_bytes(f.read_bytes())
+    (mixed / "encoder.onnx").write_bytes((DEFAULT_BUNDLE / "encoder.onnx").read_bytes())
+    with pytest.raises(ConfigError, match="context_zr, context_q, which .*encoder.onnx"):
+        Engine(mixed, "fp32", threads=1)
+
+
 def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
     meta = json.loads((DEFAULT_BUNDLE / "model.json").read_text())
     assert meta["size"] == [640, 400]
