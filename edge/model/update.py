@@ -86,14 +86,14 @@ class UpdateBlock(nn.Module):
         motion = self.motion(corr, disparity)
         if context_terms is not None:
             hidden = self.gru(hidden, motion, context_terms)
-            return hidden, hidden_low, self.delta(hidden), self.upsampling_mask(hidden)
-        x = torch.cat([motion, context], 1)
-        if self.gru_levels == 2:
-            hidden_low = self.gru_low(hidden_low, F.avg_pool2d(x, 2))
-            up = F.interpolate(hidden_low, size=hidden.shape[-2:], mode="bilinear",
-                               align_corners=False)
-            x = torch.cat([x, up], 1)
-        hidden = self.gru(hidden, x)
+        else:
+            x = torch.cat([motion, context], 1)
+            if self.gru_levels == 2:
+                hidden_low = self.gru_low(hidden_low, F.avg_pool2d(x, 2))
+                up = F.interpolate(hidden_low, size=hidden.shape[-2:], mode="bilinear",
+                                   align_corners=False)
+                x = torch.cat([x, up], 1)
+            hidden = self.gru(hidden, x)
         return hidden, hidden_low, self.delta(hidden), self.upsampling_mask(hidden)
 
     def upsampling_mask(self, hidden: torch.Tensor) -> torch.Tensor:
