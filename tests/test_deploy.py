@@ -73,7 +73,16 @@ def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_b
     for f in bundle.iterdir():
         (mixed / f.name).write_bytes(f.read_bytes())
     (mixed / "encoder.onnx").write_bytes((DEFAULT_BUNDLE / "encoder.onnx").read_bytes())
-    with pytest.raises(ConfigError, match="context_zr, context_q, which .*encoder.onnx"):
+    with pytest.raises(ConfigError, match="step.onnx needs context_zr, context_q, which "
+                                          ".*encoder.onnx"):
+        Engine(mixed, "fp32", threads=1)
+    # the upsampling's inputs the same way: an encoder that no longer writes the 1/4 features
+    # the refinement (version 5) reads
+    encoder = onnx.load(str(bundle / "encoder.onnx"))
+    for out in [o for o in encoder.graph.output if o.name == "quarter_right"]:
+        encoder.graph.output.remove(out)
+    onnx.save(encoder, str(mixed / "encoder.onnx"))
+    with pytest.raises(ConfigError, match="upsample.onnx needs quarter_right, which"):
         Engine(mixed, "fp32", threads=1)
 
 

@@ -91,15 +91,18 @@ class Engine:
         self._enc_outputs = self.sessions["encoder"].output_names
         self._step_state = [n for n in self.sessions["step"].input_names
                             if n not in ("disparity", "hidden")]
-        # the step reads what the encoder wrote, by name: graphs from two exports (bundles
-        # since session 26 pass the context as two precomputed terms) would fail on frame 1
-        missing = [n for n in self._step_state if n not in self._enc_outputs]
-        if missing:
-            raise ConfigError("bundle", "graphs exported together (tools/export.py): "
-                              "step.onnx reads what encoder.onnx writes",
-                              f"step.onnx needs {', '.join(missing)}, which "
-                              f"{self.bundle / 'encoder.onnx'} does not output")
         upsample = self.sessions["upsample"]
+        # the step and the upsampling read what the encoder wrote, by name: graphs from two
+        # exports (bundles since session 26 pass the context as two precomputed terms; a
+        # refinement's version decides what the upsampling reads) would fail on frame 1
+        fed = {"disparity", "hidden", *self._enc_outputs}
+        for part, extra in (("step", set()), ("upsample", {"left", "right", "sparse", "valid"})):
+            missing = [n for n in self.sessions[part].input_names if n not in fed | extra]
+            if missing:
+                raise ConfigError("bundle", f"graphs exported together (tools/export.py): "
+                                  f"{part}.onnx reads what encoder.onnx writes",
+                                  f"{part}.onnx needs {', '.join(missing)}, which "
+                                  f"{self.bundle / 'encoder.onnx'} does not output")
         # a refining upsample graph also takes the images (and, versions 2-3, the LiDAR;
         # version 4: the encoder's 1/4 features and the LiDAR)
         self._upsample_inputs = [n for n in upsample.input_names
