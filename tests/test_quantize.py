@@ -19,6 +19,7 @@ pytest.importorskip("torch")
 def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_path):
     import shutil
 
+    from edge_depth.runtime.backends import cpu_description
     from edge_depth.tools.quantize import quantize_bundle
 
     bundle = tmp_path / "b"
@@ -28,6 +29,8 @@ def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_
     assert meta["quantization"] == q
     assert set(q["graphs"]) == {"encoder", "step", "upsample"}
     assert q["op_types"] == ["Conv"] and q["calibration_frames"] == 2
+    # the host its speed choices were timed on (they differ with and without VNNI / AMX)
+    assert q["cpu"] == cpu_description()
     for part, g in q["graphs"].items():
         name = meta["precisions"]["int8"][part]
         assert name.endswith(".int8.onnx") == g["int8"]

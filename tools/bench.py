@@ -37,6 +37,7 @@ import numpy as np
 from edge_depth.baselines import make_sgbm, sgbm_disparity
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.runtime.backends import cpu_description
 from edge_depth.runtime.edge_match import EdgeMatch
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
@@ -235,7 +236,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                    sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
                    machine=dict(others_cpu_share=share.others, load_avg_1min=load_before,
                                 sgbm_p90_over_p10=sgbm_spread,
-                                busy=share.others is not None and share.others > BUSY_SHARE))
+                                busy=share.others is not None and share.others > BUSY_SHARE,
+                                cpu=cpu_description()))
     if key in engine_ms["int8"]:
         summary["ratios"] = dict(
             int8_vs_sgbm=engine_ms["int8"][key] / sgbm_ms,
@@ -299,8 +301,12 @@ def machine_line(m: dict) -> str:
     others = "n/a" if m["others_cpu_share"] is None else f"{m['others_cpu_share']:.0%}"
     load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.2f}"
     flag = " — BUSY" if m["busy"] else ""
-    return (f"machine: other processes {others} of the CPU during the run, load average "
+    line = (f"machine: other processes {others} of the CPU during the run, load average "
             f"{load} before it, SGBM p90/p10 {m['sgbm_p90_over_p10']:.2f}{flag}")
+    if "cpu" in m:  # ratios from CPUs with and without int8 dot products differ ~2x
+        dot = {True: "yes", False: "no", None: "unknown"}[m["cpu"]["int8_dot_product"]]
+        line += f"; CPU {m['cpu']['model']}, int8 dot product (VNNI/AMX): {dot}"
+    return line
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -35,7 +35,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_depth.metrics import disparity_metrics
-from edge_depth.runtime.backends import resolve_runtime
+from edge_depth.runtime.backends import cpu_description, resolve_runtime
 from edge_depth.runtime.engine import Engine, load_bundle_meta
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -266,6 +266,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         max_graph_px=max_graph_px, max_total_px=max_total_px, graphs=graphs,
         timing_runtime=timing, min_gain=min_gain, max_confidence=max_confidence,
         mean_abs_px_vs_fp32=total[RUNTIME]["px"], vs_fp32=total,
+        cpu=cpu_description(),  # the speed half of each choice was measured on it
     )
     if eval_dir is not None:
         folders = list_scene_folders(eval_dir)

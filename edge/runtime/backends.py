@@ -34,6 +34,32 @@ def openvino_available() -> bool:
     return True
 
 
+INT8_DOT_FLAGS = {"avx512_vnni", "avx_vnni", "amx_int8"}  # /proc/cpuinfo's names
+
+
+def cpu_description(cpuinfo: str | None = None) -> dict:
+    """The CPU the graphs run on, for what benchmarks and quantization record: its model name
+    and whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI or AMX; None where
+    unknown). Without them int8 graphs run no faster than float (ONNX Runtime ×1.00 on an AVX2
+    host, docs/experiments.md session 21), so ratios and quantization choices from the two
+    kinds of CPU differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux)."""
+    if cpuinfo is None:
+        try:
+            cpuinfo = Path("/proc/cpuinfo").read_text()
+        except OSError:
+            cpuinfo = ""
+    model, flags = platform.processor() or "unknown", None
+    for line in cpuinfo.splitlines():  # the first processor's entries are enough
+        key, _, value = line.partition(":")
+        if key.strip() == "model name":
+            model = value.strip()
+        elif key.strip() == "flags":
+            flags = set(value.split())
+            break
+    return dict(model=model, int8_dot_product=None if flags is None
+                else bool(flags & INT8_DOT_FLAGS))
+
+
 def cpu_has_bf16() -> bool:
     """Whether OpenVINO's CPU plugin reports native bf16 (AVX512-BF16 or AMX)."""
     if not openvino_available():
