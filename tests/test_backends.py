@@ -34,6 +34,12 @@ def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monk
     assert backends.cpu_description(xeon) == dict(model="Intel Xeon", int8_dot_product=True)
     assert backends.cpu_description(entry.format(n=0, model="x", extra="avx_vnni"))[
         "int8_dot_product"] is True
+    # ARM robots (a Raspberry Pi 5's Cortex-A76, a Jetson's A78AE): "Features", no model name
+    arm = "processor\t: 0\nBogoMIPS\t: 108.00\nFeatures\t: fp asimd {}\n"
+    monkeypatch.setattr(backends.platform, "processor", lambda: "")
+    assert backends.cpu_description(arm.format("asimddp")) == dict(model="unknown",
+                                                                  int8_dot_product=True)
+    assert backends.cpu_description(arm.format("crc32"))["int8_dot_product"] is False
     # no /proc/cpuinfo (macOS, Windows): the platform's name, the instructions unknown
     monkeypatch.setattr(backends.platform, "processor", lambda: "arm")
     assert backends.cpu_description("") == dict(model="arm", int8_dot_product=None)

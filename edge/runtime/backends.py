@@ -34,15 +34,17 @@ def openvino_available() -> bool:
     return True
 
 
-INT8_DOT_FLAGS = {"avx512_vnni", "avx_vnni", "amx_int8"}  # /proc/cpuinfo's names
+# /proc/cpuinfo's names: x86 "flags" (VNNI, AMX), ARM "Features" (SDOT/UDOT: asimddp)
+INT8_DOT_FLAGS = {"avx512_vnni", "avx_vnni", "amx_int8", "asimddp"}
 
 
 def cpu_description(cpuinfo: str | None = None) -> dict:
     """The CPU the graphs run on, for what benchmarks and quantization record: its model name
-    and whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI or AMX; None where
-    unknown). Without them int8 graphs run no faster than float (ONNX Runtime ×1.00 on an AVX2
-    host, docs/experiments.md session 21), so ratios and quantization choices from the two
-    kinds of CPU differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux)."""
+    and whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
+    SDOT/UDOT; None where unknown). Without them int8 graphs run no faster than float (ONNX
+    Runtime ×1.00 on an AVX2 host, docs/experiments.md session 21), so ratios and quantization
+    choices from the two kinds of CPU differ. `cpuinfo`: /proc/cpuinfo's text (read here on
+    Linux)."""
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text()
@@ -53,7 +55,7 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
         key, _, value = line.partition(":")
         if key.strip() == "model name":
             model = value.strip()
-        elif key.strip() == "flags":
+        elif key.strip() in ("flags", "Features"):
             flags = set(value.split())
             break
     return dict(model=model, int8_dot_product=None if flags is None
