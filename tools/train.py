@@ -97,6 +97,9 @@ def parse_args(argv):
     p.add_argument("--workers", type=int, default=1,
                    help="data-generation processes (0: in the training process)")
     p.add_argument("--threads", type=int, default=0, help="torch threads (0: torch's default)")
+    p.add_argument("--device", default="auto",
+                   help="where the network trains: auto (the GPU when torch sees one, else "
+                        "the CPU), cpu, cuda or cuda:N; data are made on the CPU either way")
     p.add_argument("--ckpt-every", type=int, default=250)
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
     p.add_argument("--stereo-only-share", type=float, default=None,
@@ -128,11 +131,48 @@ def parse_args(argv):
             p.error(f"--asymmetric-share must be within 0-1, got {args.asymmetric_share}")
         if not (args.data or "").startswith("things:"):
             p.error("--asymmetric-share applies to --data things:DIR only")
+    args.device = training_device(p, args.device)
     return args
 
 
+def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
+    """--device as a torch device; a GPU asked for but absent is one clear line."""
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        device = torch.device(name)
+    except RuntimeError:
+        p.error(f"--device {name}: not a device (auto, cpu, cuda or cuda:N)")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        p.error(f"--device {name}: this torch sees no CUDA GPU "
+                f"(torch {torch.__version__}; use --device cpu)")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        p.error(f"--device {name}: torch sees {torch.cuda.device_count()} GPU(s)")
+    if device.type not in ("cpu", "cuda"):
+        p.error(f"--device {name}: only cpu and cuda are supported")
+    return device
+
+
+def on_cpu(value):
+    """A state dict (or a nest of them) with every tensor on the CPU: checkpoints load on any
+    machine, a robot's included, whatever trained them."""
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu()
+    if isinstance(value, dict):
+        return {k: on_cpu(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return type(value)(on_cpu(v) for v in value)
+    return value
+
+
+def to_device(batch: dict, device: torch.device) -> dict:
+    return {k: v.to(device, non_blocking=True) if isinstance(v, torch.Tensor) else v
+            for k, v in batch.items()}
+
+
 # what a resumed run may change: how long and with what it continues, not what it trains
-RESUME_MAY_CHANGE = {"out", "resume", "steps", "threads", "workers", "ckpt_every", "val_every"}
+RESUME_MAY_CHANGE = {"out", "resume", "steps", "threads", "workers", "ckpt_every", "val_every",
+                     "device"}
 
 
 def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv) -> None:
@@ -212,9 +252,10 @@ def weights_checksum(model) -> float:
 def validate(net, iters: int, count: int = 8) -> dict[str, float]:
     net.eval()
     epes, bad3 = [], []
+    device = next(net.parameters()).device
     with torch.no_grad():
         for item in FixedSplit(VAL_SEED0, count):
-            batch = {k: v[None] for k, v in item.items()}
+            batch = to_device({k: v[None] for k, v in item.items()}, device)
             pred = net(batch["left"], batch["right"], batch["sparse"], batch["valid"], iters)[-1]
             err = (pred - batch["gt"]).abs()
             epes.append(float(err.mean()))
@@ -299,7 +340,7 @@ def _train(argv: list[str] | None) -> int:
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change
-        init = torch.load(args.init, weights_only=False)
+        init = torch.load(args.init, weights_only=False, map_location="cpu")
         changes = {"gru_iters": args.iters}
         if args.no_half_res_block:
             changes["half_res_block"] = False
@@ -308,7 +349,8 @@ def _train(argv: list[str] | None) -> int:
         if args.aux_offsets:
             changes["aux_offsets"] = True
         config = ModelConfig.from_dict({**init["config"], **changes})
-    net = SparseStereoNet(config)
+    device = args.device
+    net = SparseStereoNet(config).to(device)
     heads = ("refine.", "aux_offsets.")  # the stages that may start fresh, at their own LR
     weights = init_weights(init, args.refine, net) if init is not None else None
     # the tensors the checkpoint lacks start fresh; kept apart in the optimizer (even on
@@ -332,7 +374,7 @@ def _train(argv: list[str] | None) -> int:
     step = 0
     last = args.out / "last.pt"
     if args.resume and last.exists():
-        ckpt = torch.load(last, weights_only=False)
+        ckpt = torch.load(last, weights_only=False, map_location="cpu")
         net.load_state_dict(ckpt["model"])
         opt.load_state_dict(ckpt["optimizer"])
         sched.load_state_dict(ckpt["scheduler"])
@@ -352,7 +394,8 @@ def _train(argv: list[str] | None) -> int:
               + (f" (dropped {len(result.unexpected_keys)} tensors the model no longer has)"
                  if result.unexpected_keys else ""))
     if world > 1:
-        net = torch.nn.parallel.DistributedDataParallel(net)
+        net = torch.nn.parallel.DistributedDataParallel(
+            net, device_ids=[device.index] if device.type == "cuda" else None)
     model = net.module if world > 1 else net
     if args.data is not None and args.data.startswith("things:"):
         from edge_depth.model.things_data import ThingsTrainSet
@@ -368,7 +411,8 @@ def _train(argv: list[str] | None) -> int:
     else:
         data = RecordedTrainSet(args.data, (cw, ch), seed=args.seed * 1000 + step,
                                 shard=rank, shards=world)
-    loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers))
+    loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers,
+                             pin_memory=device.type == "cuda"))
     log_path = args.out / "metrics.csv"
     fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
               "gate", "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
@@ -385,9 +429,10 @@ def _train(argv: list[str] | None) -> int:
         if not main_rank:
             return
         with atomic_write(path) as tmp:
-            torch.save(dict(model=model.state_dict(), optimizer=opt.state_dict(),
+            torch.save(dict(model=on_cpu(model.state_dict()), optimizer=on_cpu(opt.state_dict()),
                             scheduler=sched.state_dict(), step=step, config=config.to_dict(),
-                            args=vars(args) | {"out": str(args.out), "init": str(args.init)}),
+                            args=vars(args) | {"out": str(args.out), "init": str(args.init),
+                                               "device": str(device)}),
                        tmp)
 
     set_train_mode(model, args.freeze_trunk)
@@ -395,7 +440,7 @@ def _train(argv: list[str] | None) -> int:
                disable=not main_rank)
     start = time.time()
     while step < args.steps:
-        batch = next(loader)
+        batch = to_device(next(loader), device)
         if args.mode == "supervised":
             aux: dict = {}
             preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
