@@ -317,3 +317,31 @@ def test_freeze_trunk_and_fresh_lr_need_a_checkpoint_and_a_refinement_stage(tmp_
     err = capsys.readouterr().err
     assert "--freeze-trunk needs --init" in err and "give --refine N" in err
     assert "--fresh-lr-mult needs --init" in err
+
+
+def test_device_flag_is_checked_and_checkpoints_load_on_the_cpu(tmp_path, capsys):
+    """--device names where the network trains; one the machine lacks is one clear line, and
+    the checkpoints hold CPU tensors whatever trained them, so a run moves between machines."""
+    small = ["--batch", "1", "--crop", "64x64", "--iters", "2", "--workers", "0"]
+    for device, says in (("mps", "only cpu and cuda are supported"),
+                         ("nonsense:x", "not a device")):
+        with pytest.raises(SystemExit):
+            train.main(["--out", str(tmp_path / "r"), "--device", device] + small)
+        assert says in capsys.readouterr().err
+    if not torch.cuda.is_available():
+        with pytest.raises(SystemExit):
+            train.main(["--out", str(tmp_path / "r"), "--device", "cuda"] + small)
+        assert "--device cuda: this torch sees no CUDA GPU" in capsys.readouterr().err
+    run = tmp_path / "run"
+    assert train.main(["--out", str(run), "--steps", "1", "--ckpt-every", "1",
+                       "--device", "cpu"] + small) == 0
+    ckpt = torch.load(run / "last.pt", weights_only=False)
+    assert ckpt["args"]["device"] == "cpu"
+    tensors = list(ckpt["model"].values()) + [
+        v for state in ckpt["optimizer"]["state"].values() for v in state.values()
+        if isinstance(v, torch.Tensor)]
+    assert tensors and all(t.device.type == "cpu" for t in tensors)
+    # where it trains may change on --resume (the rest of the run may not)
+    assert train.main(["--out", str(run), "--steps", "2", "--resume", "--device", "auto",
+                       "--workers", "0"]) == 0
+    assert torch.load(run / "last.pt", weights_only=False)["step"] == 2

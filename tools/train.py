@@ -52,6 +52,7 @@ from edge_depth.model.losses import (
 from edge_depth.model.network import SparseStereoNet
 from edge_depth.model.quarter import SAMPLE as QUARTER_SAMPLE
 from edge_depth.model.quarter import SCALE as QUARTER_SCALE
+from edge_depth.workers import one_thread_each
 
 
 def parse_args(argv):
@@ -411,8 +412,9 @@ def _train(argv: list[str] | None) -> int:
     else:
         data = RecordedTrainSet(args.data, (cw, ch), seed=args.seed * 1000 + step,
                                 shard=rank, shards=world)
-    loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers,
-                             pin_memory=device.type == "cuda"))
+    with one_thread_each():  # the workers start here, each with one BLAS / OpenCV thread
+        loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers,
+                                 pin_memory=device.type == "cuda"))
     log_path = args.out / "metrics.csv"
     fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
               "gate", "epe", "val_epe", "val_bad3", "lr_now", "seconds"]

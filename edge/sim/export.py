@@ -131,7 +131,9 @@ def things_command(out: Path, count: int, seed: int, size: tuple[int, int],
     starts = list(range(seed, seed + count, chunk))
     done = rendered = 0
     progress = Progress(count, "things pairs")
-    with ProcessPoolExecutor(max(1, workers)) as pool:
+    from edge_depth.workers import one_thread_each
+
+    with one_thread_each(), ProcessPoolExecutor(max(1, workers)) as pool:
         jobs = [pool.submit(generate, out, min(chunk, seed + count - s), s, cfg) for s in starts]
         for job in jobs:
             rendered += job.result()
