@@ -351,6 +351,11 @@ def _train(argv: list[str] | None) -> int:
             changes["aux_offsets"] = True
         config = ModelConfig.from_dict({**init["config"], **changes})
     device = args.device
+    if device.type == "cuda" and device.index is None:
+        # under torchrun each process takes its own GPU (one process per GPU)
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
     net = SparseStereoNet(config).to(device)
     heads = ("refine.", "aux_offsets.")  # the stages that may start fresh, at their own LR
     weights = init_weights(init, args.refine, net) if init is not None else None
@@ -465,7 +470,7 @@ def _train(argv: list[str] | None) -> int:
                 terms["gate"] = float(gate.detach())
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
-        bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0)
+        bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)
         if world > 1:  # every rank skips, or none: a lone skip would hang the all-reduce
             torch.distributed.all_reduce(bad)
         if float(bad) > 0:
