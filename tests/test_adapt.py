@@ -140,6 +140,22 @@ def test_street_recording_lidar_lands_on_its_ground_truth(tmp_path):
     assert np.median(error) < 0.15 and np.mean(error < 0.5) > 0.95
 
 
+def test_a_device_the_machine_lacks_is_one_line_before_any_work(tmp_path, capsys):
+    import torch
+
+    if torch.cuda.is_available():
+        pytest.skip("this machine has a GPU")
+    rec = tmp_path / "rec.mcap"
+    rec.write_bytes(b"not read: the device is checked first")
+    rc = main(["adapt", str(rec), "--out", str(tmp_path / "robot"), "--steps", "1",
+               "--device", "cuda"])
+    assert rc == 2
+    out = capsys.readouterr().out.strip().splitlines()
+    assert out == [f"edge-depth adapt: --device cuda: this torch sees no CUDA GPU "
+                   f"(torch {torch.__version__}; use --device cpu)"]
+    assert not (tmp_path / "robot").exists() and not (tmp_path / "robot.adapt").exists()
+
+
 @pytest.mark.slow
 def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path, monkeypatch):
     """The time bound is checked after each step: on a clock that advances 0.6 s per
@@ -171,3 +187,8 @@ def test_fine_tuning_bound_by_minutes_stops_and_resumes(tmp_path, monkeypatch):
     again, resumed = finetune(DEFAULT_CHECKPOINT, frames, tmp_path, FineTune(
         steps=summary["steps"] + 1, batch=1), resume=True)
     assert resumed["steps"] == summary["steps"] + 1
+    import torch
+
+    assert resumed["device"] == ("cuda" if torch.cuda.is_available() else "cpu")
+    saved = torch.load(tmp_path / "last.pt", weights_only=False)
+    assert all(t.device.type == "cpu" for t in saved["model"].values())

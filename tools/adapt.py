@@ -64,6 +64,7 @@ class FineTune:
     ckpt_every: int = 50
     seed: int = 0
     supervised: bool = False  # the comparison the paper makes: GT instead of the self losses
+    device: str = "auto"  # where it trains: auto (the GPU when torch sees one), cpu, cuda[:N]
 
     def __post_init__(self) -> None:
         if self.steps is None and self.minutes is None:
@@ -93,19 +94,21 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     from edge_depth.model.data import to_tensors
     from edge_depth.model.losses import sequence_loss
     from edge_depth.tools.export import load_checkpoint
-    from edge_depth.tools.train import self_supervised_step
+    from edge_depth.tools.train import on_cpu, resolve_device, self_supervised_step
 
     if not frames:
         raise ValueError("no adapt frames")
+    device = resolve_device(plan.device)
     work.mkdir(parents=True, exist_ok=True)
     net, ckpt = load_checkpoint(init)
+    net.to(device)
     h, w = frames[0].left.shape
     crop = (min(plan.crop[0], w // 8 * 8), min(plan.crop[1], h // 8 * 8))
     opt = torch.optim.AdamW(net.parameters(), lr=plan.lr, weight_decay=1e-5)
     last = work / "last.pt"
     step, seconds, skipped, skipped_in_a_row = 0, 0.0, 0, 0
     if resume and last.exists():
-        state = torch.load(last, weights_only=False)
+        state = torch.load(last, weights_only=False, map_location="cpu")
         net.load_state_dict(state["model"])
         opt.load_state_dict(state["optimizer"])
         step, seconds = state["step"], state["seconds"]
@@ -114,10 +117,11 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     torch.manual_seed(plan.seed + step)
 
     def save(path: Path, optimizer: bool = True) -> None:
-        state = dict(model=net.state_dict(), step=step, seconds=seconds, config=ckpt["config"],
+        state = dict(model=on_cpu(net.state_dict()), step=step, seconds=seconds,
+                     config=ckpt["config"],
                      training=dict(ckpt.get("training") or {}, adapted=summary()))
         if optimizer:  # resumable; the one that ships with the bundle stays small
-            state["optimizer"] = opt.state_dict()
+            state["optimizer"] = on_cpu(opt.state_dict())
         with atomic_write(path) as tmp:
             torch.save(state, tmp)
 
@@ -125,7 +129,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
         return dict(init=str(init), steps=step, minutes=round(seconds / 60, 2),
                     frames=len(frames), lr=plan.lr, batch=plan.batch, crop=list(crop),
                     iters=plan.iters, mode="supervised" if plan.supervised else "self",
-                    split=plan.split, skipped_batches=skipped)
+                    split=plan.split, skipped_batches=skipped, device=str(device))
 
     net.train()
     # the bar counts steps, or seconds when only --minutes bounds the run
@@ -140,7 +144,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
             group["lr"] = plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac)
         items = [to_tensors(frames[int(i)].arrays(), crop, rng, augment=True)
                  for i in rng.integers(0, len(frames), plan.batch)]
-        batch = {k: torch.stack([item[k] for item in items]) for k in items[0]}
+        batch = {k: torch.stack([item[k] for item in items]).to(device) for k in items[0]}
         if plan.supervised:
             preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
                         plan.iters)
@@ -234,6 +238,9 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     work = Path(work) if work else out.with_name(out.name + ".adapt")
     init, old_bundle = resolve_start(Path(start) if start else None)
     plan = plan or FineTune(steps=steps, minutes=minutes)
+    from edge_depth.tools.train import resolve_device
+
+    resolve_device(plan.device)  # a GPU asked for but absent: one line before any work
     per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
                      for r in recordings]
     if test_time:
@@ -327,6 +334,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--lr", type=float, default=5e-5)
     p.add_argument("--batch", type=int, default=4)
     p.add_argument("--iters", type=int, default=4, help="GRU iterations while training")
+    p.add_argument("--device", default="auto",
+                   help="where the fine-tuning runs: auto (the GPU when torch sees one), cpu, "
+                        "cuda or cuda:N")
     p.add_argument("--supervised", action="store_true",
                    help="train on the recordings' ground truth instead (for comparison)")
     p.add_argument("--test-time", action="store_true",
@@ -346,7 +356,7 @@ def main(argv: list[str] | None = None) -> int:
             p.error(f"{r}: no such recording")
     try:
         plan = FineTune(steps=args.steps, minutes=args.minutes, lr=args.lr, batch=args.batch,
-                        iters=args.iters, supervised=args.supervised)
+                        iters=args.iters, supervised=args.supervised, device=args.device)
         result = adapt(args.recordings, args.out,
                        topics=load_topic_map(args.topics) if args.topics else None,
                        calib=args.calib, start=args.start, work=args.work, resume=args.resume,

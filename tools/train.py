@@ -136,22 +136,31 @@ def parse_args(argv):
     return args
 
 
-def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
-    """--device as a torch device; a GPU asked for but absent is one clear line."""
+def resolve_device(name: str) -> torch.device:
+    """A --device value as a torch device: auto (the GPU when torch sees one), cpu, cuda or
+    cuda:N. One the machine lacks is a ValueError with one clear line."""
     if name == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
         device = torch.device(name)
     except RuntimeError:
-        p.error(f"--device {name}: not a device (auto, cpu, cuda or cuda:N)")
-    if device.type == "cuda" and not torch.cuda.is_available():
-        p.error(f"--device {name}: this torch sees no CUDA GPU "
-                f"(torch {torch.__version__}; use --device cpu)")
-    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
-        p.error(f"--device {name}: torch sees {torch.cuda.device_count()} GPU(s)")
+        raise ValueError(f"--device {name}: not a device (auto, cpu, cuda or cuda:N)") from None
     if device.type not in ("cpu", "cuda"):
-        p.error(f"--device {name}: only cpu and cuda are supported")
+        raise ValueError(f"--device {name}: only cpu and cuda are supported")
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"--device {name}: this torch sees no CUDA GPU "
+                         f"(torch {torch.__version__}; use --device cpu)")
+    if device.type == "cuda" and (device.index or 0) >= torch.cuda.device_count():
+        raise ValueError(f"--device {name}: torch sees {torch.cuda.device_count()} GPU(s)")
     return device
+
+
+def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
+    """--device as a torch device; a GPU asked for but absent is one clear line."""
+    try:
+        return resolve_device(name)
+    except ValueError as exc:
+        p.error(str(exc))
 
 
 def on_cpu(value):
