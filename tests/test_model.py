@@ -16,6 +16,7 @@ from edge_depth.model.corr import (
 )
 from edge_depth.model.cspn import cspn, neighbours, normalise_affinity
 from edge_depth.model.losses import (
+    depth_edges,
     occlusion_from_range_map,
     sequence_loss,
     split_sparse,
@@ -215,6 +216,23 @@ def test_sequence_loss_weights_later_iterations_more():
     preds = [torch.ones_like(gt), torch.zeros_like(gt)]
     assert float(sequence_loss(preds, gt, valid, 0.9)) == pytest.approx(0.9)
     assert float(sequence_loss(preds[::-1], gt, valid, 0.9)) == pytest.approx(1.0)
+
+
+def test_depth_edges_mark_jumps_not_slopes_and_weight_the_loss():
+    x = torch.arange(40.0).expand(1, 1, 20, 40)
+    slope = 0.1 * x  # 0.9 px over any 9 px: no edge
+    step = torch.where(x < 20, 10.0, 30.0)
+    valid = torch.ones_like(step)
+    assert float(depth_edges(slope, valid).sum()) == 0
+    edges = depth_edges(step, valid)
+    assert torch.equal(edges[0, 0, 0].nonzero().flatten(), torch.arange(16, 24))
+    valid[..., 20:] = 0  # the far side unknown: nothing to jump to
+    assert float(depth_edges(step, valid).sum()) == 0
+    pred, gt = step + edges * 2, step  # wrong by 2 px on the 8 edge columns of 40
+    ones = torch.ones_like(gt)
+    assert float(sequence_loss([pred], gt, ones)) == pytest.approx(0.4)
+    weighted = sequence_loss([pred], gt, ones, weight=1 + 3 * edges)
+    assert float(weighted) == pytest.approx(8 * 4 * 2 / (8 * 4 + 32 * 1))  # a weighted mean
 
 
 def test_split_strategies_partition_the_points():

@@ -42,6 +42,7 @@ from edge_depth.model.losses import (
     GATE_WEIGHT,
     OFFSET_WEIGHT,
     confidence_loss,
+    depth_edges,
     gate_loss,
     offset_loss,
     self_supervised_loss,
@@ -108,6 +109,8 @@ def parse_args(argv):
     p.add_argument("--asymmetric-share", type=float, default=None,
                    help="things data: how often each camera draws its own photometric "
                         "augmentation (default 0.2, RAFT-Stereo's)")
+    p.add_argument("--edge-weight", type=float, default=0.0,
+                   help="supervised: pixels at GT depth edges weigh 1 + W in the loss")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
     p.add_argument("--data", default=None,
@@ -462,7 +465,8 @@ def _train(argv: list[str] | None) -> int:
             preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
                                args.iters, with_confidence=True, aux=aux)
             has_gt = (batch["gt"] > 0).float()
-            loss = sequence_loss(preds, batch["gt"], has_gt)
+            weight = 1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
+            loss = sequence_loss(preds, batch["gt"], has_gt, weight=weight)
             terms, final = {}, preds[-1]
             if logit is not None:
                 conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)

@@ -94,13 +94,25 @@ def self_supervised_loss(terms_left: dict, terms_right: dict) -> tuple[torch.Ten
 
 
 def sequence_loss(predictions: list[torch.Tensor], gt: torch.Tensor, valid: torch.Tensor,
-                  gamma: float = 0.9) -> torch.Tensor:
-    """RAFT's supervised loss: Σ_i γ^(n-1-i) · mean |d_i - gt| over valid GT pixels."""
+                  gamma: float = 0.9, weight: torch.Tensor | None = None) -> torch.Tensor:
+    """RAFT's supervised loss: Σ_i γ^(n-1-i) · mean |d_i - gt| over valid GT pixels; with a
+    per-pixel `weight`, the weighted mean (the loss keeps its scale, the weights its balance)."""
+    mask = valid if weight is None else valid * weight
     n = len(predictions)
     total = 0.0
     for i, pred in enumerate(predictions):
-        total = total + gamma ** (n - 1 - i) * _masked_mean((pred - gt).abs(), valid)
+        total = total + gamma ** (n - 1 - i) * _masked_mean((pred - gt).abs(), mask)
     return total
+
+
+def depth_edges(gt: torch.Tensor, valid: torch.Tensor, radius: int = 4,
+                jump: float = 2.0) -> torch.Tensor:
+    """1 where the known GT within `radius` px spans more than `jump` px (a depth edge, as the
+    real pairs' bad-3 is split by region in docs/experiments.md), else 0; (B, 1, H, W)."""
+    k = 2 * radius + 1
+    high = F.max_pool2d(torch.where(valid > 0, gt, -torch.inf), k, 1, radius)
+    low = -F.max_pool2d(torch.where(valid > 0, -gt, -torch.inf), k, 1, radius)
+    return ((high - low) > jump).to(gt.dtype) * valid
 
 
 CONFIDENCE_WEIGHT = 0.2
