@@ -36,13 +36,15 @@ bench: $(STAMP)
 # calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split,
 # then the LiDAR selection fitted on 260 things pairs no shipped stage trained on)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
+QUANTIZE_FLAGS ?=  # e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
 bundle: $(STAMP)
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 	test -d data/calib_mix || ($(BIN)/edge-depth synth --out data/calib_mix --count 8 --seed 500000 \
 	  && $(BIN)/edge-depth synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
-	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16
+	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16 \
+	  $(QUANTIZE_FLAGS)
 	test -d data/things_select || $(BIN)/edge-depth synth --world things --out data/things_select \
 	  --count 260 --seed 400000 --workers 2
 	$(BIN)/python tools/fit_select.py edge/models/default --data data/things_select

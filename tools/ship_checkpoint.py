@@ -19,7 +19,8 @@ from pathlib import Path
 from edge_depth.calibration.atomic import atomic_write
 
 STAGE_KEYS = ("mode", "steps", "batch", "crop", "iters", "patterns", "lr", "seed", "data",
-              "refine", "no_half_res_block", "split", "stereo_only_share", "aux_offsets")
+              "refine", "no_half_res_block", "split", "stereo_only_share", "aux_offsets",
+              "freeze_trunk", "fresh_lr_mult", "edge_weight")
 TRAINING_ONLY = ("aux_offsets.",)  # heads that only shape training: not shipped
 
 
