@@ -34,21 +34,29 @@ bench: $(STAMP)
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
 # calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split,
-# then the LiDAR selection fitted on 260 things pairs no shipped stage trained on)
+# then the LiDAR and edge selections fitted on 260 things pairs no shipped stage trained on,
+# or with SELECTIONS=carry kept from the bundle it replaces)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
-QUANTIZE_FLAGS ?=  # e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
+QUANTIZE_FLAGS ?=# e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
+SELECTIONS ?= fit# fit: on data/things_select; carry: the replaced bundle's (stage 16 shipped so)
 bundle: $(STAMP)
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 	test -d data/calib_mix || ($(BIN)/edge-depth synth --out data/calib_mix --count 8 --seed 500000 \
 	  && $(BIN)/edge-depth synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000)
+	mkdir -p out && (test ! -f edge/models/default/model.json \
+	  || cp edge/models/default/model.json out/replaced-model.json)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
 	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16 \
 	  $(QUANTIZE_FLAGS)
-	test -d data/things_select || $(BIN)/edge-depth synth --world things --out data/things_select \
-	  --count 260 --seed 400000 --workers 2
-	$(BIN)/python tools/fit_select.py edge/models/default --data data/things_select
-	$(BIN)/python tools/fit_edge_select.py edge/models/default --data data/things_select
+	if [ "$(SELECTIONS)" = carry ]; then \
+	  $(BIN)/python tools/carry_selections.py out/replaced-model.json edge/models/default; \
+	else \
+	  (test -d data/things_select || $(BIN)/edge-depth synth --world things \
+	    --out data/things_select --count 260 --seed 400000 --workers 2) \
+	  && $(BIN)/python tools/fit_select.py edge/models/default --data data/things_select \
+	  && $(BIN)/python tools/fit_edge_select.py edge/models/default --data data/things_select; \
+	fi
 
 clean:
 	rm -rf $(VENV) out
