@@ -92,9 +92,10 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     from tqdm import tqdm
 
     from edge_depth.model.data import to_tensors
+    from edge_depth.model.device import on_cpu, resolve_device
     from edge_depth.model.losses import sequence_loss
     from edge_depth.tools.export import load_checkpoint
-    from edge_depth.tools.train import on_cpu, resolve_device, self_supervised_step
+    from edge_depth.tools.train import self_supervised_step
 
     if not frames:
         raise ValueError("no adapt frames")
@@ -238,7 +239,7 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     work = Path(work) if work else out.with_name(out.name + ".adapt")
     init, old_bundle = resolve_start(Path(start) if start else None)
     plan = plan or FineTune(steps=steps, minutes=minutes)
-    from edge_depth.tools.train import resolve_device
+    from edge_depth.model.device import resolve_device
 
     resolve_device(plan.device)  # a GPU asked for but absent: one line before any work
     per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
