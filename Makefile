@@ -40,10 +40,11 @@ CHECKPOINT ?= edge/models/sparse_stereo.pt
 QUANTIZE_FLAGS ?=# e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
 SELECTIONS ?= fit# fit: on data/things_select; carry: the replaced bundle's (stage 16 shipped so)
 bundle: $(STAMP)
+	case "$(SELECTIONS)" in fit|carry) ;; *) echo "SELECTIONS=$(SELECTIONS): fit or carry" >&2; exit 2;; esac
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 	test -d data/calib_mix || ($(BIN)/edge-depth synth --out data/calib_mix --count 8 --seed 500000 \
 	  && $(BIN)/edge-depth synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000)
-	mkdir -p out && (test ! -f edge/models/default/model.json \
+	mkdir -p out && rm -f out/replaced-model.json && (test ! -f edge/models/default/model.json \
 	  || cp edge/models/default/model.json out/replaced-model.json)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400
