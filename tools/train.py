@@ -430,7 +430,8 @@ def _train(argv: list[str] | None) -> int:
             preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
                                args.iters, with_confidence=True, aux=aux)
             has_gt = (batch["gt"] > 0).float()
-            weight = 1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
+            weight = (1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
+                      if args.edge_weight else None)  # the plain mean: no edge map to make
             loss = sequence_loss(preds, batch["gt"], has_gt, weight=weight)
             terms, final = {}, preds[-1]
             if logit is not None:
