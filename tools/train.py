@@ -85,6 +85,9 @@ def parse_args(argv):
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; any refine but 4)")
+    p.add_argument("--refine-scale", type=int, choices=(2, 4), default=None,
+                   help="versions 3 and 5-8: score the candidates at 1/2 or 1/4 (default: "
+                        "the --init checkpoint's, else 1/4); the weights carry over either way")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")
     p.add_argument("--fresh-lr-mult", type=float, default=1.0,
@@ -314,7 +317,8 @@ def _train(argv: list[str] | None) -> int:
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse,
                          half_res_block=not args.no_half_res_block, refine=args.refine,
-                         aux_offsets=args.aux_offsets)
+                         aux_offsets=args.aux_offsets,
+                         refine_scale=args.refine_scale or 4)
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change
@@ -326,6 +330,8 @@ def _train(argv: list[str] | None) -> int:
             changes["refine"] = args.refine
         if args.aux_offsets:
             changes["aux_offsets"] = True
+        if args.refine_scale:
+            changes["refine_scale"] = args.refine_scale
         config = ModelConfig.from_dict({**init["config"], **changes})
     device = args.device
     if device.type == "cuda" and device.index is None:

@@ -27,7 +27,8 @@ class ModelConfig:
     its candidates come from (never started), 8 version 7 written so that it starts;
     aux_offsets: while training only, the 1/4 stage's matching (its offsets head on the
     backbone's 1/4 features) as an auxiliary loss — not exported, no cost at inference; for
-    any refine but 4 (which has the head itself), with downsample 8."""
+    any refine but 4 (which has the head itself), with downsample 8; refine_scale: the
+    resolution versions 3 and 5-8 score their candidates at, 1/4 (shipped) or 1/2."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -44,12 +45,15 @@ class ModelConfig:
     half_res_block: bool = True
     refine: int = 0
     aux_offsets: bool = False
+    refine_scale: int = 4
 
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
         if self.refine not in range(9):
             raise ConfigError("refine", "0 to 8", self.refine)
+        if self.refine_scale not in (2, 4):
+            raise ConfigError("refine_scale", "2 or 4", self.refine_scale)
         if self.downsample not in (4, 8):
             raise ConfigError("downsample", "4 or 8", self.downsample)
         if self.aux_offsets and (self.refine == 4 or self.downsample != 8):

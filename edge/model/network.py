@@ -71,7 +71,8 @@ class SparseStereoNet(nn.Module):
                                           quarter=cfg.widths[1] if cfg.refine >= 5 else 0,
                                           context=16 if cfg.refine == 6 else 0,
                                           pixel=8 if cfg.refine in (7, 8) else 0,
-                                          query=cfg.refine == 8)
+                                          query=cfg.refine == 8,
+                                          scale=cfg.refine_scale)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
         # training only: the 1/4 stage's matching as an auxiliary loss on the backbone

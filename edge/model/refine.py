@@ -204,15 +204,18 @@ class GuidedSelection(nn.Module):
     starts as exactly version 5) while the cells' side keeps its features, so the query's
     weights get a gradient from the first step; no gain."""
 
-    SCALE = 4  # the resolution the candidates are scored at; 1/2 cost ~45 ms in ONNX Runtime
+    SCALE = 4  # the default resolution the candidates are scored at (`scale`)
     QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
     PIXEL_SCALE = 2  # versions 7 and 8: the resolution of the pixel side's features
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
                  quarter: int = 0, context: int = 0, pixel: int = 0,
-                 query: bool = False) -> None:
+                 query: bool = False, scale: int = SCALE) -> None:
         super().__init__()
+        if scale not in (2, 4):
+            raise ValueError(f"the candidates are scored at 1/2 or 1/4, not 1/{scale}")
         self.factor = factor
+        self.scale = scale
         self.features = nn.Sequential(nn.Conv2d(1, 8, 3, 1, 1), nn.ReLU(),
                                       nn.Conv2d(8, features, 3, 1, 1))
         inputs = 6
@@ -258,7 +261,7 @@ class GuidedSelection(nn.Module):
         self.confidence_full_resolution = True
 
     def forward(self, left, right, disparity, mask, sparse=None, valid=None, quarter=None):
-        f, s = self.factor, self.SCALE
+        f, s = self.factor, self.scale
         b, _, h, w = disparity.shape
         left_s = F.avg_pool2d(left, s) / 127.5 - 1.0
         right_s = F.avg_pool2d(right, s) / 127.5 - 1.0
@@ -281,8 +284,15 @@ class GuidedSelection(nn.Module):
             if quarter is None:
                 raise ValueError("refinement version 5 needs the encoder's 1/4 features")
             q_left, q_right = self.project(torch.cat(quarter, 0)).chunk(2, 0)
-            q_cost = matching_cost(q_left, q_right, candidates)
-            per_candidate += [q_cost, F.avg_pool2d(q_cost, 3, 1, 1, count_include_pad=False)]
+            q_candidates = candidates
+            if s != 4:  # the backbone's features are at 1/4 whatever the scorer's scale
+                q_candidates = F.interpolate(patches_3x3(disparity * (f / 4)),
+                                             scale_factor=f // 4, mode="nearest")
+            q_cost = matching_cost(q_left, q_right, q_candidates)
+            q_pair = [q_cost, F.avg_pool2d(q_cost, 3, 1, 1, count_include_pad=False)]
+            if s != 4:
+                q_pair = [F.interpolate(t, scale_factor=4 // s, mode="nearest") for t in q_pair]
+            per_candidate += q_pair
         x = torch.stack(per_candidate, 2).view(b * 9, len(per_candidate), hs, ws)
         correction = self.score(x).view(b, 9, hs, ws)
         if self.context is not None:
