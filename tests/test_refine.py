@@ -329,3 +329,37 @@ def test_guided_selection_v8_starts_as_version_5_and_its_query_learns_from_the_f
         opt.step()
         losses.append(float(loss))
     assert losses[-1] < 0.8 * losses[0]
+
+
+def test_guided_selection_at_half_resolution_scores_inside_a_quarter_block():
+    """`scale=2` takes the 1/4 scorer's weights as they are (the same tensors), still reads
+    the backbone's 1/4 features at 1/4, and its correction can differ between the two 1/2
+    pixels of a 4x4 block, where the 1/4 scorer applies one; scales other than 1/2 and 1/4
+    are refused."""
+    from edge_depth.errors import ConfigError
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    quarter4 = GuidedSelection(8, quarter=4)
+    half = GuidedSelection(8, quarter=4, scale=2)
+    for p in quarter4.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    half.load_state_dict(quarter4.state_dict())  # strict: the same tensors
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    edge = left.clone()
+    edge[..., 42:] = 250.0  # an image edge at x = 42: inside the 1/4 block 40..43
+    edge[..., :42] = 5.0
+    with torch.no_grad():
+        out4, logit4 = quarter4(edge, right, low, mask, quarter=quarter)
+        out2, logit2 = half(edge, right, low, mask, quarter=quarter)
+    assert out2.shape == out4.shape == left.shape and logit2.shape == left.shape
+    assert float((out4[..., 41] - out4[..., 42]).abs().max()) == pytest.approx(0.0, abs=1e-4)
+    assert float((out2[..., 41] - out2[..., 42]).abs().max()) > 0.05
+    with pytest.raises(ValueError, match="1/2 or 1/4"):
+        GuidedSelection(8, scale=8)
+    with pytest.raises(ConfigError):
+        ModelConfig(refine=8, refine_scale=3)
+    assert ModelConfig(refine=8, refine_scale=2).refine_scale == 2

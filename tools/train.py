@@ -73,15 +73,9 @@ def parse_args(argv):
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
                    choices=range(9), metavar="{0-8}",
-                   help="the refinement + confidence stage (edge.model.config.ModelConfig): "
-                        "2 (the default with a bare --refine) half resolution, images and "
-                        "LiDAR; 1 images only; 3 guided selection; 4 the 1/4 stage; 5 guided "
-                        "selection also matching on the backbone's 1/4 features (from a "
-                        "version 3 checkpoint it starts as exactly version 3); 6 version 5 "
-                        "with a scorer over 3x3 neighbourhoods of all nine candidates (from "
-                        "a version 5 checkpoint it starts as exactly version 5); 7 version 5 "
-                        "also scoring candidates by 1/2-resolution image features (the same; "
-                        "it never started); 8 version 7 written so that it starts (the same)")
+                   help="the refinement + confidence stage, versions 1-8 as in "
+                        "edge.model.config.ModelConfig (a bare --refine: 2); a version that "
+                        "extends the --init checkpoint's starts as exactly that one")
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; any refine but 4)")
