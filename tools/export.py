@@ -35,11 +35,11 @@ QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alo
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
                  3: ["left", "right", "sparse", "valid"],
                  4: ["left", *QUARTER, "sparse", "valid"],
-                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8)}}
+                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8, 9)}}
 OPSET = 17
 # versions whose upsample graph returns the confidence at its own 1/4 resolution; the engine
 # resizes it (bilinear resizing in OpenVINO's graph cost ~2.8 ms of the graph's ~14)
-LOW_RES_CONFIDENCE = (3, 5, 6, 7, 8)
+LOW_RES_CONFIDENCE = (3, 5, 6, 7, 8, 9)
 
 
 def build_graphs(net):

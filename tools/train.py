@@ -72,8 +72,8 @@ def parse_args(argv):
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
-                   choices=range(9), metavar="{0-8}",
-                   help="the refinement + confidence stage, versions 1-8 as in "
+                   choices=range(10), metavar="{0-9}",
+                   help="the refinement + confidence stage, versions 1-9 as in "
                         "edge.model.config.ModelConfig (a bare --refine: 2); a version that "
                         "extends the --init checkpoint's starts as exactly that one")
     p.add_argument("--aux-offsets", action="store_true",
@@ -273,7 +273,7 @@ def init_weights(init: dict, refine: int, net) -> dict:
         from edge_depth.model.refine import widen_from_version3
 
         return widen_from_version3(weights, net.refine)
-    if refine and before != refine:
+    if refine and before != refine and (before, refine) != (8, 9):  # 9 extends 8 as it is
         return {k: v for k, v in weights.items() if not k.startswith("refine.")}
     return weights
 

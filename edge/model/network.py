@@ -70,8 +70,9 @@ class SparseStereoNet(nn.Module):
             self.refine = GuidedSelection(cfg.downsample,
                                           quarter=cfg.widths[1] if cfg.refine >= 5 else 0,
                                           context=16 if cfg.refine == 6 else 0,
-                                          pixel=8 if cfg.refine in (7, 8) else 0,
-                                          query=cfg.refine == 8,
+                                          pixel=8 if cfg.refine in (7, 8, 9) else 0,
+                                          query=cfg.refine in (8, 9),
+                                          wide_pixel=8 if cfg.refine == 9 else 0,
                                           scale=cfg.refine_scale)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)

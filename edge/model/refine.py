@@ -24,7 +24,7 @@ from torch.nn import functional as F
 from edge_depth.model.cspn import patches_3x3
 from edge_depth.model.losses import warp_horizontal
 
-GUIDED_VERSIONS = (3, 5, 6, 7, 8)  # the refinement versions that are a `GuidedSelection`
+GUIDED_VERSIONS = (3, 5, 6, 7, 8, 9)  # the refinement versions that are a `GuidedSelection`
 RESIDUAL_INIT_STD = 1e-2  # version 2: ~the identity at the start (residuals of ~0.1 px), not zero
 CONFIDENCE_TRUNK_GRAD = 0.1  # how much of the confidence's gradient reaches the shared trunk
 
@@ -202,7 +202,13 @@ class GuidedSelection(nn.Module):
     Version 8 (`query=True`) is version 7 written so that it can start: the pixel side goes
     through a 1×1 `query` convolution that starts at zero (so again a version 5 checkpoint
     starts as exactly version 5) while the cells' side keeps its features, so the query's
-    weights get a gradient from the first step; no gain."""
+    weights get a gradient from the first step; no gain.
+
+    Version 9 (`wide_pixel` = its feature count) adds a second pixel side beside version 8's,
+    with a wider view: three layers (16 channels, the middle one dilated: 14×14 full-
+    resolution px against version 8's 6×6), its own query starting at zero, so a version 8
+    checkpoint starts as exactly version 8. Version 8's term stopped growing after 3 000
+    steps (run stage27v8b): whether the affinity's features, not the scorer, are its limit."""
 
     SCALE = 4  # the default resolution the candidates are scored at (`scale`)
     QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
@@ -210,7 +216,7 @@ class GuidedSelection(nn.Module):
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
                  quarter: int = 0, context: int = 0, pixel: int = 0,
-                 query: bool = False, scale: int = SCALE) -> None:
+                 query: bool = False, scale: int = SCALE, wide_pixel: int = 0) -> None:
         super().__init__()
         if scale not in (2, 4):
             raise ValueError(f"the candidates are scored at 1/2 or 1/4, not 1/{scale}")
@@ -256,6 +262,14 @@ class GuidedSelection(nn.Module):
             nn.init.zeros_(self.query.bias)
         elif pixel:  # version 7: a gain at zero (never started: see above)
             self.pixel_gain = nn.Parameter(torch.zeros(()))
+        self.wide_pixel = self.wide_query = None
+        if wide_pixel:  # version 9
+            self.wide_pixel = nn.Sequential(nn.Conv2d(1, 16, 3, 1, 1), nn.ReLU(),
+                                            nn.Conv2d(16, 16, 3, 1, 2, dilation=2), nn.ReLU(),
+                                            nn.Conv2d(16, wide_pixel, 1))
+            self.wide_query = nn.Conv2d(wide_pixel, wide_pixel, 1)
+            nn.init.zeros_(self.wide_query.weight)
+            nn.init.zeros_(self.wide_query.bias)
         # False: the confidence logit stays at 1/SCALE (the export: the engine resizes the
         # confidence to full resolution, cheaper than in OpenVINO's graph)
         self.confidence_full_resolution = True
@@ -315,6 +329,9 @@ class GuidedSelection(nn.Module):
             affinity = self.half_resolution_affinity(left)
             if self.query is None:
                 affinity = self.pixel_gain * affinity
+            if self.wide_pixel is not None:
+                affinity = affinity + self.half_resolution_affinity(
+                    left, self.wide_pixel, self.wide_query)
             half = expand_to_cells(correction, f // self.PIXEL_SCALE,
                                    s // self.PIXEL_SCALE) + affinity
             logits = mask.view(b, 9, f * f, h, w) + half.index_select(
@@ -334,22 +351,26 @@ class GuidedSelection(nn.Module):
         return self.half_resolution_affinity(left).index_select(
             2, sub_position_index(self.factor, self.PIXEL_SCALE, left.device))
 
-    def half_resolution_affinity(self, left: torch.Tensor) -> torch.Tensor:
+    def half_resolution_affinity(self, left: torch.Tensor, pixel: nn.Module | None = None,
+                                 query: nn.Module | None = None) -> torch.Tensor:
         """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, (f/2)², H/f, W/f), the dot
         product of each 1/2-resolution pixel's features (version 8: their query) with the mean
         features of each of the nine 1/8 cells its candidates come from, per 1/2-resolution
         sub-position of each 1/8 cell (`pixel_unshuffle`'s order). Computed per
         1/8 cell, one channel at a time: at full resolution, as one batched product per cell,
-        or with the cell means resized to 1/2, the graph ran 30–60 % slower in OpenVINO."""
+        or with the cell means resized to 1/2, the graph ran 30–60 % slower in OpenVINO.
+        `pixel` and `query`: another pixel side's (version 9's); default version 7's or 8's."""
         f, s = self.factor, self.PIXEL_SCALE
         per = f // s
-        feats = self.pixel(F.avg_pool2d(left, s) / 127.5 - 1.0)  # (B, C, H/s, W/s)
+        if pixel is None:
+            pixel, query = self.pixel, self.query
+        feats = pixel(F.avg_pool2d(left, s) / 127.5 - 1.0)  # (B, C, H/s, W/s)
         b, c = feats.shape[:2]
         cells = F.avg_pool2d(feats, per)
         h, w = cells.shape[-2:]
         means = patches_3x3(cells.reshape(b * c, 1, h, w)).view(b, c, 9, 1, h, w)
-        if self.query is not None:  # version 8
-            feats = self.query(feats)
+        if query is not None:  # versions 8 and 9
+            feats = query(feats)
         pixels = F.pixel_unshuffle(feats, per).view(b, c, 1, per * per, h, w)
         affinity = means[:, 0] * pixels[:, 0]
         for i in range(1, c):
