@@ -203,7 +203,7 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert json.loads(out.read_text())["net"]["density"] > 99
 
 
-@pytest.mark.parametrize("version", [2, 3, 4, 5, 6, 7, 8])
+@pytest.mark.parametrize("version", [2, 3, 4, 5, 6, 7, 8, 9])
 def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, version):
     from mcap.reader import make_reader
 
@@ -231,7 +231,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
     engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
     assert engine.has_confidence
-    if version in (3, 5, 6, 7, 8):  # the graph returns it at 1/4 (cheaper); the engine resizes it
+    if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4 (cheaper); the engine resizes it
         import onnx
 
         dims = onnx.load(tmp_path / "bundle" / "upsample.onnx").graph.output[1].type

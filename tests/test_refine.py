@@ -44,7 +44,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=9)
+        ModelConfig(refine=10)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
@@ -363,3 +363,39 @@ def test_guided_selection_at_half_resolution_scores_inside_a_quarter_block():
     with pytest.raises(ConfigError):
         ModelConfig(refine=8, refine_scale=3)
     assert ModelConfig(refine=8, refine_scale=2).refine_scale == 2
+
+
+def test_guided_selection_v9_starts_as_version_8_and_its_wide_query_learns():
+    """Version 9 with version 8's weights gives version 8's output exactly (its second pixel
+    side's query starts at zero); that query gets a gradient at once, and a few steps on the
+    cell-edge scene with only the new branch training lower the loss."""
+    from edge_depth.model.refine import GuidedSelection
+
+    torch.manual_seed(0)
+    v8 = GuidedSelection(8, quarter=4, pixel=8, query=True)
+    v9 = GuidedSelection(8, quarter=4, pixel=8, query=True, wide_pixel=8)
+    for p in v8.parameters():
+        torch.nn.init.normal_(p, std=0.3)
+    result = v9.load_state_dict(v8.state_dict(), strict=False)
+    assert sorted(result.missing_keys) == sorted(
+        [f"wide_pixel.{i}.{p}" for i in (0, 2, 4) for p in ("weight", "bias")]
+        + ["wide_query.weight", "wide_query.bias"])
+    left, right, gt, low = _two_plane_cell_edge()
+    mask = torch.zeros(1, 9 * 64, 4, 10)
+    quarter = (torch.rand(1, 4, 8, 20), torch.rand(1, 4, 8, 20))
+    with torch.no_grad():
+        out8, logit8 = v8(left, right, low, mask, quarter=quarter)
+    out9, logit9 = v9(left, right, low, mask, quarter=quarter)
+    torch.testing.assert_close(out9, out8, rtol=0, atol=0)
+    torch.testing.assert_close(logit9, logit8, rtol=0, atol=0)
+    (out9 - gt).abs().mean().backward()
+    assert float(v9.wide_query.weight.grad.abs().max()) > 0.0
+    opt = torch.optim.Adam([*v9.wide_query.parameters(), *v9.wide_pixel.parameters()], lr=0.01)
+    losses = []  # (at 0.05 its ReLUs die and the loss stalls above the start)
+    for _ in range(60):
+        opt.zero_grad()
+        loss = (v9(left, right, low, mask, quarter=quarter)[0] - gt).abs().mean()
+        loss.backward()
+        opt.step()
+        losses.append(float(loss))
+    assert losses[-1] < 0.5 * losses[0]

@@ -248,7 +248,8 @@ def test_a_resumed_run_appends_in_the_columns_its_log_already_has(tmp_path):
 def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, capsys):
     """--refine 5 --init <version 3>: the scorer is carried over (widened with zeros), only
     the 1/4 projection starts fresh, and the run trains; --refine 6 from that version 5
-    keeps all of it and starts only its context scorer, --refine 8 only its pixel features."""
+    keeps all of it and starts only its context scorer, --refine 8 only its pixel features,
+    --refine 9 from that version 8 only its wide pixel side."""
     v3 = tmp_path / "v3"
     assert train.main(["--out", str(v3), "--steps", "1", "--batch", "1", "--crop", "64x64",
                        "--iters", "2", "--workers", "0", "--refine", "3"]) == 0
@@ -281,6 +282,14 @@ def test_refinement_version_5_trains_on_from_a_version_3_checkpoint(tmp_path, ca
     assert "6 tensors of the refinement stages start fresh (refine.pixel.0.bias" in \
         capsys.readouterr().out
     assert torch.load(v8 / "final.pt", weights_only=False)["config"]["refine"] == 8
+    v9 = tmp_path / "v9"  # version 9 extends 8 as it is: only its wide pixel side is fresh
+    assert train.main(["--out", str(v9), "--steps", "1", "--batch", "1", "--crop", "64x64",
+                       "--iters", "2", "--workers", "0", "--refine", "9",
+                       "--init", str(v8 / "final.pt")]) == 0
+    assert "8 tensors of the refinement stages start fresh (refine.wide_pixel.0.bias" in \
+        capsys.readouterr().out
+    final9 = torch.load(v9 / "final.pt", weights_only=False)
+    assert final9["config"]["refine"] == 9 and "refine.query.weight" in final9["model"]
 
 
 def test_freeze_trunk_trains_only_the_refinement_and_fresh_tensors_at_their_own_rate(tmp_path):
