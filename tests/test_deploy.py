@@ -231,7 +231,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
     engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
     assert engine.has_confidence
-    if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4 (cheaper); the engine resizes it
+    if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4; the engine resizes it
         import onnx
 
         dims = onnx.load(tmp_path / "bundle" / "upsample.onnx").graph.output[1].type
