@@ -80,7 +80,7 @@ def parse_args(argv):
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; any refine but 4)")
     p.add_argument("--refine-scale", type=int, choices=(2, 4), default=None,
-                   help="versions 3 and 5-8: score the candidates at 1/2 or 1/4 (default: "
+                   help="versions 3 and 5-9: score the candidates at 1/2 or 1/4 (default: "
                         "the --init checkpoint's, else 1/4); the weights carry over either way")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
                    help="the refinement stage's learning rate as a multiple of --lr")

@@ -30,7 +30,7 @@ class ModelConfig:
     aux_offsets: while training only, the 1/4 stage's matching (its offsets head on the
     backbone's 1/4 features) as an auxiliary loss — not exported, no cost at inference; for
     any refine but 4 (which has the head itself), with downsample 8; refine_scale: the
-    resolution versions 3 and 5-8 score their candidates at, 1/4 (shipped) or 1/2."""
+    resolution versions 3 and 5-9 score their candidates at, 1/4 (shipped) or 1/2."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64

@@ -212,7 +212,7 @@ class GuidedSelection(nn.Module):
 
     SCALE = 4  # the default resolution the candidates are scored at (`scale`)
     QUARTER_FEATURES = 8  # 16 cost ~3 ms more in OpenVINO (GatherElements: a reference kernel)
-    PIXEL_SCALE = 2  # versions 7 and 8: the resolution of the pixel side's features
+    PIXEL_SCALE = 2  # versions 7-9: the resolution of the pixel side's features
 
     def __init__(self, factor: int = 8, features: int = 2, hidden: int = 16,
                  quarter: int = 0, context: int = 0, pixel: int = 0,
@@ -270,7 +270,7 @@ class GuidedSelection(nn.Module):
             self.wide_query = nn.Conv2d(wide_pixel, wide_pixel, 1)
             nn.init.zeros_(self.wide_query.weight)
             nn.init.zeros_(self.wide_query.bias)
-        # False: the confidence logit stays at 1/SCALE (the export: the engine resizes the
+        # False: the confidence logit stays at 1/scale (the export: the engine resizes the
         # confidence to full resolution, cheaper than in OpenVINO's graph)
         self.confidence_full_resolution = True
 
@@ -353,8 +353,8 @@ class GuidedSelection(nn.Module):
 
     def half_resolution_affinity(self, left: torch.Tensor, pixel: nn.Module | None = None,
                                  query: nn.Module | None = None) -> torch.Tensor:
-        """Versions 7 and 8: (B, 1, H, W) grey 0-255 → (B, 9, (f/2)², H/f, W/f), the dot
-        product of each 1/2-resolution pixel's features (version 8: their query) with the mean
+        """Versions 7-9: (B, 1, H, W) grey 0-255 → (B, 9, (f/2)², H/f, W/f), the dot
+        product of each 1/2-resolution pixel's features (versions 8, 9: their query) with the mean
         features of each of the nine 1/8 cells its candidates come from, per 1/2-resolution
         sub-position of each 1/8 cell (`pixel_unshuffle`'s order). Computed per
         1/8 cell, one channel at a time: at full resolution, as one batched product per cell,
