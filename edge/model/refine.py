@@ -148,6 +148,14 @@ def expand_to_cells(values: torch.Tensor, factor: int, scale: int) -> torch.Tens
         2, sub_position_index(factor, scale, values.device))
 
 
+def cell_candidates(disparity: torch.Tensor, factor: int, scale: int) -> torch.Tensor:
+    """(B, 1, H/factor, W/factor) disparity in 1/factor px → (B, 9, H/scale, W/scale): at
+    every 1/scale pixel the nine values of its 1/factor cell's 3×3 neighbourhood, in 1/scale
+    px (the convex upsampling's candidates)."""
+    return F.interpolate(patches_3x3(disparity * (factor / scale)), scale_factor=factor // scale,
+                         mode="nearest")
+
+
 def sub_position_index(factor: int, scale: int, device) -> torch.Tensor:
     """For each of a 1/factor cell's factor² full-resolution sub-positions, the index of the
     1/scale pixel that holds it among the cell's (factor/scale)²."""
@@ -281,8 +289,7 @@ class GuidedSelection(nn.Module):
         right_s = F.avg_pool2d(right, s) / 127.5 - 1.0
         hs, ws = left_s.shape[-2:]
         # the nine candidates in 1/s px at every 1/s pixel (those of the 1/8 cell it is in)
-        candidates = F.interpolate(patches_3x3(disparity * (f / s)), scale_factor=f // s,
-                                   mode="nearest")  # (B, 9, hs, ws)
+        candidates = cell_candidates(disparity, f, s)  # (B, 9, hs, ws)
         feats = self.features(torch.cat([left_s, right_s], 0))
         cost = matching_cost(torch.cat([left_s, feats[:b]], 1),
                              torch.cat([right_s, feats[b:]], 1), candidates)
@@ -298,10 +305,8 @@ class GuidedSelection(nn.Module):
             if quarter is None:
                 raise ValueError("refinement version 5 needs the encoder's 1/4 features")
             q_left, q_right = self.project(torch.cat(quarter, 0)).chunk(2, 0)
-            q_candidates = candidates
-            if s != 4:  # the backbone's features are at 1/4 whatever the scorer's scale
-                q_candidates = F.interpolate(patches_3x3(disparity * (f / 4)),
-                                             scale_factor=f // 4, mode="nearest")
+            # the backbone's features are at 1/4 whatever the scorer's scale
+            q_candidates = candidates if s == 4 else cell_candidates(disparity, f, 4)
             q_cost = matching_cost(q_left, q_right, q_candidates)
             q_pair = [q_cost, F.avg_pool2d(q_cost, 3, 1, 1, count_include_pad=False)]
             if s != 4:
