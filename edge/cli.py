@@ -21,6 +21,12 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
+def _edge_match(text: str) -> int | str:
+    from edge_depth.runtime.edge_match import count_argument  # (OpenCV: only when given)
+
+    return count_argument(text)
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -210,10 +216,11 @@ def build_parser() -> argparse.ArgumentParser:
                         help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
-    replay.add_argument("--edge-match", type=int, default=0, metavar="N",
-                        help="opt-in: StereoBM with N disparities (a multiple of 16 above the "
-                             "scene's largest) at the network's uncertain edges, as [engine] "
-                             "edge_match (README); 0 = off")
+    replay.add_argument("--edge-match", type=_edge_match, default=0, metavar="N|auto",
+                        help="StereoBM with N disparities (a multiple of 16 above the scene's "
+                             "largest) or each frame's from the network's own (auto) at the "
+                             "network's uncertain edges, as [engine] edge_match (README); 0 = "
+                             "off")
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")

@@ -38,10 +38,11 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0,
                    profile: str = "foxglove", runtime: str = "auto",
-                   bf16: bool | None = None, edge_match: int = 0) -> int:
+                   bf16: bool | None = None, edge_match: int | str = 0) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth.
-    `edge_match`: the opt-in stage's disparity count, as `[engine] edge_match` (0 = off)."""
+    `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
+    (0 = off)."""
     from edge_depth.capture.replay import McapSource, TopicMap
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 

@@ -45,7 +45,8 @@
                                 # disparity at the network's input size, after scale)
                                 # runs StereoBM with N disparities and takes its
                                 # value where the network is unsure at its edges; better on
-                                # real pairs, ~0.8x SGBM's time more (README); 0 = off
+                                # real pairs, ~0.8x SGBM's time more (README); "auto": N
+                                # per frame from the network's own disparity; 0 = off
 
     [log]
     out = "logs/depth.mcap"
@@ -123,7 +124,7 @@ class EngineConfig:
     pipelined: bool = False
     lidar_select: bool = True
     edge_select: bool = True
-    edge_match: int = 0
+    edge_match: int | str = 0  # or "auto"
 
     @property
     def bf16_choice(self) -> bool | None:
@@ -195,7 +196,12 @@ def _check_range(path: str, name: str, key: str, value) -> None:
     raise ConfigError(f"{name}.{key}", f"{lo}–{hi}{off}", value, path)
 
 
+AUTO_OR_INT = {"engine.edge_match"}  # an integer, or the string "auto"
+
+
 def _convert(path: str, key: str, value, default):
+    if key in AUTO_OR_INT and value == "auto":
+        return value
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, int):
@@ -215,7 +221,9 @@ def _convert(path: str, key: str, value, default):
     else:
         ok = isinstance(value, str)
     if not ok:
-        raise ConfigError(key, f"{type(default).__name__} like {default!r}", value, path)
+        either = '"auto" or ' if key in AUTO_OR_INT else ""
+        raise ConfigError(key, f"{either}{type(default).__name__} like {default!r}", value,
+                          path)
     return value
 
 

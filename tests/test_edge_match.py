@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.edge_match import EdgeMatch
+from edge_depth.runtime.edge_match import EdgeMatch, disparities_for, parse_count
 
 BAR = slice(150, 162)      # a thin foreground bar's columns in the left view
 BACKGROUND, FOREGROUND = 10, 30
@@ -101,10 +101,31 @@ def test_the_lidar_point_fills_the_matchers_holes_where_the_image_has_texture():
     assert faint_count == 0
 
 
-@pytest.mark.parametrize("count", [0, -16, 50])
+@pytest.mark.parametrize("count", [-16, 50])
 def test_disparity_count_must_be_a_positive_multiple_of_16(count):
     with pytest.raises(ConfigError, match="edge_match"):
         EdgeMatch(count)
+
+
+def test_auto_takes_each_frames_count_from_the_networks_own_disparity():
+    assert disparities_for(np.array([[3.0, 59.9]], np.float32), 640) == 80   # + 8, to 16
+    assert disparities_for(np.array([[40.0]], np.float32), 640) == 48
+    assert disparities_for(np.zeros((2, 2), np.float32), 640) == 16         # at least 16
+    assert disparities_for(np.array([[np.nan, 20.0]], np.float32), 640) == 32
+    assert disparities_for(np.array([[900.0]], np.float32), 640) == 624     # below the width
+    assert disparities_for(np.array([[np.inf]], np.float32), 320) == 304
+    assert parse_count("auto") == "auto" and parse_count("64") == 64 and parse_count("0") == 0
+    for bad in ("50", "-16", "sixty"):
+        with pytest.raises(ValueError, match="auto"):
+            parse_count(bad)
+    stage = EdgeMatch(0)     # no fixed count: each call names its own
+    left, right, _, _, _ = thin_bar_pair()
+    np.testing.assert_array_equal(stage.matched(left, right, 64),
+                                  EdgeMatch(64).matched(left, right))
+    with pytest.raises(ValueError, match="per call"):
+        stage.matched(left, right)
+    assert stage.beyond_px(np.full((4, 4), 20.0), 16) == 16 and \
+        stage.beyond_px(np.full((4, 4), 20.0), 32) == 0
 
 
 def test_the_engine_refuses_a_count_as_wide_as_its_input():
@@ -133,6 +154,15 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     np.testing.assert_array_equal(matched.disparity, expected)
     assert matched.matched_px == count
     assert plain.match_beyond_px is None and matched.match_beyond_px == 0   # up to ~60 px
+    # "auto": the count from the engine's own disparity (~60 px here: 80), after the graphs
+    auto = Engine(precision="int8", threads=2, edge_match="auto").infer(big(left), big(right),
+                                                                        sparse)
+    count = disparities_for(plain.disparity, 640)
+    assert count == 16 * int(np.ceil((plain.disparity.max() + 8) / 16))
+    expected, replaced = EdgeMatch(count).apply(big(left), big(right), plain.disparity,
+                                                plain.confidence, sparse)
+    np.testing.assert_array_equal(auto.disparity, expected)
+    assert auto.matched_px == replaced and auto.match_beyond_px == 0
     # a count below the scene's disparities is counted, not silent
     short = Engine(precision="int8", threads=2, edge_match=16).infer(big(left), big(right),
                                                                      sparse)
@@ -146,6 +176,11 @@ def test_config_and_evaluate_take_it(tmp_path):
     path = tmp_path / "c.toml"
     path.write_text("[engine]\nedge_match = 64\n")
     assert load_robot_config(path).engine.edge_match == 64
+    path.write_text('[engine]\nedge_match = "auto"\n')
+    assert load_robot_config(path).engine.edge_match == "auto"
+    path.write_text('[engine]\nedge_match = "sixty"\n')
+    with pytest.raises(ConfigError, match='"auto" or int'):
+        load_robot_config(path)
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-match", "40"])
     with pytest.raises(SystemExit):    # refused before any scene is evaluated
@@ -187,6 +222,8 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
     assert "Edge matching (opt-in): replaced a median" in text and "edge_match" in text
     result = compare(plain, matched)                 # what a user runs: edge-depth compare
     assert result["frames_compared"] == 3 and 0 < result["beyond_share"] < 0.2
-    assert main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"),
-                 "--edge-match", "50"]) != 0                             # one clear line
-    assert "edge_match: expected 0 (off) or a positive multiple of 16" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:                      # one clear line
+        main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"), "--edge-match", "50"])
+    assert stop.value.code == 2
+    assert "edge_match: expected 'auto', 0 (off) or a positive multiple of 16" in \
+        capsys.readouterr().err

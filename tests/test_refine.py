@@ -44,7 +44,7 @@ def test_refinement_v2_starts_near_the_identity_sees_the_lidar_and_learns():
     torch.manual_seed(0)
     assert ModelConfig.from_dict({"refine": True}).refine == 1  # configs before versions
     with pytest.raises(ConfigError):
-        ModelConfig(refine=10)
+        ModelConfig(refine=11)
     stage = Refinement(2)
     left = torch.rand(1, 1, 32, 48) * 255
     right = torch.roll(left, -3, dims=3)
@@ -399,3 +399,58 @@ def test_guided_selection_v9_starts_as_version_8_and_its_wide_query_learns():
         opt.step()
         losses.append(float(loss))
     assert losses[-1] < 0.5 * losses[0]
+
+
+def test_version_10_keeps_the_convex_disparity_and_upsamples_its_confidence_the_same_way():
+    """Version 10 has no image-guided stage: the disparity is the trunk's convex upsampling,
+    bit for bit, and the 1/8 confidence logit reaches full resolution through the same convex
+    weights — a constant logit stays constant, an edge in it follows the weights."""
+    torch.manual_seed(0)
+    net = SparseStereoNet(ModelConfig(gru_iters=2, refine=10)).eval()
+    left = torch.rand(1, 1, 64, 96) * 255
+    zeros = torch.zeros(1, 1, 64, 96)
+    with torch.no_grad():
+        outs, logit = net(left, torch.roll(left, -3, dims=3), zeros, zeros, 2,
+                          with_confidence=True)
+        state = net.encode(left, torch.roll(left, -3, dims=3), zeros, zeros)
+        d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
+        for _ in range(2):
+            d, h, hl, mask = net.step(state, d, h, hl)
+        low = net.refine(h, d)
+        head = net.refine.head[2]
+    torch.testing.assert_close(outs[-1], convex_upsample(d, mask, 8), rtol=0, atol=0)
+    assert low.shape == (1, 1, 8, 12) and logit.shape == (1, 1, 64, 96)
+    _, expected = convex_upsample(d, mask, 8, low)
+    torch.testing.assert_close(logit, expected)
+    with torch.no_grad():   # a constant logit comes out constant: the weights sum to one
+        head.weight.zero_()
+        head.bias.fill_(1.5)
+        _, logit = net(left, torch.roll(left, -3, dims=3), zeros, zeros, 2,
+                       with_confidence=True)
+    torch.testing.assert_close(logit, torch.full_like(logit, 1.5))
+    # an edge in the 1/8 logit: full-resolution values stay between its two sides
+    edge = torch.zeros(1, 1, 8, 12)
+    edge[..., 6:] = 4.0
+    _, up = convex_upsample(d, mask, 8, edge)
+    assert float(up[..., :, :40].max()) < 1e-4 and float(up[..., :, 56:].min()) > 4 - 1e-4
+    assert 0 < float(up[..., :, 40:56].mean()) < 4
+
+
+def test_version_10_head_sees_the_hidden_state_and_the_disparitys_spread(monkeypatch):
+    import edge_depth.model.refine as refine
+
+    torch.manual_seed(2)
+    head = refine.ConvexConfidence(hidden_dim=8, channels=4)
+    hidden = torch.rand(1, 8, 6, 6, requires_grad=True)
+    flat = torch.full((1, 1, 6, 6), 5.0)
+    step = flat.clone()
+    step[..., 3:] = 9.0
+    with torch.no_grad():
+        assert float((head(hidden, step) - head(hidden, flat)).abs().max()) > 0
+    monkeypatch.setattr(refine, "CONFIDENCE_TRUNK_GRAD", 0.1)
+    head(hidden, flat).sum().backward()
+    tenth = hidden.grad.clone()
+    hidden.grad = None
+    monkeypatch.setattr(refine, "CONFIDENCE_TRUNK_GRAD", 1.0)
+    head(hidden, flat).sum().backward()
+    torch.testing.assert_close(tenth, 0.1 * hidden.grad)

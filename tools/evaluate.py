@@ -42,9 +42,8 @@ from edge_depth.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
-from edge_depth.errors import ConfigError
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
-from edge_depth.runtime.edge_match import EdgeMatch
+from edge_depth.runtime.edge_match import count_argument
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -85,7 +84,7 @@ class BundleNet:
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None, lidar_select: bool = True,
-                 edge_match: int = 0) -> None:
+                 edge_match: int | str = 0) -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
@@ -98,14 +97,14 @@ class BundleNet:
 
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0):
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0):
     return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match) \
         if model.is_dir() else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int = 0,
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0,
              first: dict | None = None) -> dict[str, dict[str, float]]:
     """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
     each method's prediction on it (by method name), for `picture`."""
@@ -230,9 +229,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
-    p.add_argument("--edge-match", type=int, default=0, metavar="N",
-                   help="a bundle: the opt-in full-resolution block matching at the network's "
-                        "uncertain edges with N disparities (a multiple of 16; 0 = off)")
+    p.add_argument("--edge-match", type=count_argument, default=0, metavar="N|auto",
+                   help="a bundle: the full-resolution block matching at the network's "
+                        "uncertain edges with N disparities (a multiple of 16) or each frame's "
+                        "from the network's own disparity (auto); 0 = off")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,
@@ -250,11 +250,6 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--iters: expected integers like 4 or 1,2,4, got {args.iters!r}")
     if {"net", "net-nolidar"} & set(methods) and not args.model.exists():
         p.error(f"--model {args.model}: no such checkpoint or bundle")
-    if args.edge_match:
-        try:
-            EdgeMatch(args.edge_match)  # the engine's own check of the count
-        except ConfigError as exc:
-            p.error(f"--edge-match: {exc}")
     if args.picture and args.picture.suffix.lower() not in (".jpg", ".jpeg", ".png"):
         p.error(f"--picture {args.picture}: name a .jpg or .png file")
     if args.edge_match and not args.model.is_dir():

@@ -35,7 +35,8 @@ QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alo
 REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
                  3: ["left", "right", "sparse", "valid"],
                  4: ["left", *QUARTER, "sparse", "valid"],
-                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8, 9)}}
+                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8, 9)},
+                 10: []}
 OPSET = 17
 # versions whose upsample graph returns the confidence at its own 1/4 resolution; the engine
 # resizes it (bilinear resizing in OpenVINO's graph cost ~2.8 ms of the graph's ~14)
@@ -94,12 +95,12 @@ def build_graphs(net):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, left, right, sparse=None, valid=None,
+        def forward(self, disparity, hidden, left=None, right=None, sparse=None, valid=None,
                     quarter_left=None, quarter_right=None):
             mask = self.net.update.upsampling_mask(hidden)
             quarter = None if quarter_left is None else (quarter_left, quarter_right)
             full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid,
-                                            quarter)
+                                            quarter, hidden=hidden)
             return full, torch.sigmoid(logit)
 
     class UpsampleQuarter(torch.nn.Module):

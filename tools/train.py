@@ -72,8 +72,8 @@ def parse_args(argv):
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
     p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
-                   choices=range(10), metavar="{0-9}",
-                   help="the refinement + confidence stage, versions 1-9 as in "
+                   choices=range(11), metavar="{0-10}",
+                   help="the refinement + confidence stage, versions 1-10 as in "
                         "edge.model.config.ModelConfig (a bare --refine: 2); a version that "
                         "extends the --init checkpoint's starts as exactly that one")
     p.add_argument("--aux-offsets", action="store_true",

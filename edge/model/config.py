@@ -26,7 +26,9 @@ class ModelConfig:
     also compares each full-resolution pixel's learned features with those of the 1/8 cells
     its candidates come from (never started), 8 version 7 written so that it starts, 9
     version 8 with a second, wider pixel side (from a version 8 checkpoint it starts as
-    exactly version 8);
+    exactly version 8), 10 no image-guided stage: the convex upsampling with a confidence head
+    at 1/8 on the last hidden state, its logit upsampled by the same convex weights (the
+    full-resolution matching, `edge.runtime.edge_match`, does the edges' work);
     aux_offsets: while training only, the 1/4 stage's matching (its offsets head on the
     backbone's 1/4 features) as an auxiliary loss — not exported, no cost at inference; for
     any refine but 4 (which has the head itself), with downsample 8; refine_scale: the
@@ -52,8 +54,8 @@ class ModelConfig:
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
             object.__setattr__(self, "refine", int(self.refine))
-        if self.refine not in range(10):
-            raise ConfigError("refine", "0 to 9", self.refine)
+        if self.refine not in range(11):
+            raise ConfigError("refine", "0 to 10", self.refine)
         if self.refine_scale not in (2, 4):
             raise ConfigError("refine_scale", "2 or 4", self.refine_scale)
         if self.downsample not in (4, 8):

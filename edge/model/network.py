@@ -23,7 +23,12 @@ from edge_depth.model.corr import (
 from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge_depth.model.extractor import Encoders
 from edge_depth.model.quarter import QuarterStage
-from edge_depth.model.refine import GUIDED_VERSIONS, GuidedSelection, Refinement
+from edge_depth.model.refine import (
+    GUIDED_VERSIONS,
+    ConvexConfidence,
+    GuidedSelection,
+    Refinement,
+)
 from edge_depth.model.update import UpdateBlock
 
 
@@ -37,9 +42,12 @@ def downsample_sparse(sparse: torch.Tensor, valid: torch.Tensor, factor: int
     return total / count.clamp(min=1.0) / factor * low_valid, low_valid
 
 
-def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int) -> torch.Tensor:
+def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int,
+                    logit: torch.Tensor | None = None):
     """(B, 1, h, w) low-res disparity and (B, 9 f², h, w) mask logits -> (B, 1, f h, f w) in
     full-resolution pixels: a softmax over the 9 neighbours' weights, then depth-to-space.
+    With `logit` (B, 1, h, w), also that map upsampled by the same weights (not scaled):
+    (disparity, logit).
 
     Written for ONNX Runtime, where a 7-D softmax is slow: at most 5-D; logits clipped to
     ±30 instead of subtracting their maximum (the same softmax unless a logit leaves that
@@ -49,7 +57,10 @@ def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int) ->
     weights = torch.exp(mask.view(b, 9, factor * factor, h, w).clamp(-30.0, 30.0))
     patches = patches_3x3(disparity * factor).view(b, 9, 1, h, w)
     up = (weights * patches).sum(1) / weights.sum(1)  # (B, f², h, w)
-    return F.pixel_shuffle(up, factor)
+    if logit is None:
+        return F.pixel_shuffle(up, factor)
+    logits = (weights * patches_3x3(logit).view(b, 9, 1, h, w)).sum(1) / weights.sum(1)
+    return F.pixel_shuffle(up, factor), F.pixel_shuffle(logits, factor)
 
 
 class SparseStereoNet(nn.Module):
@@ -74,6 +85,8 @@ class SparseStereoNet(nn.Module):
                                           query=cfg.refine in (8, 9),
                                           wide_pixel=8 if cfg.refine == 9 else 0,
                                           scale=cfg.refine_scale)
+        elif cfg.refine == 10:
+            self.refine = ConvexConfidence(cfg.hidden_dim)
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
         # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
@@ -134,12 +147,13 @@ class SparseStereoNet(nn.Module):
 
     def upsample(self, left, right, disparity, mask, sparse=None, valid=None,
                  quarter: tuple[torch.Tensor, torch.Tensor] | None = None,
-                 aux: dict | None = None):
+                 aux: dict | None = None, hidden: torch.Tensor | None = None):
         """Convex upsampling, then (if configured) the refinement: full-resolution disparity
         (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
         `valid` (full resolution) reach the refinement only if the model uses the LiDAR;
         `quarter` is the encoder's (quarter_left, quarter_right), for version 4, which also
-        puts what its losses need into `aux` if given (`offset_loss`, `gate_loss`)."""
+        puts what its losses need into `aux` if given (`offset_loss`, `gate_loss`); `hidden`
+        is the last step's state, for version 10's confidence head."""
         if not self.config.use_sparse:
             sparse = valid = None
         if self.config.refine == 4:  # gated towards an estimate found by matching at 1/4
@@ -152,6 +166,9 @@ class SparseStereoNet(nn.Module):
             return refined, logit
         if self.config.refine in GUIDED_VERSIONS:  # chooses among the convex candidates
             return self.refine(left, right, disparity, mask, sparse, valid, quarter)
+        if self.config.refine == 10:  # the confidence only, upsampled as the disparity is
+            return convex_upsample(disparity, mask, self.config.downsample,
+                                   self.refine(hidden, disparity))
         full = convex_upsample(disparity, mask, self.config.downsample)
         if self.refine is None:
             return full, None
@@ -174,7 +191,7 @@ class SparseStereoNet(nn.Module):
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
                 full, logit = self.upsample(left, right, d, mask, sparse, valid,
-                                            self.quarter_features(state), aux)
+                                            self.quarter_features(state), aux, h)
                 outputs.append(full)
                 if aux is not None and "aux_left" in state:  # the auxiliary matching's loss
                     convex = convex_upsample(d, mask, self.config.downsample).detach()

@@ -39,6 +39,25 @@ class ResidualDilated(nn.Module):
         return F.relu(x + self.conv2(F.relu(self.conv1(x))))
 
 
+class ConvexConfidence(nn.Module):
+    """Version 10: no image-guided stage, only a confidence head at 1/8 — two 3×3
+    convolutions on the last step's hidden state and the 3×3 range of its disparity (where an
+    edge crosses the cell). Its logit (B, 1, h, w) is upsampled by the convex weights, as the
+    disparity is (`network.convex_upsample`); ~0.1 GFLOP at 640x400."""
+
+    def __init__(self, hidden_dim: int = 64, channels: int = 32) -> None:
+        super().__init__()
+        self.head = nn.Sequential(nn.Conv2d(hidden_dim + 1, channels, 3, 1, 1), nn.ReLU(),
+                                  nn.Conv2d(channels, 1, 3, 1, 1))
+
+    def forward(self, hidden: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
+        patches = patches_3x3(disparity)
+        spread = patches.amax(1, keepdim=True) - patches.amin(1, keepdim=True)
+        # as in the other versions: the trunk feels a tenth of the confidence's gradient
+        x = torch.cat([hidden, spread], 1)
+        return self.head(x.detach() + CONFIDENCE_TRUNK_GRAD * (x - x.detach()))
+
+
 def sparse_at_half(sparse: torch.Tensor, valid: torch.Tensor, disparity2: torch.Tensor):
     """(LiDAR − disparity) / 8 where a 2×2 cell has LiDAR (mean of its points, in half-res px),
     0 elsewhere, and the cell's 0/1 mask."""

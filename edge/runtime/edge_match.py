@@ -24,6 +24,7 @@ matching is 3-4× less reliable than on real pairs): see the README before turni
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass
 
 import cv2
@@ -41,13 +42,17 @@ PHOTO_WINDOW_PX = 5
 # a frame with more than this % of its pixels beyond the disparity count is counted and said
 # (closing summary, /diagnostics' level on the ROS 2 profile): the count is too small there
 BEYOND_PCT = 1.0
+AUTO = "auto"        # the count per frame, from the network's own largest disparity ...
+AUTO_MARGIN_PX = 8   # ... plus this, rounded up to StereoBM's multiple of 16
 POINT_MARGIN = 0.8   # the LiDAR point's 5x5 warp cost must be below this x the network's
 MIN_TEXTURE = 4.0    # ... where the left image's 5x5 mean |d/dx| (grey levels / px) exceeds
 
 
 @dataclass
 class EdgeMatch:
-    """`EdgeMatch(num_disparities)`; `apply(left, right, disparity, confidence)`."""
+    """`EdgeMatch(num_disparities)`; `apply(left, right, disparity, confidence)`.
+    `num_disparities` 0: no fixed count — each call of `matched` gives its own (see
+    `disparities_for`)."""
 
     num_disparities: int
     block_px: int = BLOCK_PX
@@ -59,28 +64,39 @@ class EdgeMatch:
     min_texture: float = MIN_TEXTURE
 
     def __post_init__(self) -> None:
-        if self.num_disparities <= 0 or self.num_disparities % 16:
-            raise ConfigError("edge_match", "0 (off) or a positive multiple of 16 "
+        if self.num_disparities < 0 or self.num_disparities % 16:
+            raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a positive multiple of 16 "
                               "(StereoBM's disparity count: above the scene's largest)",
                               self.num_disparities)
-        matcher = cv2.StereoBM_create(numDisparities=self.num_disparities,
-                                      blockSize=self.block_px)
-        matcher.setTextureThreshold(10)
-        matcher.setUniquenessRatio(15)
-        matcher.setDisp12MaxDiff(1)
-        matcher.setSpeckleWindowSize(100)
-        matcher.setSpeckleRange(2)
-        matcher.setPreFilterCap(31)
-        self._matcher = matcher
+        self._matchers: dict[int, cv2.StereoBM] = {}
 
-    def beyond_px(self, disparity: np.ndarray) -> int:
-        """Pixels whose disparity StereoBM cannot reach (≥ num_disparities − 1): a count too
-        small for the scene fails there without a sound, so the daemon counts it."""
-        return int(np.count_nonzero(disparity >= self.num_disparities - 1))
+    def _matcher(self, num_disparities: int) -> cv2.StereoBM:
+        if num_disparities not in self._matchers:  # a few counts per scene: kept
+            matcher = cv2.StereoBM_create(numDisparities=num_disparities,
+                                          blockSize=self.block_px)
+            matcher.setTextureThreshold(10)
+            matcher.setUniquenessRatio(15)
+            matcher.setDisp12MaxDiff(1)
+            matcher.setSpeckleWindowSize(100)
+            matcher.setSpeckleRange(2)
+            matcher.setPreFilterCap(31)
+            self._matchers[num_disparities] = matcher
+        return self._matchers[num_disparities]
 
-    def matched(self, left: np.ndarray, right: np.ndarray) -> np.ndarray:
-        """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match."""
-        raw = self._matcher.compute(as_grey8(left), as_grey8(right))
+    def beyond_px(self, disparity: np.ndarray, num_disparities: int = 0) -> int:
+        """Pixels whose disparity StereoBM cannot reach (≥ the count − 1): a count too small
+        for the scene fails there without a sound, so the daemon counts it."""
+        count = num_disparities or self.num_disparities
+        return int(np.count_nonzero(disparity >= count - 1))
+
+    def matched(self, left: np.ndarray, right: np.ndarray,
+                num_disparities: int = 0) -> np.ndarray:
+        """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match.
+        `num_disparities`: this call's count (required when the stage has none fixed)."""
+        count = num_disparities or self.num_disparities
+        if count <= 0:
+            raise ValueError("EdgeMatch(0) takes its disparity count per call")
+        raw = self._matcher(count).compute(as_grey8(left), as_grey8(right))
         out = raw.astype(np.float32) * (1.0 / 16.0)
         out[raw <= 0] = 0.0
         return out
@@ -114,6 +130,37 @@ class EdgeMatch:
             out[hole_take] = point[hole_take]
             take |= hole_take
         return out, int(take.sum())
+
+
+def parse_count(text: str) -> int | str:
+    """A command line's `--edge-match`: "auto", or 0 (off) / a positive multiple of 16
+    (ValueError otherwise, with what is accepted)."""
+    if text.strip().lower() == AUTO:
+        return AUTO
+    try:
+        count = int(text)
+    except ValueError:
+        raise ValueError(f"{AUTO!r} or a disparity count (0 = off), not {text!r}") from None
+    EdgeMatch(count)  # ConfigError (a ValueError) unless 0 or a multiple of 16
+    return count
+
+
+def count_argument(text: str) -> int | str:
+    """`parse_count` as an argparse type: the command line's one clear line."""
+    try:
+        return parse_count(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def disparities_for(disparity: np.ndarray, width: int) -> int:
+    """StereoBM's disparity count for a frame from the network's own disparity there: its
+    largest value plus `AUTO_MARGIN_PX`, rounded up to a multiple of 16 — at least 16, below
+    `width` (StereoBM matches nothing with a count as wide as the image)."""
+    largest = float(np.nanmax(disparity, initial=0.0))
+    largest = largest if np.isfinite(largest) else float(width)  # inf: as wide as allowed
+    count = 16 * int(np.ceil((largest + AUTO_MARGIN_PX) / 16.0))
+    return int(min(max(count, 16), 16 * ((width - 1) // 16)))
 
 
 def as_grey8(image: np.ndarray) -> np.ndarray:

@@ -20,7 +20,7 @@ import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
-from edge_depth.runtime.edge_match import EdgeMatch, as_grey8
+from edge_depth.runtime.edge_match import AUTO, EdgeMatch, as_grey8, disparities_for
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -56,14 +56,16 @@ class Engine:
     has it natively. `lidar_select`: run the bundle's LiDAR selection
     (`edge.runtime.lidar_select`) when it has one; `edge_select`: on frames without LiDAR
     points, its edge selection (`edge.runtime.edge_select`) when it has one. `edge_match`:
-    0 (off) or StereoBM's disparity count for the opt-in full-resolution matching at the
-    network's uncertain edges (`edge.runtime.edge_match`), after the selections."""
+    0 (off), StereoBM's disparity count or "auto" (each frame's, from the network's own
+    disparity) for the full-resolution matching at the network's uncertain edges
+    (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
+    runs beside the graphs; "auto" needs the network's disparity first."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
                  lidar_select: bool = True, edge_select: bool = True,
-                 edge_match: int = 0) -> None:
+                 edge_match: int | str = 0) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -117,10 +119,17 @@ class Engine:
             if lidar_select and "lidar_select" in self.meta else None
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
-        self.edge_match = EdgeMatch(int(edge_match)) if edge_match else None
-        if edge_match and int(edge_match) >= self.width:  # StereoBM would silently find nothing
-            raise ConfigError("edge_match", f"below the bundle's input width ({self.width} px)",
-                              edge_match)
+        self.edge_match = None
+        if edge_match == AUTO:  # the count per frame, from the network's own disparity
+            self.edge_match = EdgeMatch(0)
+        elif edge_match:
+            if not isinstance(edge_match, int) or isinstance(edge_match, bool):
+                raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a multiple of 16",
+                                  edge_match)
+            self.edge_match = EdgeMatch(edge_match)
+            if edge_match >= self.width:  # StereoBM would silently find nothing
+                raise ConfigError("edge_match", f"below the bundle's input width "
+                                  f"({self.width} px)", edge_match)
         # its block matching needs only the images: it runs beside the network's graphs,
         # whose small 1/8-resolution tensors leave the second core partly idle
         self._matching: ThreadPoolExecutor | None = None  # started on first use
@@ -179,7 +188,8 @@ class Engine:
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
 
         matching = None
-        if self.edge_match is not None and self.has_confidence:  # it gates on the confidence
+        if self.edge_match is not None and self.edge_match.num_disparities and \
+                self.has_confidence:  # it gates on the confidence
             if self._matching is None:
                 self._matching = ThreadPoolExecutor(1, "edge-match")
             pair = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]  # own copies: the
@@ -240,12 +250,17 @@ class Engine:
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
         matched = beyond = None
-        if matching is not None:  # (only with a confidence output)
-            beyond = self.edge_match.beyond_px(disp)
+        if self.edge_match is not None and confidence is not None:
             t = time.perf_counter()  # from here: the wait for the matching, then the choice
+            if matching is not None:
+                beyond = self.edge_match.beyond_px(disp)
+                found = matching.result()
+            else:  # "auto": the count this frame's disparity needs
+                count = disparities_for(disp, self.width)
+                beyond = self.edge_match.beyond_px(disp, count)
+                found = self.edge_match.matched(buf["left"][0, 0], buf["right"][0, 0], count)
             disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
-                                                  confidence, buf["sparse"][0, 0],
-                                                  matching.result())
+                                                  confidence, buf["sparse"][0, 0], found)
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
