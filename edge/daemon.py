@@ -323,7 +323,8 @@ def selection_summary(timings: list[dict]) -> str | None:
         lines.append(f"Edge matching (opt-in): the scene was nearer than its disparity count "
                      f"reaches in {len(over)} of {len(beyond)} frames (up to {max(over):.1f} % "
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
-                     "edge_match to a multiple of 16 above the scene's largest disparity")
+                     "edge_match to a multiple of 16 above the scene's largest disparity, or "
+                     "set it to \"auto\" (each frame's count from the network's own)")
     return "\n".join(lines) or None
 
 

@@ -205,7 +205,8 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
     assert selection_summary(timings).splitlines()[1] == (
         "Edge matching (opt-in): the scene was nearer than its disparity count reaches in 1 "
         "of 2 frames (up to 12.5 % of a frame's pixels; StereoBM cannot match there): raise "
-        "[engine] edge_match to a multiple of 16 above the scene's largest disparity")
+        "[engine] edge_match to a multiple of 16 above the scene's largest disparity, or set "
+        "it to \"auto\" (each frame's count from the network's own)")
 
 
 def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recording, tmp_path,
@@ -222,6 +223,11 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
     assert "Edge matching (opt-in): replaced a median" in text and "edge_match" in text
     result = compare(plain, matched)                 # what a user runs: edge-depth compare
     assert result["frames_compared"] == 3 and 0 < result["beyond_share"] < 0.2
+    auto = tmp_path / "auto.mcap"                    # the count from each frame's own disparity
+    assert main(["replay", str(recording), "--out", str(auto), "--iters", "1",
+                 "--edge-match", "auto"]) == 0
+    assert "Edge matching (opt-in): replaced a median" in capsys.readouterr().out
+    assert compare(matched, auto)["frames_compared"] == 3
     with pytest.raises(SystemExit) as stop:                      # one clear line
         main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"), "--edge-match", "50"])
     assert stop.value.code == 2
