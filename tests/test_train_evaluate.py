@@ -113,8 +113,9 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert set(result["engine_ms"]["int8"]) == {"1", "4"}
     # each column timed its own precision and iterations: (1 untimed + 1 scene) x 2 blocks x
     # 2 runs (no "1 iteration is faster" here: a timing assertion fails on a busy machine);
-    # the daemon pipeline's warm-up adds one int8 call at 1 iteration per run
-    assert calls["fp32", 1] == calls["fp32", 4] == calls["int8", 4] == 8, calls
+    # the daemon pipeline's warm-up adds one int8 call at 1 iteration per run, the paired
+    # ratio one int8 call at 4 per scene, block and run
+    assert calls["fp32", 1] == calls["fp32", 4] == 8 and calls["int8", 4] == 12, calls
     assert calls["int8", 1] == 10, calls
     assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
@@ -133,6 +134,30 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert "2 runs: int8 engine / SGBM per run" in md.read_text()
     assert "opt-in edge_match stage / SGBM per run" in md.read_text()
     assert all(r["edge_match_vs_sgbm"] > 0 for r in result["runs"])
+    lo, hi = result["ratios"]["int8_vs_sgbm_paired_p10_p90"]
+    assert 0 < lo <= result["ratios"]["int8_vs_sgbm_paired"] <= hi
+    assert all(r["int8_vs_sgbm_paired"] > 0 for r in result["runs"])
+    assert "paired, frame by frame" in md.read_text() and "paired per run" in md.read_text()
+
+
+def test_paired_ratios_time_engine_and_sgbm_back_to_back_in_alternating_order(monkeypatch):
+    from edge_depth.tools import bench
+
+    clock, order = [0.0], []
+
+    def engine(left, right, sparse):   # 3 units a call, SGBM 1: every ratio is 3
+        order.append("engine")
+        clock[0] += 3.0
+
+    def sgbm(left, right):
+        order.append("sgbm")
+        clock[0] += 1.0
+
+    monkeypatch.setattr(bench.time, "perf_counter", lambda: clock[0])
+    frames = [(None, None, None)] * 3
+    assert bench.paired_ratios(engine, sgbm, frames, 2) == [3.0] * 6
+    assert order[:6] == ["engine", "sgbm", "sgbm", "engine", "engine", "sgbm"]
+    assert order.count("engine") == order.count("sgbm") == 6
 
 
 def test_ship_checkpoint_keeps_weights_and_appends_the_stage(tmp_path):
