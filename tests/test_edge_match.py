@@ -124,6 +124,8 @@ def test_auto_takes_each_frames_count_from_the_networks_own_disparity():
                                   EdgeMatch(64).matched(left, right))
     with pytest.raises(ValueError, match="per call"):
         stage.matched(left, right)
+    with pytest.raises(ValueError, match="per call"):
+        stage.beyond_px(np.full((4, 4), 20.0))
     assert stage.beyond_px(np.full((4, 4), 20.0), 16) == 16 and \
         stage.beyond_px(np.full((4, 4), 20.0), 32) == 0
 

@@ -56,10 +56,11 @@ def convex_upsample(disparity: torch.Tensor, mask: torch.Tensor, factor: int,
     b, _, h, w = disparity.shape
     weights = torch.exp(mask.view(b, 9, factor * factor, h, w).clamp(-30.0, 30.0))
     patches = patches_3x3(disparity * factor).view(b, 9, 1, h, w)
-    up = (weights * patches).sum(1) / weights.sum(1)  # (B, f², h, w)
+    total = weights.sum(1)
+    up = (weights * patches).sum(1) / total  # (B, f², h, w)
     if logit is None:
         return F.pixel_shuffle(up, factor)
-    logits = (weights * patches_3x3(logit).view(b, 9, 1, h, w)).sum(1) / weights.sum(1)
+    logits = (weights * patches_3x3(logit).view(b, 9, 1, h, w)).sum(1) / total
     return F.pixel_shuffle(up, factor), F.pixel_shuffle(logits, factor)
 
 

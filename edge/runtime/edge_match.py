@@ -83,20 +83,24 @@ class EdgeMatch:
             self._matchers[num_disparities] = matcher
         return self._matchers[num_disparities]
 
+    def _count(self, num_disparities: int) -> int:
+        """This call's count, or the stage's fixed one (one of them is required)."""
+        count = num_disparities or self.num_disparities
+        if count <= 0:
+            raise ValueError("EdgeMatch(0) takes its disparity count per call")
+        return count
+
     def beyond_px(self, disparity: np.ndarray, num_disparities: int = 0) -> int:
         """Pixels whose disparity StereoBM cannot reach (≥ the count − 1): a count too small
         for the scene fails there without a sound, so the daemon counts it."""
-        count = num_disparities or self.num_disparities
-        return int(np.count_nonzero(disparity >= count - 1))
+        return int(np.count_nonzero(disparity >= self._count(num_disparities) - 1))
 
     def matched(self, left: np.ndarray, right: np.ndarray,
                 num_disparities: int = 0) -> np.ndarray:
         """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match.
         `num_disparities`: this call's count (required when the stage has none fixed)."""
-        count = num_disparities or self.num_disparities
-        if count <= 0:
-            raise ValueError("EdgeMatch(0) takes its disparity count per call")
-        raw = self._matcher(count).compute(as_grey8(left), as_grey8(right))
+        raw = self._matcher(self._count(num_disparities)).compute(as_grey8(left),
+                                                                  as_grey8(right))
         out = raw.astype(np.float32) * (1.0 / 16.0)
         out[raw <= 0] = 0.0
         return out
