@@ -32,7 +32,10 @@ class ModelConfig:
     aux_offsets: while training only, the 1/4 stage's matching (its offsets head on the
     backbone's 1/4 features) as an auxiliary loss — not exported, no cost at inference; for
     any refine but 4 (which has the head itself), with downsample 8; refine_scale: the
-    resolution versions 3 and 5-9 score their candidates at, 1/4 (shipped) or 1/2."""
+    resolution versions 3 and 5-9 score their candidates at, 1/4 (shipped) or 1/2;
+    motion_dim: the motion encoder's output (its correlation branch as wide), an input of the
+    GRU's gates; head_dim: the hidden width of the Δd and upsampling-mask heads (the two
+    last: knobs of a lighter update block, `tools/prune.py`)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64
@@ -50,6 +53,8 @@ class ModelConfig:
     refine: int = 0
     aux_offsets: bool = False
     refine_scale: int = 4
+    motion_dim: int = 64
+    head_dim: int = 64
 
     def __post_init__(self) -> None:
         if isinstance(self.refine, bool):  # configs before versions: True was version 1
@@ -67,7 +72,8 @@ class ModelConfig:
             raise ConfigError("widths", "three positive channel counts", self.widths)
         if self.gru_levels not in (1, 2):
             raise ConfigError("gru_levels", "1 or 2", self.gru_levels)
-        for key in ("feature_dim", "context_dim", "hidden_dim", "corr_levels", "gru_iters"):
+        for key in ("feature_dim", "context_dim", "hidden_dim", "corr_levels", "gru_iters",
+                    "motion_dim", "head_dim"):
             if getattr(self, key) < 1:
                 raise ConfigError(key, ">= 1", getattr(self, key))
         if self.corr_radius < 1 or self.cspn_steps < 0:

@@ -72,7 +72,7 @@ class SparseStereoNet(nn.Module):
                                  cfg.context_dim, cfg.half_res_block)
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
-                                  cfg.downsample, cfg.gru_levels)
+                                  cfg.downsample, cfg.gru_levels, cfg.motion_dim, cfg.head_dim)
         self.refine = None
         if cfg.refine == 4:
             if cfg.downsample != 8:

@@ -42,9 +42,9 @@ class ConvGRU(nn.Module):
 class MotionEncoder(nn.Module):
     def __init__(self, corr_channels: int, out_dim: int) -> None:
         super().__init__()
-        self.corr = nn.Conv2d(corr_channels, 64, 1)
+        self.corr = nn.Conv2d(corr_channels, out_dim, 1)
         self.disp = nn.Conv2d(1, 16, 7, 1, 3)
-        self.out = nn.Conv2d(64 + 16, out_dim - 1, 3, 1, 1)
+        self.out = nn.Conv2d(out_dim + 16, out_dim - 1, 3, 1, 1)
 
     def forward(self, corr: torch.Tensor, disparity: torch.Tensor) -> torch.Tensor:
         c = F.relu(self.corr(corr))
@@ -59,19 +59,18 @@ class UpdateBlock(nn.Module):
     """
 
     def __init__(self, hidden_dim: int, context_dim: int, corr_channels: int, factor: int,
-                 gru_levels: int = 1) -> None:
+                 gru_levels: int = 1, motion_dim: int = 64, head_dim: int = 64) -> None:
         super().__init__()
-        motion_dim = 64
         self.motion = MotionEncoder(corr_channels, motion_dim)
         self.gru_levels = gru_levels
         extra = hidden_dim if gru_levels == 2 else 0
         self.gru = ConvGRU(hidden_dim, motion_dim + context_dim + extra)
         if gru_levels == 2:
             self.gru_low = ConvGRU(hidden_dim, motion_dim + context_dim)
-        self.delta = nn.Sequential(nn.Conv2d(hidden_dim, 64, 3, 1, 1), nn.ReLU(),
-                                   nn.Conv2d(64, 1, 3, 1, 1))
-        self.mask = nn.Sequential(nn.Conv2d(hidden_dim, 64, 3, 1, 1), nn.ReLU(),
-                                  nn.Conv2d(64, 9 * factor * factor, 1))
+        self.delta = nn.Sequential(nn.Conv2d(hidden_dim, head_dim, 3, 1, 1), nn.ReLU(),
+                                   nn.Conv2d(head_dim, 1, 3, 1, 1))
+        self.mask = nn.Sequential(nn.Conv2d(hidden_dim, head_dim, 3, 1, 1), nn.ReLU(),
+                                  nn.Conv2d(head_dim, 9 * factor * factor, 1))
 
     def context_terms(self, context: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The GRU's fixed terms from the context (`ConvGRU.fixed_terms`), for `forward`'s

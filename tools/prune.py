@@ -1,0 +1,134 @@
+"""A lighter update block from a trained checkpoint: its channels cut to the ones the next
+layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`).
+
+    python tools/prune.py edge/models/sparse_stereo.pt --out runs/prune/h48.pt \
+        --hidden 48 --context 32 --motion 48 --head 32 --feature 48
+
+The step graph's cost is mostly the GRU's gates, whose convolutions scale with (hidden +
+motion) × hidden; at 4 iterations it is ~40 % of the int8 engine (`docs/experiments.md`,
+session 31). Cutting channels of a trained network keeps most of what it does, which
+training from scratch would take the ~50 000 steps the shipped model had to relearn.
+
+Each group keeps the channels whose weights in the layers that read them have the largest
+L2 norm, in their original order: the GRU state (read by the gates, the Δd head and the mask
+head), the context (the gates), the motion features (the gates; the disparity, the motion
+features' last channel, is always kept), the motion encoder's correlation branch (its output
+convolution), the heads' hidden widths (their last convolution) and the correlation features
+(ranked by their own weights; scaled so that the correlation's 1/√C keeps its size). A size
+equal to the checkpoint's keeps that group as it is, so the full sizes give back the same
+network.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import torch
+
+from edge_depth.model.config import ModelConfig
+
+SIZES = {"hidden": "hidden_dim", "context": "context_dim", "motion": "motion_dim",
+         "head": "head_dim", "feature": "feature_dim"}
+
+
+def _keep(score: torch.Tensor, n: int) -> torch.Tensor:
+    """The indices of the n largest scores, in ascending index order."""
+    if n > score.numel():
+        raise SystemExit(f"cannot keep {n} of {score.numel()} channels (a prune only cuts)")
+    return torch.sort(torch.topk(score, n).indices).values
+
+
+def _col_norm(*weights: torch.Tensor) -> torch.Tensor:
+    """Squared L2 norm of each input channel over the given (out, in, kh, kw) weights."""
+    return sum(w.pow(2).sum((0, 2, 3)) for w in weights)
+
+
+def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tuple[dict,
+                                                                                ModelConfig]:
+    """`state` (a SparseStereoNet state dict of `config`, gru_levels 1) cut to `sizes` (keys
+    of SIZES; missing ones keep the checkpoint's); returns the new state dict and config."""
+    if config.gru_levels != 1:
+        raise SystemExit("prune supports gru_levels 1 (the deployed configuration)")
+    s = {k: v.clone() for k, v in state.items()}
+    h = config.hidden_dim
+    m = int(state["update.motion.out.weight"].shape[0]) + 1  # the motion features' width
+    zr, q = s["update.gru.convzr.weight"], s["update.gru.convq.weight"]
+    new = {key: sizes.get(key) or getattr(config, field) for key, field in SIZES.items()}
+    if new["motion"] < 2:
+        raise SystemExit("--motion needs at least 2 (the disparity is one of its channels)")
+
+    # each group's kept channels, ranked by the layers that read them
+    keep_h = _keep(_col_norm(zr[:, :h], q[:, :h], s["update.delta.0.weight"],
+                             s["update.mask.0.weight"]), new["hidden"])
+    keep_c = _keep(_col_norm(zr[:, h + m:], q[:, h + m:]), new["context"])
+    keep_m = torch.cat([_keep(_col_norm(zr[:, h:h + m - 1], q[:, h:h + m - 1]),
+                              new["motion"] - 1), torch.tensor([m - 1])])
+    corr_out = s["update.motion.corr.weight"].shape[0]
+    keep_mc = _keep(_col_norm(s["update.motion.out.weight"][:, :corr_out]), new["motion"])
+    keep_kd = _keep(_col_norm(s["update.delta.2.weight"]), new["head"])
+    keep_km = _keep(_col_norm(s["update.mask.2.weight"]), new["head"])
+    feat = s["encoders.feature_head.weight"]
+    keep_f = _keep(feat.pow(2).sum((1, 2, 3)), new["feature"])
+
+    def rows(name: str, index: torch.Tensor) -> None:
+        s[name + ".weight"] = s[name + ".weight"][index]
+        if name + ".bias" in s:
+            s[name + ".bias"] = s[name + ".bias"][index]
+
+    def cols(name: str, index: torch.Tensor) -> None:
+        s[name + ".weight"] = s[name + ".weight"][:, index]
+
+    scale = (new["feature"] / config.feature_dim) ** 0.25  # each side: √ of the 1/√C change
+    rows("encoders.feature_head", keep_f)
+    s["encoders.feature_head.weight"] *= scale
+    s["encoders.feature_head.bias"] *= scale
+    rows("encoders.context_head", torch.cat([keep_h, h + keep_c]))
+    rows("update.motion.corr", keep_mc)
+    disp_branch = torch.arange(corr_out, s["update.motion.out.weight"].shape[1])
+    cols("update.motion.out", torch.cat([keep_mc, disp_branch]))
+    rows("update.motion.out", keep_m[:-1])
+    gru_in = torch.cat([keep_h, h + keep_m, h + m + keep_c])
+    for name, out in (("update.gru.convzr", torch.cat([keep_h, h + keep_h])),
+                      ("update.gru.convq", keep_h)):
+        rows(name, out)
+        cols(name, gru_in)
+    for head, keep_k in (("delta", keep_kd), ("mask", keep_km)):
+        cols(f"update.{head}.0", keep_h)
+        rows(f"update.{head}.0", keep_k)
+        cols(f"update.{head}.2", keep_k)
+    pruned = ModelConfig.from_dict({**config.to_dict(), "hidden_dim": new["hidden"],
+                                    "context_dim": new["context"], "motion_dim": new["motion"],
+                                    "head_dim": new["head"], "feature_dim": new["feature"]})
+    return s, pruned
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    p.add_argument("checkpoint", type=Path)
+    p.add_argument("--out", type=Path, required=True, help="the pruned checkpoint (.pt)")
+    for key in SIZES:
+        p.add_argument(f"--{key}", type=int, default=None,
+                       help=f"channels to keep (default: the checkpoint's {SIZES[key]})")
+    args = p.parse_args(argv)
+    ckpt = torch.load(args.checkpoint, weights_only=False, map_location="cpu")
+    config = ModelConfig.from_dict(ckpt["config"])
+    sizes = {k: getattr(args, k) for k in SIZES if getattr(args, k) is not None}
+    for k, v in sizes.items():
+        if v < 1:
+            p.error(f"--{k} must be at least 1, got {v}")
+    state, pruned = prune_state(ckpt["model"], config, sizes)
+    before = sum(v.numel() for v in ckpt["model"].values())
+    after = sum(v.numel() for v in state.values())
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    torch.save({**ckpt, "model": state, "config": pruned.to_dict(),
+                "pruned_from": str(args.checkpoint),
+                "pruned": {k: getattr(pruned, f) for k, f in SIZES.items()}}, args.out)
+    print(f"{args.out}: {before:,} -> {after:,} parameters "
+          + ", ".join(f"{SIZES[k]} {getattr(config, SIZES[k])} -> {getattr(pruned, SIZES[k])}"
+                      for k in SIZES))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
