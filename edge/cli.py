@@ -221,6 +221,9 @@ def build_parser() -> argparse.ArgumentParser:
                              "largest) or each frame's from the network's own (auto) at the "
                              "network's uncertain edges, as [engine] edge_match (README); 0 = "
                              "off")
+    replay.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=1,
+                        help="2: the matching on every other row, half its time, as [engine] "
+                             "edge_match_rows")
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")
@@ -343,7 +346,8 @@ def main(argv: list[str] | None = None) -> int:
                                   args.calib, topics, args.precision, args.realtime,
                                   args.threads, args.bundle, args.scale, args.profile,
                                   args.runtime, {"auto": None, "on": True,
-                                                 "off": False}[args.bf16], args.edge_match)
+                                                 "off": False}[args.bf16], args.edge_match,
+                                  args.edge_match_rows)
         if args.command == "run":
             from edge_depth.commands import run_command
 

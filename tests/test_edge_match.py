@@ -230,8 +230,51 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
                  "--edge-match", "auto"]) == 0
     assert "Edge matching (opt-in): replaced a median" in capsys.readouterr().out
     assert compare(matched, auto)["frames_compared"] == 3
+    rows = tmp_path / "rows.mcap"                    # every other row: the flag reaches it
+    assert main(["replay", str(recording), "--out", str(rows), "--iters", "1",
+                 "--edge-match", "auto", "--edge-match-rows", "2"]) == 0
+    assert "Edge matching (opt-in): replaced a median" in capsys.readouterr().out
+    assert 0 < compare(auto, rows)["beyond_share"] < 0.2         # not the same frames
     with pytest.raises(SystemExit) as stop:                      # one clear line
         main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"), "--edge-match", "50"])
     assert stop.value.code == 2
     assert "edge_match: expected 'auto', 0 (off) or a positive multiple of 16" in \
         capsys.readouterr().err
+
+
+def test_every_other_row_matches_half_the_rows_and_stands_for_the_next(tmp_path):
+    from edge_depth.config import load_robot_config
+    from edge_depth.runtime.engine import Engine
+    from edge_depth.tools import evaluate
+
+    left, right, gt, network, confidence = thin_bar_pair()
+    left, right = left[:199], right[:199]                          # an odd height too
+    half = EdgeMatch(64, row_step=2)
+    got = half.matched(left, right)
+    assert got.shape == left.shape
+    bm = cv2.StereoBM_create(numDisparities=64, blockSize=7)
+    for set_, value in (("setTextureThreshold", 10), ("setUniquenessRatio", 15),
+                        ("setDisp12MaxDiff", 1), ("setSpeckleWindowSize", 50),
+                        ("setSpeckleRange", 2), ("setPreFilterCap", 31)):
+        getattr(bm, set_)(value)
+    raw = bm.compute(left[::2], right[::2])
+    expected = np.where(raw > 0, raw / 16.0, 0.0).astype(np.float32)
+    np.testing.assert_array_equal(got[::2], expected)               # the matched rows
+    np.testing.assert_array_equal(got[1::2], expected[:99])         # each for the row below
+    # on the thin bar it recovers the bar as every row does
+    out, count = half.apply(left, right, network[:199], confidence[:199])
+    inner = (slice(20, 180), slice(BAR.start + 2, BAR.stop - 2))
+    assert np.mean(np.abs(out[inner] - FOREGROUND) < 1.0) > 0.8 and count > 0
+    for bad in (0, 3):
+        with pytest.raises(ConfigError, match="edge_match_rows"):
+            EdgeMatch(64, row_step=bad)
+        with pytest.raises(ConfigError, match="edge_match_rows"):
+            Engine(precision="int8", threads=1, edge_match_rows=bad)
+    path = tmp_path / "c.toml"
+    path.write_text('[engine]\nedge_match = "auto"\nedge_match_rows = 2\n')
+    assert load_robot_config(path).engine.edge_match_rows == 2
+    path.write_text("[engine]\nedge_match_rows = 4\n")
+    with pytest.raises(ConfigError, match="edge_match_rows"):
+        load_robot_config(path)
+    with pytest.raises(SystemExit):
+        evaluate.main([str(tmp_path), "--edge-match", "auto", "--edge-match-rows", "3"])

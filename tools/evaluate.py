@@ -84,12 +84,12 @@ class BundleNet:
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None, lidar_select: bool = True,
-                 edge_match: int | str = 0) -> None:
+                 edge_match: int | str = 0, edge_match_rows: int = 1) -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
                              lidar_select=lidar_select, edge_select=lidar_select,
-                             edge_match=edge_match)
+                             edge_match=edge_match, edge_match_rows=edge_match_rows)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -97,20 +97,23 @@ class BundleNet:
 
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0):
-    return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match) \
+             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0,
+             edge_match_rows: int = 1):
+    return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match,
+                     edge_match_rows) \
         if model.is_dir() else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
              bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0,
-             first: dict | None = None) -> dict[str, dict[str, float]]:
+             first: dict | None = None, edge_match_rows: int = 1) -> dict[str, dict[str, float]]:
     """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
     each method's prediction on it (by method name), for `picture`."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
-        net = load_net(model, precision, runtime, bf16, lidar_select, edge_match)
+        net = load_net(model, precision, runtime, bf16, lidar_select, edge_match,
+                       edge_match_rows)
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -233,6 +236,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="a bundle: the full-resolution block matching at the network's "
                         "uncertain edges with N disparities (a multiple of 16) or each frame's "
                         "from the network's own disparity (auto); 0 = off")
+    p.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=1,
+                   help="2: the matching on every other row (half its time)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,
@@ -260,7 +265,8 @@ def main(argv: list[str] | None = None) -> int:
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
     first: dict | None = {} if args.picture else None
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
-                       bf16, not args.no_select, args.edge_match, first)
+                       bf16, not args.no_select, args.edge_match, first,
+                       args.edge_match_rows)
     print(markdown_table(summary))
     if args.picture:
         import cv2

@@ -20,7 +20,13 @@ import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
-from edge_depth.runtime.edge_match import AUTO, EdgeMatch, as_grey8, disparities_for
+from edge_depth.runtime.edge_match import (
+    AUTO,
+    ROW_STEPS,
+    EdgeMatch,
+    as_grey8,
+    disparities_for,
+)
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -59,13 +65,14 @@ class Engine:
     0 (off), StereoBM's disparity count or "auto" (each frame's, from the network's own
     disparity) for the full-resolution matching at the network's uncertain edges
     (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
-    runs beside the graphs; "auto" needs the network's disparity first."""
+    runs beside the graphs; "auto" needs the network's disparity first. `edge_match_rows`:
+    2 matches every other row (half StereoBM's time), 1 every row."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
                  lidar_select: bool = True, edge_select: bool = True,
-                 edge_match: int | str = 0) -> None:
+                 edge_match: int | str = 0, edge_match_rows: int = 1) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -120,13 +127,16 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
         self.edge_match = None
+        if edge_match_rows not in ROW_STEPS:
+            raise ConfigError("edge_match_rows", " or ".join(map(str, ROW_STEPS)),
+                              edge_match_rows)
         if edge_match == AUTO:  # the count per frame, from the network's own disparity
-            self.edge_match = EdgeMatch(0)
+            self.edge_match = EdgeMatch(0, row_step=edge_match_rows)
         elif edge_match:
             if not isinstance(edge_match, int) or isinstance(edge_match, bool):
                 raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a multiple of 16",
                                   edge_match)
-            self.edge_match = EdgeMatch(edge_match)
+            self.edge_match = EdgeMatch(edge_match, row_step=edge_match_rows)
             if edge_match >= self.width:  # StereoBM would silently find nothing
                 raise ConfigError("edge_match", f"below the bundle's input width "
                                   f"({self.width} px)", edge_match)
