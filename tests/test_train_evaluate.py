@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 
+import cv2
 import numpy as np
 import pytest
 import torch
@@ -99,9 +100,13 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
 
     monkeypatch.setattr(bench.Engine, "infer", spy)
     out, md = tmp_path / "bench.json", tmp_path / "bench.md"
-    assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1,4", "--rss-frames", "1",
-                       "--runs", "2", "--runtime", "onnxruntime", "--json", str(out),
-                       "--markdown", str(md)]) == 0
+    before = cv2.getNumThreads()
+    try:
+        assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1,4", "--rss-frames",
+                           "1", "--runs", "2", "--runtime", "onnxruntime", "--threads", "1",
+                           "--json", str(out), "--markdown", str(md)]) == 0
+    finally:
+        cv2.setNumThreads(before)
     result = json.loads(out.read_text())
     stages = result["stages"]
     for stage in ("rectify", "project_filter", "sgbm", "log", "frame", "encoder", "step",
@@ -126,6 +131,7 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert "opt-in edge_match stage / SGBM" in md.read_text()
     # two runs: the median of the per-run ratios, and how busy the machine was in each
     assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
+    assert result["threads"] == result["opencv_threads"] == 1   # SGBM with the engine's count
     assert result["ratio_median"] == pytest.approx(
         float(np.median([r["int8_vs_sgbm"] for r in result["runs"]])))
     share = result["runs"][0]["others_cpu_share"]

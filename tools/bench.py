@@ -18,6 +18,11 @@ median of the per-run ratios with their range, and every run says how much of th
 processes took while it ran (from /proc/stat against this process's own CPU time) and how
 far SGBM's own time spread; a run where others took over 10 % is flagged busy, and the
 summary says the ratio should not be trusted.
+
+`--threads N` sets the engine's threads and OpenCV's (SGBM's) alike, so the ratio compares
+like with like. On a 2-vCPU host one thread each gives the steadiest ratio: SGBM's gain from
+its second thread drifted from 1.1x to 1.85x within a minute there, one thread stayed
+within ±4 % (docs/experiments.md, session 31).
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from edge_depth.baselines import make_sgbm, sgbm_disparity
@@ -115,6 +121,7 @@ def compare_runtimes(specs: list[str], scenes: int, rounds: int, threads: int, b
     """The engine (4 iterations) on each runtime and SGBM, interleaved call by call on the
     same pairs (round-robin, so a busy spell hits every contender alike): median ms of each,
     and each engine's median over SGBM's."""
+    cv2.setNumThreads(threads)
     meta = load_bundle_meta(bundle)
     w, h = meta["size"]
     rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
@@ -167,6 +174,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     from edge_depth.daemon import Pipeline
     from edge_depth.mcap_log import McapLogger
 
+    cv2.setNumThreads(threads)  # SGBM with the engine's thread count
     meta = load_bundle_meta(bundle)
     w, h = meta["size"]
     rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
@@ -249,7 +257,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                  for p in ("fp32", "int8")}
     key = str(default_iters)
     sgbm_spread = float(np.percentile(times["sgbm"], 90) / np.percentile(times["sgbm"], 10))
-    summary = dict(size=[w, h], scenes=scenes, threads=threads, bundle=str(bundle),
+    summary = dict(size=[w, h], scenes=scenes, threads=threads,
+                   opencv_threads=cv2.getNumThreads(), bundle=str(bundle),
                    runtime=engines["int8"].runtime, bf16_encoder=engines["int8"].bf16,
                    points_64_beams=int(np.median([len(s.scan) for s in dense])),
                    sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
