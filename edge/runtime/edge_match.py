@@ -70,9 +70,7 @@ class EdgeMatch:
             raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a positive multiple of 16 "
                               "(StereoBM's disparity count: above the scene's largest)",
                               self.num_disparities)
-        if self.row_step not in ROW_STEPS:
-            raise ConfigError("edge_match_rows", " or ".join(map(str, ROW_STEPS)) + " (every "
-                              "row, or every other row: half StereoBM's time)", self.row_step)
+        check_row_step(self.row_step)
         self._matchers: dict[int, cv2.StereoBM] = {}
 
     def _matcher(self, num_disparities: int) -> cv2.StereoBM:
@@ -146,6 +144,13 @@ class EdgeMatch:
             out[hole_take] = point[hole_take]
             take |= hole_take
         return out, int(take.sum())
+
+
+def check_row_step(row_step: int) -> None:
+    """`[engine] edge_match_rows`: ConfigError unless one of ROW_STEPS."""
+    if row_step not in ROW_STEPS:
+        raise ConfigError("edge_match_rows", " or ".join(map(str, ROW_STEPS)) + " (every "
+                          "row, or every other row: half StereoBM's time)", row_step)
 
 
 def parse_count(text: str) -> int | str:

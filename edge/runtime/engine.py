@@ -22,9 +22,9 @@ from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
 from edge_depth.runtime.edge_match import (
     AUTO,
-    ROW_STEPS,
     EdgeMatch,
     as_grey8,
+    check_row_step,
     disparities_for,
 )
 from edge_depth.runtime.edge_select import EdgeSelect
@@ -127,9 +127,7 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
         self.edge_match = None
-        if edge_match_rows not in ROW_STEPS:
-            raise ConfigError("edge_match_rows", " or ".join(map(str, ROW_STEPS)),
-                              edge_match_rows)
+        check_row_step(edge_match_rows)  # also when the matching is off: a bad value is said
         if edge_match == AUTO:  # the count per frame, from the network's own disparity
             self.edge_match = EdgeMatch(0, row_step=edge_match_rows)
         elif edge_match:
