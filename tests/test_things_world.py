@@ -235,6 +235,34 @@ def test_asymmetric_share_is_checked_and_applies_to_things_data_only(tmp_path, c
     assert "--asymmetric-share applies to --data things:DIR only" in err
 
 
+def test_rig_samples_come_without_lidar_as_often_as_asked(tmp_path, capsys):
+    from edge_depth.model.things_data import ThingsTrainSet
+    from edge_depth.tools import train
+
+    generate(tmp_path, 1, 0, WorldConfig(width=192, height=128, focal_px=140.0,
+                                         max_disparity_range_px=(20.0, 30.0)))
+
+    def without_lidar(share: float) -> int:  # all rig samples: crops of a 640x400 frame
+        stream = iter(ThingsTrainSet(tmp_path, (96, 64), rig_share=1.0,
+                                     rig_stereo_only_share=share))
+        samples = [next(stream) for _ in range(16)]
+        if share == 1.0:  # neither view keeps its LiDAR
+            assert not any(float(b[k].abs().sum()) for b in samples
+                           for k in ("sparse", "valid", "sparse_right", "valid_right"))
+        return sum(not bool(b["valid"].any()) for b in samples)
+
+    assert without_lidar(1.0) == 16
+    assert without_lidar(0.0) <= 2          # only crops that miss the 16 beams
+    assert 3 <= without_lidar(0.5) <= 13
+    for extra in (["--data", "things:x", "--rig-stereo-only-share", "2"],
+                  ["--rig-stereo-only-share", "0.5"]):
+        with pytest.raises(SystemExit):
+            train.main(["--out", str(tmp_path / "r"), "--steps", "1"] + extra)
+    err = capsys.readouterr().err
+    assert "--rig-stereo-only-share must be within 0-1, got 2.0" in err
+    assert "--rig-stereo-only-share applies to --data things:DIR only" in err
+
+
 def test_things_stream_refuses_an_empty_folder(tmp_path):
     from edge_depth.model.things_data import ThingsTrainSet
 

@@ -100,13 +100,17 @@ def things_arrays(arrays: dict, rng: np.random.Generator, crop: tuple[int, int],
 
 class ThingsTrainSet(IterableDataset):
     """Endless augmented stream from a folder of things samples (plus `rig_share` rig
-    samples, seeds < 1 000 000)."""
+    samples, seeds < 1 000 000). `rig_stereo_only_share`: how many of the rig samples come
+    without their LiDAR (default none: the rig then trains with LiDAR only, and its
+    stereo-only accuracy drifts as the trunk learns the things world; session 32)."""
 
     def __init__(self, root, crop: tuple[int, int] = (320, 192), seed: int = 0,
                  rig_share: float = 0.15, relist_every: int = 200, shard: int = 0,
                  shards: int = 1, stereo_only_share: float | None = None,
-                 asymmetric_share: float = ASYMMETRIC_SHARE) -> None:
+                 asymmetric_share: float = ASYMMETRIC_SHARE,
+                 rig_stereo_only_share: float = 0.0) -> None:
         self.root, self.crop, self.seed, self.rig_share = root, crop, seed, rig_share
+        self.rig_stereo_only_share = rig_stereo_only_share
         self.stereo_only_share, self.asymmetric_share = stereo_only_share, asymmetric_share
         self.relist_every, self.shard, self.shards = relist_every, shard, shards
         if not list_things(root):
@@ -125,6 +129,10 @@ class ThingsTrainSet(IterableDataset):
             if rng.random() < self.rig_share:
                 sample = make_sample(int(rng.integers(0, TRAIN_SEED_LIMIT)), rig, "beams16")
                 arrays = sample_to_arrays(sample)
+                # drawn only when asked, so the streams of runs without it stay as they were
+                if self.rig_stereo_only_share and rng.random() < self.rig_stereo_only_share:
+                    for key in ("sparse", "valid", "sparse_right", "valid_right"):
+                        arrays[key] = np.zeros_like(arrays[key])
             else:
                 arrays = things_arrays(read_things(files[int(rng.integers(len(files)))]), rng,
                                        self.crop, self.stereo_only_share)
