@@ -255,12 +255,14 @@ def test_rig_samples_come_without_lidar_as_often_as_asked(tmp_path, capsys):
     assert without_lidar(0.0) <= 2          # only crops that miss the 16 beams
     assert 3 <= without_lidar(0.5) <= 13
     for extra in (["--data", "things:x", "--rig-stereo-only-share", "2"],
-                  ["--rig-stereo-only-share", "0.5"]):
+                  ["--rig-stereo-only-share", "0.5"],
+                  ["--data", "things:x", "--stereo-only-share", "-0.1"]):  # the same check
         with pytest.raises(SystemExit):
             train.main(["--out", str(tmp_path / "r"), "--steps", "1"] + extra)
     err = capsys.readouterr().err
     assert "--rig-stereo-only-share must be within 0-1, got 2.0" in err
     assert "--rig-stereo-only-share applies to --data things:DIR only" in err
+    assert "--stereo-only-share must be within 0-1, got -0.1" in err
 
 
 def test_things_stream_refuses_an_empty_folder(tmp_path):

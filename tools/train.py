@@ -104,7 +104,7 @@ def parse_args(argv):
     p.add_argument("--val-every", type=int, default=0, help="validate every N steps (0: off)")
     p.add_argument("--stereo-only-share", type=float, default=None,
                    help="things data: the share of samples without LiDAR (default 0.12)")
-    p.add_argument("--rig-stereo-only-share", type=float, default=0.0,
+    p.add_argument("--rig-stereo-only-share", type=float, default=None,
                    help="things data: the share of its rig samples without LiDAR (default 0)")
     p.add_argument("--asymmetric-share", type=float, default=None,
                    help="things data: how often each camera draws its own photometric "
@@ -125,22 +125,14 @@ def parse_args(argv):
         p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
     if args.freeze_trunk and not (args.refine or args.aux_offsets):
         p.error("--freeze-trunk trains the refinement stages only: give --refine N")
-    if args.stereo_only_share is not None:
-        if not 0.0 <= args.stereo_only_share <= 1.0:
-            p.error(f"--stereo-only-share must be within 0-1, got {args.stereo_only_share}")
+    for name in ("stereo_only_share", "rig_stereo_only_share", "asymmetric_share"):
+        share, flag = getattr(args, name), "--" + name.replace("_", "-")
+        if share is None:  # not given: the things stream's default
+            continue
+        if not 0.0 <= share <= 1.0:
+            p.error(f"{flag} must be within 0-1, got {share}")
         if not (args.data or "").startswith("things:"):
-            p.error("--stereo-only-share applies to --data things:DIR only")
-    if args.rig_stereo_only_share:
-        if not 0.0 <= args.rig_stereo_only_share <= 1.0:
-            p.error("--rig-stereo-only-share must be within 0-1, got "
-                    f"{args.rig_stereo_only_share}")
-        if not (args.data or "").startswith("things:"):
-            p.error("--rig-stereo-only-share applies to --data things:DIR only")
-    if args.asymmetric_share is not None:
-        if not 0.0 <= args.asymmetric_share <= 1.0:
-            p.error(f"--asymmetric-share must be within 0-1, got {args.asymmetric_share}")
-        if not (args.data or "").startswith("things:"):
-            p.error("--asymmetric-share applies to --data things:DIR only")
+            p.error(f"{flag} applies to --data things:DIR only")
     args.device = training_device(p, args.device)
     return args
 
@@ -394,7 +386,7 @@ def _train(argv: list[str] | None) -> int:
         data = ThingsTrainSet(args.data[len("things:"):], (cw, ch),
                               seed=(args.seed * 1000 + step) * world + rank,
                               stereo_only_share=args.stereo_only_share,
-                              rig_stereo_only_share=args.rig_stereo_only_share,
+                              rig_stereo_only_share=args.rig_stereo_only_share or 0.0,
                               **({} if args.asymmetric_share is None
                                  else dict(asymmetric_share=args.asymmetric_share)))
     elif args.data is None:
