@@ -14,7 +14,8 @@ right view onto the left clearly better (cost below `point_margin` × the networ
 Everything else keeps the network's value; frames without points get the block matching alone.
 
 It costs about 0.8× SGBM's time (64 disparities, `tools/bench.py` on a 2-core host; the engine
-runs the block matching beside its graphs, which hides a little of it), which issue 11's budget
+runs the block matching beside its graphs with a fixed count, beside the choice's
+preparation with "auto": each hides a little of it), which issue 11's budget
 does not have, so it is off by default (`[engine] edge_match = 0`). Its
 parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
 chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
@@ -120,30 +121,63 @@ class EdgeMatch:
               matched: np.ndarray | None = None) -> tuple[np.ndarray, int]:
         """(disparity with the matched values swapped in, how many pixels were swapped).
         `sparse`: the LiDAR's disparity (px, 0 = no point), or None. `matched`:
-        `matched(left, right)` if already computed."""
+        `matched(left, right)` if already computed. `prepare` then `finish`: the engine runs
+        the first while StereoBM is still matching."""
         if matched is None:
             matched = self.matched(left, right)
+        return self.finish(self.prepare(left, right, disparity, confidence, sparse),
+                           disparity, matched)
+
+    def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
+                confidence: np.ndarray, sparse: np.ndarray | None = None) -> Prepared | None:
+        """Everything of the choice that does not need StereoBM's answer: where the network
+        is unsure at its edges (the gate), its own warp cost, and where the LiDAR's nearest
+        point would do for a hole. None when nothing is gated."""
         gate = (confidence < self.max_confidence) & \
             (local_range(disparity, self.window_px) > self.min_range_px)
         if not gate.any():
-            return disparity.astype(np.float32, copy=True), 0
+            return None
         grey = [np.asarray(im, np.float32) for im in (left, right)]
         window = (self.photo_window_px,)
         network_cost = warped_cost(*grey, disparity, window)[0]
-        found = matched > 0
-        # only where the matched value explains the pair better
-        take = gate & found & (warped_cost(*grey, matched, window)[0] < network_cost)
-        out = np.where(take, matched, disparity).astype(np.float32)
-        holes = gate & ~found
-        if sparse is not None and holes.any() and (sparse > 0).any():
+        point = point_ok = None
+        if sparse is not None and (sparse > 0).any():
             point = lidar_nearest(sparse, sparse > 0)
             gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
             texture = cv2.blur(gradient, (self.photo_window_px,) * 2)  # mean |d/dx| in window
-            hole_take = holes & (texture > self.min_texture) & \
+            point_ok = gate & (texture > self.min_texture) & \
                 (warped_cost(*grey, point, window)[0] < self.point_margin * network_cost)
-            out[hole_take] = point[hole_take]
+        return Prepared(gate, grey, network_cost, point, point_ok)
+
+    def finish(self, prepared: Prepared | None, disparity: np.ndarray,
+               matched: np.ndarray) -> tuple[np.ndarray, int]:
+        """`apply`'s answer from `prepare`'s and StereoBM's."""
+        if prepared is None:
+            return disparity.astype(np.float32, copy=True), 0
+        found = matched > 0
+        # only where the matched value explains the pair better
+        take = prepared.gate & found & \
+            (warped_cost(*prepared.grey, matched, (self.photo_window_px,))[0] <
+             prepared.network_cost)
+        out = np.where(take, matched, disparity).astype(np.float32)
+        if prepared.point is not None:  # StereoBM's holes: the nearest point, where it does
+            hole_take = prepared.point_ok & ~found
+            out[hole_take] = prepared.point[hole_take]
             take |= hole_take
         return out, int(take.sum())
+
+
+@dataclass
+class Prepared:
+    """`EdgeMatch.prepare`'s answer: the gate, the grey pair (float32), the network's 5×5
+    warp cost, and the nearest point's map with where it may fill a hole (None without
+    LiDAR)."""
+
+    gate: np.ndarray
+    grey: list[np.ndarray]
+    network_cost: np.ndarray
+    point: np.ndarray | None
+    point_ok: np.ndarray | None
 
 
 def check_row_step(row_step: int) -> None:

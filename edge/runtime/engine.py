@@ -65,7 +65,8 @@ class Engine:
     0 (off), StereoBM's disparity count or "auto" (each frame's, from the network's own
     disparity) for the full-resolution matching at the network's uncertain edges
     (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
-    runs beside the graphs; "auto" needs the network's disparity first. `edge_match_rows`:
+    runs beside the graphs; "auto" needs the network's disparity first, and runs beside the
+    choice's preparation (`EdgeMatch.prepare`). `edge_match_rows`:
     2 matches every other row (half StereoBM's time), 1 every row."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
@@ -145,6 +146,14 @@ class Engine:
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
 
+    def _matcher_thread(self) -> ThreadPoolExecutor:
+        """The matching's own thread (started on first use): OpenCV's StereoBM releases the
+        GIL, so it runs beside the graphs (a fixed count) or beside the choice's preparation
+        ("auto")."""
+        if self._matching is None:
+            self._matching = ThreadPoolExecutor(1, "edge-match")
+        return self._matching
+
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
         """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale)."""
         if camera not in self._plans:
@@ -198,10 +207,9 @@ class Engine:
         matching = None
         if self.edge_match is not None and self.edge_match.num_disparities and \
                 self.has_confidence:  # it gates on the confidence
-            if self._matching is None:
-                self._matching = ThreadPoolExecutor(1, "edge-match")
-            pair = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]  # own copies: the
-            matching = self._matching.submit(self.edge_match.matched, *pair)  # buffers get reused
+            # own copies of the pair: the input buffers get reused
+            pair = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]
+            matching = self._matcher_thread().submit(self.edge_match.matched, *pair)
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
@@ -260,15 +268,15 @@ class Engine:
         matched = beyond = None
         if self.edge_match is not None and confidence is not None:
             t = time.perf_counter()  # from here: the wait for the matching, then the choice
+            pair = (buf["left"][0, 0], buf["right"][0, 0])
             if matching is not None:
                 beyond = self.edge_match.beyond_px(disp)
-                found = matching.result()
-            else:  # "auto": the count this frame's disparity needs
-                count = disparities_for(disp, self.width)
+            else:  # "auto": the count this frame's disparity needs; StereoBM matches while
+                count = disparities_for(disp, self.width)  # the choice prepares what it can
                 beyond = self.edge_match.beyond_px(disp, count)
-                found = self.edge_match.matched(buf["left"][0, 0], buf["right"][0, 0], count)
-            disp, matched = self.edge_match.apply(buf["left"][0, 0], buf["right"][0, 0], disp,
-                                                  confidence, buf["sparse"][0, 0], found)
+                matching = self._matcher_thread().submit(self.edge_match.matched, *pair, count)
+            prepared = self.edge_match.prepare(*pair, disp, confidence, buf["sparse"][0, 0])
+            disp, matched = self.edge_match.finish(prepared, disp, matching.result())
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
