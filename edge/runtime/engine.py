@@ -208,8 +208,8 @@ class Engine:
         if self.edge_match is not None and self.edge_match.num_disparities and \
                 self.has_confidence:  # it gates on the confidence
             # own copies of the pair: the input buffers get reused
-            pair = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]
-            matching = self._matcher_thread().submit(self.edge_match.matched, *pair)
+            copies = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]
+            matching = self._matcher_thread().submit(self.edge_match.matched, *copies)
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
