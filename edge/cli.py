@@ -216,14 +216,14 @@ def build_parser() -> argparse.ArgumentParser:
                         help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
-    replay.add_argument("--edge-match", type=_edge_match, default=0, metavar="N|auto",
+    replay.add_argument("--edge-match", type=_edge_match, default=None, metavar="N|auto",
                         help="StereoBM with N disparities (a multiple of 16 above the scene's "
                              "largest) or each frame's from the network's own (auto) at the "
                              "network's uncertain edges, as [engine] edge_match (README); 0 = "
-                             "off")
-    replay.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=1,
+                             "off; default: the bundle's (the shipped one: auto)")
+    replay.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
                         help="2: the matching on every other row, half its time, as [engine] "
-                             "edge_match_rows")
+                             "edge_match_rows; default: the bundle's (the shipped one: 2)")
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")

@@ -38,12 +38,12 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0,
                    profile: str = "foxglove", runtime: str = "auto",
-                   bf16: bool | None = None, edge_match: int | str = 0,
-                   edge_match_rows: int = 1) -> int:
+                   bf16: bool | None = None, edge_match: int | str | None = None,
+                   edge_match_rows: int | None = None) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth.
     `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
-    (0 = off); `edge_match_rows` as `[engine] edge_match_rows`."""
+    (0 = off); `edge_match_rows` as `[engine] edge_match_rows`; None: the bundle's."""
     from edge_depth.capture.replay import McapSource, TopicMap
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
@@ -234,7 +234,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
                     scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
                     lidar_select=e.lidar_select, edge_select=e.edge_select,
-                    edge_match=e.edge_match, edge_match_rows=e.edge_match_rows)
+                    edge_match=e.edge_match_choice, edge_match_rows=e.edge_match_rows_choice)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()

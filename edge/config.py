@@ -41,14 +41,15 @@
                                 # the nearest LiDAR point (if it has one; README)
     edge_select = true          # on frames without LiDAR points, the bundle's per-cell
                                 # choice of an edge's near or far side (if it has one)
-    edge_match = 0              # opt-in: N (a multiple of 16, above the scene's largest
-                                # disparity at the network's input size, after scale)
-                                # runs StereoBM with N disparities and takes its
-                                # value where the network is unsure at its edges; better on
-                                # real pairs, ~0.8x SGBM's time more (README); "auto": N
-                                # per frame from the network's own disparity; 0 = off
-    edge_match_rows = 1         # 2: StereoBM on every other row, half its time (on
-                                # motorcycle +0.3 point of bad-3; README)
+    edge_match = "bundle"       # the full-resolution matching at the network's uncertain
+                                # edges: "bundle" = as the bundle's model.json declares
+                                # (the shipped one: "auto"; bundles of heads other than
+                                # version 10: off); "auto": StereoBM's disparity count per
+                                # frame from the network's own disparity; N: a fixed count
+                                # (a multiple of 16 above the scene's largest disparity at
+                                # the network's input size); 0 = off (README)
+    edge_match_rows = "bundle"  # 2: StereoBM on every other row, half its time (the
+                                # shipped bundle's); 1: every row; "bundle" = the bundle's
 
     [log]
     out = "logs/depth.mcap"
@@ -113,6 +114,9 @@ def sync_mode(config: RobotConfig) -> str:
     return SYNC_MODE_BY_LIDAR.get(config.lidar.model, "accumulate")
 
 
+BUNDLE = "bundle"  # an engine setting taken from the bundle's model.json
+
+
 @dataclass(frozen=True)
 class EngineConfig:
     bundle: str = ""
@@ -126,8 +130,17 @@ class EngineConfig:
     pipelined: bool = False
     lidar_select: bool = True
     edge_select: bool = True
-    edge_match: int | str = 0  # or "auto"
-    edge_match_rows: int = 1
+    edge_match: int | str = BUNDLE  # or "auto", or a count (0 = off)
+    edge_match_rows: int | str = BUNDLE  # or 1, 2
+
+    @property
+    def edge_match_choice(self) -> int | str | None:
+        """For `Engine(edge_match=...)`: None = the bundle's."""
+        return None if self.edge_match == BUNDLE else self.edge_match
+
+    @property
+    def edge_match_rows_choice(self) -> int | None:
+        return None if self.edge_match_rows == BUNDLE else self.edge_match_rows
 
     @property
     def bf16_choice(self) -> bool | None:
@@ -190,7 +203,7 @@ OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
 
 
 def _check_range(path: str, name: str, key: str, value) -> None:
-    if (name, key) not in RANGES:
+    if (name, key) not in RANGES or isinstance(value, str):  # STRING_OR_INT's words
         return
     lo, hi = RANGES[(name, key)]
     values = value if isinstance(value, tuple) else (value,)
@@ -200,12 +213,15 @@ def _check_range(path: str, name: str, key: str, value) -> None:
     raise ConfigError(f"{name}.{key}", f"{lo}–{hi}{off}", value, path)
 
 
-AUTO_OR_INT = {"engine.edge_match"}  # an integer, or the string "auto"
+# an integer, or one of these strings
+STRING_OR_INT = {"engine.edge_match": ("auto", BUNDLE), "engine.edge_match_rows": (BUNDLE,)}
 
 
 def _convert(path: str, key: str, value, default):
-    if key in AUTO_OR_INT and value == "auto":
+    if value in STRING_OR_INT.get(key, ()):
         return value
+    if key in STRING_OR_INT:
+        default = 0
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, int):
@@ -225,7 +241,7 @@ def _convert(path: str, key: str, value, default):
     else:
         ok = isinstance(value, str)
     if not ok:
-        either = '"auto" or ' if key in AUTO_OR_INT else ""
+        either = "".join(f'"{w}" or ' for w in STRING_OR_INT.get(key, ()))
         raise ConfigError(key, f"{either}{type(default).__name__} like {default!r}", value,
                           path)
     return value

@@ -254,7 +254,7 @@ class Pipeline:
             timings["replaced_pct"] = 100.0 * result.selected_px / result.disparity.size
         if result.edge_px is not None:  # the share the edge selection (no LiDAR) replaced
             timings["edge_replaced_pct"] = 100.0 * result.edge_px / result.disparity.size
-        if result.matched_px is not None:  # the share the opt-in block matching replaced
+        if result.matched_px is not None:  # the share the edge matching replaced
             timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
         if result.match_beyond_px is not None:  # ... and the share beyond its reach
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
@@ -297,13 +297,13 @@ NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
                "match_beyond_pct")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
-              "matched_pct": "Edge matching (opt-in)"}
+              "matched_pct": "Edge matching"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
-    "match_beyond_pct" (the % beyond the opt-in matching's disparity count)."""
+    "match_beyond_pct" (the % beyond the edge matching's disparity count)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -320,7 +320,7 @@ def selection_summary(timings: list[dict]) -> str | None:
                          f"{none} of {len(shares)} frames)")
     beyond = replaced_shares(timings, "match_beyond_pct")
     if over := [b for b in beyond if b > BEYOND_PCT]:
-        lines.append(f"Edge matching (opt-in): the scene was nearer than its disparity count "
+        lines.append(f"Edge matching: the scene was nearer than its disparity count "
                      f"reaches in {len(over)} of {len(beyond)} frames (up to {max(over):.1f} % "
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
                      "edge_match to a multiple of 16 above the scene's largest disparity, or "

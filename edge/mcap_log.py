@@ -120,7 +120,7 @@ JSON_SCHEMAS = {
         "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}},
-        # per frame with the opt-in matching, the % of pixels beyond its disparity count
+        # per frame with the edge matching, the % of pixels beyond its disparity count
         "edge_match_beyond_pct": {"type": "array", "items": {"type": "number"}}}},
 }
 

@@ -173,7 +173,7 @@ class Ros2Logger(McapLogger):
         flat = {k: json.dumps(v, default=float) for k, v in values.items()}
         errors = sum((values.get("errors") or {}).values())
         message = f"{values.get('frames', 0)} frames, {errors} errors"
-        # the opt-in edge matching's count too small for the scene: a warning, not a number
+        # the edge matching's count too small for the scene: a warning, not a number
         beyond = [b for b in values.get("edge_match_beyond_pct") or [] if b > BEYOND_PCT]
         if beyond:
             message += (f", {len(beyond)} frames nearer than [engine] edge_match reaches "

@@ -119,7 +119,7 @@ class DepthResult:
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
-    replaced by a side's value (None when it did not run). matched_px: pixels the opt-in
+    replaced by a side's value (None when it did not run). matched_px: pixels the
     full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
     """

@@ -78,7 +78,8 @@ def _scene(seed: int = 1_000_002):
 def test_onnxruntime_engine_describes_itself_and_never_uses_bf16():
     engine = Engine(precision="int8", threads=1, runtime="onnxruntime", bf16=True)
     assert engine.runtime == "onnxruntime" and not engine.bf16
-    assert engine.describe() == "int8 on onnxruntime"
+    assert engine.describe() == ("int8 on onnxruntime, edge matching auto on every 2nd row "
+                                 "(the bundle's)")
 
 
 @pytest.mark.skipif(not backends.openvino_available(), reason="OpenVINO not installed")
@@ -87,16 +88,20 @@ def test_openvino_runs_the_same_bundle_as_onnxruntime():
     budget; the bf16 encoder keeps the accuracy against ground truth."""
     sample, sparse = _scene()
     args = (sample.left, sample.right, sparse)
-    ort32 = Engine(precision="fp32", threads=2, runtime="onnxruntime").infer(*args).disparity
-    ov32 = Engine(precision="fp32", threads=2, runtime="openvino", bf16=False)
-    assert ov32.describe() == "fp32 on openvino"
+    # the graphs' outputs (the bundle's edge matching, a choice on them, off)
+    ort32 = Engine(precision="fp32", threads=2, runtime="onnxruntime",
+                   edge_match=0).infer(*args).disparity
+    ov32 = Engine(precision="fp32", threads=2, runtime="openvino", bf16=False, edge_match=0)
+    assert ov32.describe() == "fp32 on openvino, edge matching off"
     assert float(np.abs(ov32.infer(*args).disparity - ort32).max()) < 0.05
-    ort8 = Engine(precision="int8", threads=2, runtime="onnxruntime").infer(*args).disparity
-    ov8 = Engine(precision="int8", threads=2, runtime="openvino", bf16=False).infer(*args)
+    ort8 = Engine(precision="int8", threads=2, runtime="onnxruntime",
+                  edge_match=0).infer(*args).disparity
+    ov8 = Engine(precision="int8", threads=2, runtime="openvino", bf16=False,
+                 edge_match=0).infer(*args)
     assert float(np.abs(ov8.disparity - ort8).mean()) < 0.1
     gt = sample.disp_left
     base = disparity_metrics(ort8, gt)["epe"]
-    bf16 = Engine(precision="int8", threads=2, runtime="openvino", bf16=True)
-    assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder)"
+    bf16 = Engine(precision="int8", threads=2, runtime="openvino", bf16=True, edge_match=0)
+    assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder), edge matching off"
     epe = disparity_metrics(bf16.infer(*args).disparity, gt)["epe"]
     assert epe < 1.05 * base + 0.02

@@ -43,8 +43,8 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
     # the export's fidelity, on the runtime the export check uses (OpenVINO: test_backends)
-    got = Engine(bundle, "fp32", threads=1, runtime="onnxruntime").infer(left, right, sparse,
-                                                                          iters=4)
+    got = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0).infer(
+        left, right, sparse, iters=4)
     assert got.iterations == 4
     assert float(np.abs(got.disparity - ref).max()) < 0.01
     # the engine's iteration count is a runtime choice: 1 step differs from 4
@@ -80,14 +80,8 @@ def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_b
     with pytest.raises(ConfigError, match="step.onnx needs context_zr, context_q, which "
                                           ".*encoder.onnx"):
         Engine(mixed, "fp32", threads=1)
-    # the upsampling's inputs the same way: an encoder that no longer writes the 1/4 features
-    # the refinement (version 5) reads
-    encoder = onnx.load(str(bundle / "encoder.onnx"))
-    for out in [o for o in encoder.graph.output if o.name == "quarter_right"]:
-        encoder.graph.output.remove(out)
-    onnx.save(encoder, str(mixed / "encoder.onnx"))
-    with pytest.raises(ConfigError, match="upsample.onnx needs quarter_right, which"):
-        Engine(mixed, "fp32", threads=1)
+    # the upsampling's inputs are checked the same way (a refinement that reads the encoder's
+    # 1/4 features: test_refinement_bundle_returns_confidence_through_engine_and_mcap)
 
 
 def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
@@ -224,13 +218,22 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     torch.save(dict(model=net.state_dict(), config=config.to_dict(), step=1), path)
     meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
     assert meta["export_check"]["max_abs_px"] < 0.01
+    # version 10's head is made for the edge matching: its bundle declares it the default
+    declared = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
+    if version == 10:
+        assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2}
+        assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
+        assert declared.describe().endswith("edge matching auto on every 2nd row (the bundle's)")
+    else:
+        assert "engine" not in meta and declared.edge_match is None
+        assert declared.describe().endswith("edge matching off (the bundle's)")
     _, left, right, sparse = scene_inputs(77)
     t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
-    engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
-    assert engine.has_confidence
+    engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime", edge_match=0)
+    assert engine.has_confidence and engine.describe().endswith("edge matching off")
     if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4; the engine resizes it
         import onnx
 
@@ -247,6 +250,18 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     with open(tmp_path / "out.mcap", "rb") as f:
         topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
     assert "/depth/confidence" in topics
+    if version in (5, 6, 7, 8, 9):
+        # an encoder that no longer writes the 1/4 features its refinement reads: refused
+        import onnx
+
+        from edge_depth.errors import ConfigError
+
+        encoder = onnx.load(str(tmp_path / "bundle" / "encoder.onnx"))
+        for out in [o for o in encoder.graph.output if o.name == "quarter_right"]:
+            encoder.graph.output.remove(out)
+        onnx.save(encoder, str(tmp_path / "bundle" / "encoder.onnx"))
+        with pytest.raises(ConfigError, match="upsample.onnx needs quarter_right, which"):
+            Engine(tmp_path / "bundle", "fp32", threads=1)
 
 
 @pytest.mark.parametrize("size", [(640, 480), (1242, 375), (1280, 800), (320, 200)])
@@ -277,7 +292,8 @@ def test_graph_ab_times_graphs_in_turn_on_their_declared_shapes(small_bundle, tm
     bundle = small_bundle[0]
     feeds = graph_ab.random_feeds(bundle / "upsample.onnx")
     assert feeds["disparity"].shape == (1, 1, SMALL[1] // 8, SMALL[0] // 8)
-    assert feeds["left"].shape == (1, 1, SMALL[1], SMALL[0])
+    assert graph_ab.random_feeds(bundle / "encoder.onnx")["left"].shape == \
+        (1, 1, SMALL[1], SMALL[0])
     graphs = [bundle / "upsample.onnx", bundle / "step.onnx"]
     result = graph_ab.interleaved_ms(graphs, "onnxruntime", rounds=3, warmup=1, threads=1)
     assert list(result) == [str(g) for g in graphs]
@@ -304,8 +320,9 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     meta["lidar_select"] = always.to_meta()
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
-    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", lidar_select=False)
-    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime")
+    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", lidar_select=False,
+                   edge_match=0)  # the selection alone: the bundle's matching would follow it
+    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0)
     assert plain.select is None and chosen.select is not None
     before = plain.infer(left, right, sparse, iters=2)
     after = chosen.infer(left, right, sparse, iters=2)
@@ -348,8 +365,9 @@ def test_engine_runs_the_edge_selection_only_on_frames_without_lidar(small_bundl
     meta["edge_select"] = near.to_meta()
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
-    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_select=False)
-    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime")
+    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_select=False,
+                   edge_match=0)  # the selection alone: the bundle's matching would follow it
+    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0)
     assert plain.edge_select is None and chosen.edge_select is not None
     stereo = np.zeros_like(sparse)
     before, after = plain.infer(left, right, stereo, iters=2), chosen.infer(left, right, stereo,

@@ -1,5 +1,6 @@
-"""The opt-in full-resolution block matching at the network's uncertain edges
-(`edge.runtime.edge_match`): where it swaps, what it leaves, how it is switched on."""
+"""The full-resolution block matching at the network's uncertain edges
+(`edge.runtime.edge_match`): where it swaps, what it leaves, how it is switched on (by the
+bundle, or the caller)."""
 
 from __future__ import annotations
 
@@ -137,16 +138,26 @@ def test_the_engine_refuses_a_count_as_wide_as_its_input():
         Engine(precision="int8", threads=1, edge_match=640)
 
 
-def test_engine_runs_it_after_the_selections_only_when_asked(engine):
+def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(engine):
     from edge_depth.runtime.engine import Engine
 
     left, right, gt, _, _ = thin_bar_pair()
     big = lambda im: cv2.resize(im, (640, 400), interpolation=cv2.INTER_NEAREST)  # noqa: E731
     sparse = np.zeros((400, 640), np.float32)
     sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0                     # disparities double too
-    plain = engine.infer(big(left), big(right), sparse)
+    plain = Engine(precision="int8", threads=2, edge_match=0).infer(big(left), big(right),
+                                                                    sparse)
     assert plain.matched_px is None and "edge_match" not in plain.timings_ms
-    matched = Engine(precision="int8", threads=2, edge_match=128).infer(
+    # the shipped bundle (stage 17) declares "auto" on every other row: the default engine
+    shipped = engine.infer(big(left), big(right), sparse)
+    assert engine.edge_match.num_disparities == 0 and engine.edge_match.row_step == 2
+    assert "edge matching auto on every 2nd row (the bundle's)" in engine.describe()
+    expected, replaced = EdgeMatch(disparities_for(plain.disparity, 640), row_step=2).apply(
+        big(left), big(right), plain.disparity, plain.confidence, sparse)
+    np.testing.assert_array_equal(shipped.disparity, expected)
+    assert shipped.matched_px == replaced > 0 and shipped.timings_ms["edge_match"] > 0
+    # each setting left out is the bundle's: every row asked for here
+    matched = Engine(precision="int8", threads=2, edge_match=128, edge_match_rows=1).infer(
         big(left), big(right), sparse)
     assert matched.matched_px is not None and matched.matched_px > 0
     assert matched.timings_ms["edge_match"] > 0
@@ -157,8 +168,8 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     assert matched.matched_px == count
     assert plain.match_beyond_px is None and matched.match_beyond_px == 0   # up to ~60 px
     # "auto": the count from the engine's own disparity (~60 px here: 80), after the graphs
-    auto = Engine(precision="int8", threads=2, edge_match="auto").infer(big(left), big(right),
-                                                                        sparse)
+    auto = Engine(precision="int8", threads=2, edge_match="auto", edge_match_rows=1).infer(
+        big(left), big(right), sparse)
     count = disparities_for(plain.disparity, 640)
     assert count == 16 * int(np.ceil((plain.disparity.max() + 8) / 16))
     expected, replaced = EdgeMatch(count).apply(big(left), big(right), plain.disparity,
@@ -166,22 +177,56 @@ def test_engine_runs_it_after_the_selections_only_when_asked(engine):
     np.testing.assert_array_equal(auto.disparity, expected)
     assert auto.matched_px == replaced and auto.match_beyond_px == 0
     # a count below the scene's disparities is counted, not silent
-    short = Engine(precision="int8", threads=2, edge_match=16).infer(big(left), big(right),
-                                                                     sparse)
+    short = Engine(precision="int8", threads=2, edge_match=16, edge_match_rows=1).infer(
+        big(left), big(right), sparse)
     assert short.match_beyond_px == EdgeMatch(16).beyond_px(plain.disparity) > 0
 
 
+def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line():
+    from edge_depth.runtime.engine import (
+        DEFAULT_BUNDLE,
+        Engine,
+        bundle_engine_defaults,
+        load_bundle_meta,
+    )
+
+    meta = load_bundle_meta(DEFAULT_BUNDLE)
+    assert bundle_engine_defaults(meta) == {"edge_match": "auto", "edge_match_rows": 2}
+    older = {k: v for k, v in meta.items() if k != "engine"}     # stage 16 and before: off
+    assert bundle_engine_defaults(older) == {"edge_match": 0, "edge_match_rows": 1}
+    off = Engine(precision="int8", threads=1, meta=older)
+    assert off.edge_match is None and off.describe().endswith("edge matching off (the bundle's)")
+    given = Engine(precision="int8", threads=1, meta=older, edge_match=64)   # the caller's
+    assert given.edge_match.num_disparities == 64 and given.edge_match.row_step == 1
+    assert given.describe().endswith("edge matching 64")
+    for engine, text in (({"edge_match": 40}, "engine.edge_match"),
+                         ({"edge_match": True}, "engine.edge_match"),
+                         ({"edge_match_rows": 3}, "engine.edge_match_rows"),
+                         ("auto", 'model.json\'s "engine" as a table')):
+        with pytest.raises(ConfigError, match=text):
+            Engine(precision="int8", threads=1, meta={**meta, "engine": engine})
+
+
 def test_config_and_evaluate_take_it(tmp_path):
-    from edge_depth.config import load_robot_config
+    from edge_depth.config import EngineConfig, load_robot_config
     from edge_depth.tools import evaluate
 
+    default = EngineConfig()                       # the bundle's own setting, for the engine
+    assert default.edge_match == default.edge_match_rows == "bundle"
+    assert default.edge_match_choice is None and default.edge_match_rows_choice is None
     path = tmp_path / "c.toml"
     path.write_text("[engine]\nedge_match = 64\n")
-    assert load_robot_config(path).engine.edge_match == 64
-    path.write_text('[engine]\nedge_match = "auto"\n')
-    assert load_robot_config(path).engine.edge_match == "auto"
+    assert load_robot_config(path).engine.edge_match_choice == 64
+    path.write_text('[engine]\nedge_match = 0\nedge_match_rows = 1\n')   # off, said so
+    assert load_robot_config(path).engine.edge_match_choice == 0
+    path.write_text('[engine]\nedge_match = "auto"\nedge_match_rows = "bundle"\n')
+    engine = load_robot_config(path).engine
+    assert engine.edge_match_choice == "auto" and engine.edge_match_rows_choice is None
     path.write_text('[engine]\nedge_match = "sixty"\n')
-    with pytest.raises(ConfigError, match='"auto" or int'):
+    with pytest.raises(ConfigError, match='"auto" or "bundle" or int'):
+        load_robot_config(path)
+    path.write_text('[engine]\nedge_match_rows = "two"\n')
+    with pytest.raises(ConfigError, match='"bundle" or int'):
         load_robot_config(path)
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-match", "40"])
@@ -196,7 +241,7 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
                dict(engine=52.0, edge_match=11.0, matched_pct=0.0)]
     assert set(summarise(timings)) == {"engine", "edge_match"}   # the share is no latency
     assert replaced_shares(timings, "matched_pct") == [4.0, 0.0]
-    assert selection_summary(timings) == ("Edge matching (opt-in): replaced a median 2.0 % of "
+    assert selection_summary(timings) == ("Edge matching: replaced a median 2.0 % of "
                                           "each frame's pixels (p95 3.8 %; none in 1 of 2 "
                                           "frames)")
     # beyond the matching's disparity count: said only where a frame had more than 1 %
@@ -205,7 +250,7 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
     assert "nearer than" not in selection_summary(timings)
     timings[1]["match_beyond_pct"] = 12.5
     assert selection_summary(timings).splitlines()[1] == (
-        "Edge matching (opt-in): the scene was nearer than its disparity count reaches in 1 "
+        "Edge matching: the scene was nearer than its disparity count reaches in 1 "
         "of 2 frames (up to 12.5 % of a frame's pixels; StereoBM cannot match there): raise "
         "[engine] edge_match to a multiple of 16 above the scene's largest disparity, or set "
         "it to \"auto\" (each frame's count from the network's own)")
@@ -217,24 +262,29 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
     from edge_depth.compare import compare
 
     plain, matched = tmp_path / "plain.mcap", tmp_path / "matched.mcap"
-    assert main(["replay", str(recording), "--out", str(plain), "--iters", "1"]) == 0
+    assert main(["replay", str(recording), "--out", str(plain), "--iters", "1",
+                 "--edge-match", "0"]) == 0
     assert "Edge matching" not in capsys.readouterr().out
     assert main(["replay", str(recording), "--out", str(matched), "--iters", "1",
                  "--edge-match", "64"]) == 0
     text = capsys.readouterr().out
-    assert "Edge matching (opt-in): replaced a median" in text and "edge_match" in text
+    assert "Edge matching: replaced a median" in text and "edge_match" in text
     result = compare(plain, matched)                 # what a user runs: edge-depth compare
     assert result["frames_compared"] == 3 and 0 < result["beyond_share"] < 0.2
     auto = tmp_path / "auto.mcap"                    # the count from each frame's own disparity
     assert main(["replay", str(recording), "--out", str(auto), "--iters", "1",
-                 "--edge-match", "auto"]) == 0
-    assert "Edge matching (opt-in): replaced a median" in capsys.readouterr().out
+                 "--edge-match", "auto", "--edge-match-rows", "1"]) == 0
+    assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert compare(matched, auto)["frames_compared"] == 3
     rows = tmp_path / "rows.mcap"                    # every other row: the flag reaches it
     assert main(["replay", str(recording), "--out", str(rows), "--iters", "1",
                  "--edge-match", "auto", "--edge-match-rows", "2"]) == 0
-    assert "Edge matching (opt-in): replaced a median" in capsys.readouterr().out
+    assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert 0 < compare(auto, rows)["beyond_share"] < 0.2         # not the same frames
+    default = tmp_path / "default.mcap"              # no flag: the shipped bundle's, the same
+    assert main(["replay", str(recording), "--out", str(default), "--iters", "1"]) == 0
+    assert "Edge matching: replaced a median" in capsys.readouterr().out
+    assert compare(rows, default)["beyond_share"] == 0
     with pytest.raises(SystemExit) as stop:                      # one clear line
         main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"), "--edge-match", "50"])
     assert stop.value.code == 2

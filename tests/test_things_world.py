@@ -289,3 +289,24 @@ def test_gt_lidar_projected_from_the_right_view_keeps_what_the_left_camera_sees(
     assert ((xs >= 160) & (xs < 300)).sum() > 3 * 60  # the wall right of it
     scan = pattern.sample(right, np.random.default_rng(0))
     assert (scan[:, 120:149] == 11).sum() == 3 * 15  # the hidden wall was in the scan
+
+
+def test_dims_set_the_widths_of_a_network_from_scratch_only(tmp_path, capsys):
+    import argparse
+
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+    from edge_depth.tools import train
+
+    dims = train.parse_dims("feature=48,context=32,hidden=48,motion=48,head=32")  # stage 17's
+    assert dims == dict(feature_dim=48, context_dim=32, hidden_dim=48, motion_dim=48,
+                        head_dim=32)
+    net = SparseStereoNet(ModelConfig(**dims))
+    assert net.config.hidden_dim == 48 and net.config.context_dim == 32
+    for bad in ("hidden=0", "width=48", "hidden=4.5"):
+        with pytest.raises(argparse.ArgumentTypeError, match="NAME=N"):
+            train.parse_dims(bad)
+    with pytest.raises(SystemExit):
+        train.main(["--out", str(tmp_path / "r"), "--steps", "1", "--dims", "hidden=48",
+                    "--init", str(tmp_path / "x.pt")])
+    assert "--dims is for a network from scratch" in capsys.readouterr().err

@@ -128,7 +128,8 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert "int8 engine / SGBM" in md.read_text()
     assert result["ratios"]["edge_match_vs_sgbm"] == pytest.approx(
         stages["edge_match"]["median_ms"] / result["sgbm_ms"])
-    assert "opt-in edge_match stage / SGBM" in md.read_text()
+    assert "the engine's edge_match stage / SGBM" in md.read_text()
+    assert result["engine"].endswith("edge matching auto on every 2nd row (the bundle's)")
     # two runs: the median of the per-run ratios, and how busy the machine was in each
     assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
     assert result["threads"] == result["opencv_threads"] == 1   # SGBM with the engine's count
@@ -138,7 +139,7 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert share is None or 0.0 <= share <= 1.0
     assert result["runs"][0]["busy"] == (share is not None and share > bench.BUSY_SHARE)
     assert "2 runs: int8 engine / SGBM per run" in md.read_text()
-    assert "opt-in edge_match stage / SGBM per run" in md.read_text()
+    assert "the engine's edge_match stage / SGBM per run" in md.read_text()
     assert all(r["edge_match_vs_sgbm"] > 0 for r in result["runs"])
     lo, hi = result["ratios"]["int8_vs_sgbm_paired_p10_p90"]
     assert 0 < lo <= result["ratios"]["int8_vs_sgbm_paired"] <= hi

@@ -6,11 +6,13 @@
 
 At the bundle's input size (640x400 for the shipped one), on test-split scenes of the rig:
 rectify (two remaps, maps computed once), project + occlusion filter (64-beam scans), the
-engine's encoder / one update step / upsampling, the engine at each iteration count in fp32
-and int8, SGBM (3-way, 64 disparities, grey), logging one frame's results to MCAP, the whole
-daemon frame (rectify -> log, int8 at the bundle's default iterations), and the peak RSS of an
-`edge-depth replay` subprocess. Methods alternate in blocks, each with an untimed first call
-(thread pools and caches favour whatever ran last); medians and p95 in milliseconds.
+engine's encoder / one update step / upsampling / edge matching (the engine as the bundle
+declares it: the shipped one matches, "auto" on every other row), the engine at each
+iteration count in fp32 and int8, SGBM (3-way, 64 disparities, grey), logging one frame's
+results to MCAP, the whole daemon frame (rectify -> log, int8 at the bundle's default
+iterations), and the peak RSS of an `edge-depth replay` subprocess. Methods alternate in
+blocks, each with an untimed first call (thread pools and caches favour whatever ran last);
+medians and p95 in milliseconds.
 
 A single run decides nothing on a shared machine (the same-run int8/SGBM ratio moved from
 1.8x to 2.9x between runs here): `--runs N` repeats the whole measurement and reports the
@@ -44,7 +46,6 @@ from edge_depth.baselines import make_sgbm, sgbm_disparity
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.runtime.backends import cpu_description
-from edge_depth.runtime.edge_match import EdgeMatch
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.types import LidarScan
@@ -188,21 +189,24 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
     pairs = [(s.left, s.right) for s in samples]
     matcher = make_sgbm()
-    edge_match = EdgeMatch(64)
+    # as the daemon runs them: with the engine settings the bundle declares (the shipped one:
+    # the edge matching "auto" on every other row, inside every engine row)
     engines = {p: Engine(bundle, p, threads, meta, runtime=runtime, bf16=bf16)
                for p in ("fp32", "int8")}
     default_iters = int(meta.get("default_iters", 4))
 
     # stage timings inside the engine come from its own per-stage clock
     stage_runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
+    if engines["int8"].edge_match is not None:
+        stage_runs["edge_match"] = []  # its wall time: StereoBM beside the choice's preparation
 
     def engine_run(precision, iters):
         def fn(left, right, sparse):
             r = engines[precision].infer(left, right, sparse, iters=iters)
             if precision == "int8" and iters == default_iters:
-                stage_runs["encoder"].append(r.timings_ms["encoder"])
-                stage_runs["step"].append(r.timings_ms["step_mean"])
-                stage_runs["upsample"].append(r.timings_ms["upsample"])
+                for name in stage_runs:
+                    stage_runs[name].append(r.timings_ms["step_mean" if name == "step"
+                                                         else name])
         return fn
 
     tmp = tempfile.TemporaryDirectory()
@@ -220,11 +224,6 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                                                  s.T_cam_lidar),
                                   [(s,) for s in dense]),
                "sgbm": (lambda a, b: sgbm_disparity(a, b, matcher), pairs),
-               # the opt-in stage alone ([engine] edge_match, off by default; the engine
-               # rows above run without it), at SGBM's 64 disparities
-               "edge_match": (lambda a, b, p, r: edge_match.apply(a, b, r.disparity,
-                                                                  r.confidence, p),
-                              [(*x, r) for x, r in zip(inputs, results, strict=True)]),
                "log": (lambda r, x: logger.log_result(r, x[2], rig.focal_px,
                                                       (rig.cx, rig.cy)),
                        list(zip(results, inputs, strict=True))),
@@ -259,7 +258,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     sgbm_spread = float(np.percentile(times["sgbm"], 90) / np.percentile(times["sgbm"], 10))
     summary = dict(size=[w, h], scenes=scenes, threads=threads,
                    opencv_threads=cv2.getNumThreads(), bundle=str(bundle),
-                   runtime=engines["int8"].runtime, bf16_encoder=engines["int8"].bf16,
+                   engine=engines["int8"].describe(), runtime=engines["int8"].runtime,
+                   bf16_encoder=engines["int8"].bf16,
                    points_64_beams=int(np.median([len(s.scan) for s in dense])),
                    sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
                    machine=dict(others_cpu_share=share.others, load_avg_1min=load_before,
@@ -272,7 +272,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             fp32_vs_sgbm=engine_ms["fp32"][key] / sgbm_ms,
             int8_speedup=engine_ms["fp32"][key] / engine_ms["int8"][key],
             frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key],
-            edge_match_vs_sgbm=out["edge_match"]["median_ms"] / sgbm_ms,
+            **({"edge_match_vs_sgbm": out["edge_match"]["median_ms"] / sgbm_ms}
+               if "edge_match" in out else {}),
             int8_vs_sgbm_paired=float(np.median(paired)),
             int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
                                          float(np.percentile(paired, 90))])
@@ -305,10 +306,12 @@ def markdown(summary: dict) -> str:
             lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
                          f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
         if "edge_match_vs_sgbm" in r:
-            lines.append(f"opt-in edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
-                         "(not in the engine rows; it would add to them)")
+            lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
+                         "(inside the engine rows)")
     if "replay_peak_rss_mb" in summary:
         lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
+    if "engine" in summary:
+        lines.append(f"engine: {summary['engine']}")
     lines.append(f"(project_filter: 64-beam scans, {summary['points_64_beams']} points; "
                  f"{summary['scenes']} test scenes)")
     lines.append(machine_line(summary["machine"]))
@@ -327,7 +330,7 @@ def markdown(summary: dict) -> str:
                          f"{float(np.median(paired)):.2f}x")
         matched = [r["edge_match_vs_sgbm"] for r in summary["runs"] if "edge_match_vs_sgbm" in r]
         if matched:
-            lines.append(f"opt-in edge_match stage / SGBM per run "
+            lines.append(f"the engine's edge_match stage / SGBM per run "
                          f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
                          f"{float(np.median(matched)):.2f}x")
         if busy:
@@ -405,7 +408,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs > 1 and all("ratios" in r for r in runs):
         summary["runs"] = [dict(int8_vs_sgbm=r["ratios"]["int8_vs_sgbm"], sgbm_ms=r["sgbm_ms"],
                                 engine_int8_ms=r["ratios"]["int8_vs_sgbm"] * r["sgbm_ms"],
-                                edge_match_vs_sgbm=r["ratios"]["edge_match_vs_sgbm"],
+                                **{k: r["ratios"][k] for k in ("edge_match_vs_sgbm",)
+                                   if k in r["ratios"]},
                                 int8_vs_sgbm_paired=r["ratios"]["int8_vs_sgbm_paired"],
                                 **r["machine"]) for r in runs]
         summary["ratio_median"] = float(np.median([r["int8_vs_sgbm"] for r in summary["runs"]]))

@@ -12,7 +12,9 @@ to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
 downsample factor) or an exported bundle directory (run with the ONNX Runtime engine at the
-bundle's input size); the default is the shipped bundle, int8.
+bundle's input size, with the engine settings its model.json declares: the shipped one's edge
+matching "auto" on every other row; --edge-match 0 turns it off); the default is the shipped
+bundle, int8.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
@@ -28,6 +30,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from pathlib import Path
 
@@ -84,7 +87,8 @@ class BundleNet:
 
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None, lidar_select: bool = True,
-                 edge_match: int | str = 0, edge_match_rows: int = 1) -> None:
+                 edge_match: int | str | None = None,
+                 edge_match_rows: int | None = None) -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
@@ -97,8 +101,8 @@ class BundleNet:
 
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0,
-             edge_match_rows: int = 1):
+             bf16: bool | None = None, lidar_select: bool = True,
+             edge_match: int | str | None = None, edge_match_rows: int | None = None):
     return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match,
                      edge_match_rows) \
         if model.is_dir() else TorchNet(model)
@@ -106,14 +110,19 @@ def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True, edge_match: int | str = 0,
-             first: dict | None = None, edge_match_rows: int = 1) -> dict[str, dict[str, float]]:
+             bf16: bool | None = None, lidar_select: bool = True,
+             edge_match: int | str | None = None, first: dict | None = None,
+             edge_match_rows: int | None = None) -> dict[str, dict[str, float]]:
     """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
-    each method's prediction on it (by method name), for `picture`."""
+    each method's prediction on it (by method name), for `picture`. `edge_match` and
+    `edge_match_rows` as the engine's (None: the bundle's)."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
         net = load_net(model, precision, runtime, bf16, lidar_select, edge_match,
                        edge_match_rows)
+        if isinstance(net, BundleNet):
+            print(f"{model}: {net.engine.describe()}", file=sys.stderr)
+    matched = isinstance(net, BundleNet) and net.engine.edge_match is not None
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -160,7 +169,7 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
             per_method.setdefault(name, []).append(m)
             if first is not None and folder == folders[0]:
                 first["scene"] = scene
-                staged = edge_match and method in ("net", "net-nolidar")
+                staged = matched and method in ("net", "net-nolidar")
                 label = f"{name} + edge_match" if staged else name
                 first.setdefault("predictions", {})[label] = (pred, m["bad3"])
     summary = {}
@@ -232,12 +241,14 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
-    p.add_argument("--edge-match", type=count_argument, default=0, metavar="N|auto",
+    p.add_argument("--edge-match", type=count_argument, default=None, metavar="N|auto",
                    help="a bundle: the full-resolution block matching at the network's "
                         "uncertain edges with N disparities (a multiple of 16) or each frame's "
-                        "from the network's own disparity (auto); 0 = off")
-    p.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=1,
-                   help="2: the matching on every other row (half its time)")
+                        "from the network's own disparity (auto); 0 = off; default: the "
+                        "bundle's (the shipped one: auto)")
+    p.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
+                   help="2: the matching on every other row (half its time), 1: every row; "
+                        "default: the bundle's (the shipped one: 2)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,

@@ -44,6 +44,12 @@ PARTS = ("encoder", "step", "upsample")
 RUNTIME = "onnxruntime"  # the quantizer is ONNX Runtime's: agreement is measured on it
 
 
+def network_engine(*args, **kwargs) -> Engine:
+    """The bundle's graphs alone: quantization calibrates, times and compares the network's own
+    output, never the matching a bundle may declare as its engine's default."""
+    return Engine(*args, edge_match=0, **kwargs)
+
+
 def calibration_frames(spec: str, size: tuple[int, int]):
     """Yield (left, right, sparse) from scene folders or `synthetic:N` rig scenes."""
     if spec.startswith("synthetic:"):
@@ -79,7 +85,7 @@ class FeedReader:
 # one on ONNX Runtime but not on OpenVINO (the runtime `auto` picks on x86), where stage 12's
 # confidence read 0.99 on average against 0.90 in float (the rig's test split: 99 % of pixels
 # at >= 0.9 instead of 79 %, i.e. no information) while the disparity did not move
-ALWAYS_FLOAT = ("/refine/confidence/",)
+ALWAYS_FLOAT = ("/refine/confidence/", "/refine/head/")  # the confidence heads (versions 1-9; 10)
 
 
 def quantize_graph(src: Path, dst: Path, feeds: list[dict],
@@ -163,12 +169,12 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     """calib: a `calibration_frames` spec, or the frames themselves ((left, right, sparse)
     tuples of (H, W) arrays, e.g. a robot's recordings), then named by `calib_label`."""
     meta = load_bundle_meta(bundle)
-    fp32 = Engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
+    fp32 = network_engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
     # speed is measured on the runtime the engine will use (`auto`: OpenVINO on x86-64),
     # agreement on ONNX Runtime's; where they are the same, the same engines
     timing = resolve_runtime(timing_runtime)
-    fp32_timed = fp32 if timing == RUNTIME else Engine(bundle, "fp32", threads, meta,
-                                                        runtime=timing)
+    fp32_timed = fp32 if timing == RUNTIME else network_engine(bundle, "fp32", threads, meta,
+                                                               runtime=timing)
     references = {RUNTIME: fp32, timing: fp32_timed}  # int8 vs fp32 on the same runtime
 
     def over(shift: dict[str, float], px_limit: float) -> float:
@@ -191,11 +197,11 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         dst = bundle / files[part].replace(".onnx", ".int8.onnx")
         quantize_graph(bundle / files[part], dst, record[part])
         trial = dict(meta, precisions={"trial": dict(files, **{part: dst.name})})
-        trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+        trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
         shipped = agreement(trial_engine, fp32, frames, iters)  # the graph as it stands
         alone = shipped["px"]
-        timed = trial_engine if timing == RUNTIME else Engine(bundle, "trial", threads, trial,
-                                                              runtime=timing)
+        timed = trial_engine if timing == RUNTIME else network_engine(
+            bundle, "trial", threads, trial, runtime=timing)
         ms_fp32, ms_trial, ratio = paired_ms([fp32_timed, timed], frames[:4], iters)
         faster = ratio < 1.0 - min_gain
         graphs[part] = dict(int8=alone <= max_graph_px and faster,
@@ -211,13 +217,13 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
             # (ALWAYS_FLOAT's are float in every trial: trying them would repeat the graph)
             for node in [n for n in conv_nodes(src) if not n.startswith(ALWAYS_FLOAT)]:
                 quantize_graph(src, dst, record[part], [node])
-                trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+                trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
                 shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
             keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
             graphs[part]["shift_with_node_float"] = shifts
             if keep_float:
                 quantize_graph(src, dst, record[part], keep_float)
-                trial_engine = Engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+                trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
                 graphs[part]["float_nodes"] = keep_float
                 shipped = agreement(trial_engine, fp32, frames, iters)
                 with_float = shipped["px"]
@@ -229,8 +235,8 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
             # the graph as it will ship, checked on both runtimes: ONNX Runtime's agreement
             # said nothing about OpenVINO's confidence (stage 12's int8 head: 0.99 everywhere)
             graphs[part]["alone"] = {RUNTIME: shipped} | {
-                rt: agreement(Engine(bundle, "trial", threads, trial, runtime=rt), ref, frames,
-                              iters) for rt, ref in references.items() if rt != RUNTIME}
+                rt: agreement(network_engine(bundle, "trial", threads, trial, runtime=rt), ref,
+                              frames, iters) for rt, ref in references.items() if rt != RUNTIME}
             graphs[part]["int8"] = all(over(a, max_graph_px) <= 1
                                        for a in graphs[part]["alone"].values())
         if not graphs[part]["int8"]:
@@ -241,8 +247,8 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         meta["precisions"]["int8"] = {
             part: files[part].replace(".onnx", ".int8.onnx") if graphs[part]["int8"]
             else files[part] for part in PARTS}
-        return {rt: agreement(Engine(bundle, "int8", threads, meta, runtime=rt), ref, frames,
-                              iters) for rt, ref in references.items()}
+        return {rt: agreement(network_engine(bundle, "int8", threads, meta, runtime=rt), ref,
+                              frames, iters) for rt, ref in references.items()}
 
     total = totals()
     # the graphs' shifts add up: while together they move the disparity (or the confidence)
@@ -256,7 +262,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
         graphs[worst].update(int8=False, float_for_the_total=True)
         (bundle / files[worst].replace(".onnx", ".int8.onnx")).unlink()
         total = totals()
-    int8 = Engine(bundle, "int8", threads, meta, runtime=RUNTIME)
+    int8 = network_engine(bundle, "int8", threads, meta, runtime=RUNTIME)
     meta["quantization"] = dict(
         format="QDQ", activations="QUInt8", weights="QInt8 per-channel",
         op_types=["Conv"],

@@ -29,8 +29,8 @@ def measure(bundle: Path, data: Path, frames: int, rounds: int, runtime: str,
     """{'lidar_select' | 'edge_select' [| 'lidar_select_against']: {median_ms, p90_ms,
     calls}}."""
     engine = Engine(bundle, precision="int8", threads=2, runtime=runtime, lidar_select=False,
-                    edge_select=False)
-    stages = Engine(bundle, precision="int8", threads=2, runtime=runtime)
+                    edge_select=False, edge_match=0)
+    stages = Engine(bundle, precision="int8", threads=2, runtime=runtime, edge_match=0)
     if stages.select is None or stages.edge_select is None:
         raise SystemExit(f"{bundle}: needs both selections in model.json (tools/fit_select.py, "
                          "tools/fit_edge_select.py)")

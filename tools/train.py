@@ -56,6 +56,20 @@ from edge_depth.model.quarter import SAMPLE as QUARTER_SAMPLE
 from edge_depth.model.quarter import SCALE as QUARTER_SCALE
 from edge_depth.workers import one_thread_each
 
+DIMS = ("feature", "context", "hidden", "motion", "head")
+
+
+def parse_dims(text: str) -> dict[str, int]:
+    """`--dims feature=48,hidden=48` -> {"feature_dim": 48, "hidden_dim": 48}."""
+    dims = {}
+    for item in filter(None, (t.strip() for t in text.split(","))):
+        name, _, value = item.partition("=")
+        if name not in DIMS or not value.isdigit() or int(value) < 1:
+            raise argparse.ArgumentTypeError(f"expected NAME=N with NAME one of "
+                                             f"{', '.join(DIMS)} and N ≥ 1, got {item!r}")
+        dims[f"{name}_dim"] = int(value)
+    return dims
+
 
 def parse_args(argv):
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -76,6 +90,11 @@ def parse_args(argv):
                    help="the refinement + confidence stage, versions 1-10 as in "
                         "edge.model.config.ModelConfig (a bare --refine: 2); a version that "
                         "extends the --init checkpoint's starts as exactly that one")
+    p.add_argument("--dims", type=parse_dims, default={}, metavar="NAME=N,...",
+                   help="from scratch: the network's widths (feature, context, hidden, motion, "
+                        "head; ModelConfig's *_dim), e.g. stage 17's "
+                        "feature=48,context=32,hidden=48,motion=48,head=32 (default: "
+                        "ModelConfig's 64 / 48 / 64 / 64 / 64)")
     p.add_argument("--aux-offsets", action="store_true",
                    help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
                         "(training only: not exported; any refine but 4)")
@@ -121,6 +140,9 @@ def parse_args(argv):
         restore_run_args(p, args, argv)
     if args.freeze_trunk and args.init is None:
         p.error("--freeze-trunk needs --init (the trunk's weights come from it)")
+    if args.dims and args.init is not None:
+        p.error("--dims is for a network from scratch: with --init the widths are the "
+                "checkpoint's (tools/prune.py cuts them)")
     if args.fresh_lr_mult != 1.0 and args.init is None:
         p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
     if args.freeze_trunk and not (args.refine or args.aux_offsets):
@@ -312,7 +334,7 @@ def _train(argv: list[str] | None) -> int:
                          use_sparse=not args.no_sparse,
                          half_res_block=not args.no_half_res_block, refine=args.refine,
                          aux_offsets=args.aux_offsets,
-                         refine_scale=args.refine_scale or 4)
+                         refine_scale=args.refine_scale or 4, **args.dims)
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change

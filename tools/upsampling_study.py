@@ -60,7 +60,7 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
         if net.refine is not None:
             aux: dict = {}
             refined, _ = net.upsample(left, right, d, mask, sparse, valid,
-                                      net.quarter_features(state), aux)
+                                      net.quarter_features(state), aux, hidden=h)
             out["net 1/8, convex + refinement"] = refined[0, 0].numpy()
             if "quarter" in aux:  # version 4: its 1/4 estimate, and what a perfect gate would do
                 quarter, convex = aux["quarter"][0, 0].numpy(), aux["convex"][0, 0].numpy()

@@ -1,4 +1,4 @@
-"""Full-resolution block matching at the network's uncertain edges (opt-in).
+"""Full-resolution block matching at the network's uncertain edges (on with the shipped bundle).
 
 The network works at 1/8 resolution; on real pairs all of its bad-3 loss against the SGBM +
 LiDAR fusion lies at depth edges, where thin structures (leaves, spokes, cables) are finer
@@ -13,14 +13,17 @@ where the left image has texture (5×5 mean |∂x| above `min_texture`) and the 
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
 
-It costs about 0.8× SGBM's time (64 disparities, `tools/bench.py` on a 2-core host; the engine
-runs the block matching beside its graphs with a fixed count, beside the choice's
-preparation with "auto": each hides a little of it), which issue 11's budget
-does not have, so it is off by default (`[engine] edge_match = 0`). Its
+Whether it runs is the bundle's to declare (model.json's "engine", `[engine] edge_match =
+"bundle"` by default): since stage 17 the shipped bundle's head (refinement version 10, no
+image-guided refinement of its own) is made to hand its unsure edges to this stage, "auto" on
+every other row (`edge_match_rows = 2`); bundles of other heads keep it off unless asked. On
+every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`, session 25);
+the engine runs the block matching beside its graphs with a fixed count and beside the
+choice's preparation with "auto" (the shipped setting's time: README "Speed"). Its
 parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
 chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
-reported. On the synthetic worlds it costs EPE (there SGBM-like
-matching is 3-4× less reliable than on real pairs): see the README before turning it on.
+reported. On the synthetic worlds it costs EPE (there SGBM-like matching is 3-4× less
+reliable than on real pairs): the README's tables give both.
 """
 
 from __future__ import annotations

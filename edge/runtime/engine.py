@@ -22,6 +22,7 @@ from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
 from edge_depth.runtime.edge_match import (
     AUTO,
+    ROW_STEPS,
     EdgeMatch,
     as_grey8,
     check_row_step,
@@ -52,6 +53,31 @@ def load_bundle_meta(bundle: Path) -> dict:
     return meta
 
 
+ENGINE_DEFAULTS = {"edge_match": 0, "edge_match_rows": 1}  # where a bundle declares nothing
+
+
+def bundle_engine_defaults(meta: dict, bundle: Path | str = "") -> dict:
+    """The engine settings a bundle was made for (model.json's "engine", written by
+    tools/export.py: version 10's head is trained to hand its unsure edges to the matching),
+    over `ENGINE_DEFAULTS`; ConfigError naming the bundle when a value is not one the engine
+    takes (a hand-edited model.json)."""
+    declared = meta.get("engine") or {}
+    if not isinstance(declared, dict):
+        raise ConfigError("bundle", "model.json's \"engine\" as a table of settings",
+                          f"{declared!r} in {bundle}")
+    values = {**ENGINE_DEFAULTS, **{k: v for k, v in declared.items() if k in ENGINE_DEFAULTS}}
+    match = values["edge_match"]
+    if not (match == AUTO or (isinstance(match, int) and not isinstance(match, bool)
+                              and match >= 0 and match % 16 == 0)):
+        raise ConfigError("bundle", f"model.json's engine.edge_match {AUTO!r} or a multiple "
+                          "of 16 (0 = off)", f"{match!r} in {bundle}")
+    if values["edge_match_rows"] not in ROW_STEPS:
+        raise ConfigError("bundle", "model.json's engine.edge_match_rows "
+                          + " or ".join(map(str, ROW_STEPS)),
+                          f"{values['edge_match_rows']!r} in {bundle}")
+    return values
+
+
 class Engine:
     """`Engine(bundle, precision='int8', threads=2)`; `infer(left, right, sparse)`.
 
@@ -67,13 +93,17 @@ class Engine:
     (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
     runs beside the graphs; "auto" needs the network's disparity first, and runs beside the
     choice's preparation (`EdgeMatch.prepare`). `edge_match_rows`:
-    2 matches every other row (half StereoBM's time), 1 every row."""
+    2 matches every other row (half StereoBM's time), 1 every row. None (the default) for
+    either: what the bundle declares in model.json's "engine" (`bundle_engine_defaults`:
+    the shipped bundle's head is made for the matching, "auto" on every other row); 0 and
+    1 where it declares nothing. Tools that fit or check the network's own output pass 0."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
                  lidar_select: bool = True, edge_select: bool = True,
-                 edge_match: int | str = 0, edge_match_rows: int = 1) -> None:
+                 edge_match: int | str | None = None,
+                 edge_match_rows: int | None = None) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -127,6 +157,11 @@ class Engine:
             if lidar_select and "lidar_select" in self.meta else None
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
+        declared = bundle_engine_defaults(self.meta, self.bundle)
+        self.edge_match_source = "bundle" if edge_match is None else "given"
+        edge_match = declared["edge_match"] if edge_match is None else edge_match
+        edge_match_rows = declared["edge_match_rows"] if edge_match_rows is None \
+            else edge_match_rows
         self.edge_match = None
         check_row_step(edge_match_rows)  # also when the matching is off: a bad value is said
         if edge_match == AUTO:  # the count per frame, from the network's own disparity
@@ -167,8 +202,16 @@ class Engine:
         self.infer(blank, blank, np.zeros((self.height, self.width), np.float32), iters=iters)
 
     def describe(self) -> str:
-        """'int8 on openvino (bf16 encoder)': what runs, for the first log line."""
-        return f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
+        """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row (the
+        bundle's)': what runs, for the first log line."""
+        text = f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
+        m = self.edge_match
+        source = " (the bundle's)" if self.edge_match_source == "bundle" else ""
+        if m is None:
+            return text + f", edge matching off{source}"
+        count = m.num_disparities or AUTO
+        rows = " on every 2nd row" if m.row_step == 2 else ""
+        return text + f", edge matching {count}{rows}{source}"
 
     @property
     def size(self) -> tuple[int, int]:
