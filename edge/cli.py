@@ -224,6 +224,9 @@ def build_parser() -> argparse.ArgumentParser:
     replay.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
                         help="2: the matching on every other row, half its time, as [engine] "
                              "edge_match_rows; default: the bundle's (the shipped one: 2)")
+    replay.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
+                        help="the matching's block matcher, as [engine] edge_matcher: bm "
+                             "(StereoBM) or sgbm (fewer holes, about SGBM's time more)")
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")
@@ -347,7 +350,7 @@ def main(argv: list[str] | None = None) -> int:
                                   args.threads, args.bundle, args.scale, args.profile,
                                   args.runtime, {"auto": None, "on": True,
                                                  "off": False}[args.bf16], args.edge_match,
-                                  args.edge_match_rows)
+                                  args.edge_match_rows, args.edge_matcher)
         if args.command == "run":
             from edge_depth.commands import run_command
 

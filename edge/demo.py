@@ -103,7 +103,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
     stereo, lidar = source.calibration
     engine = Engine(precision=precision, threads=2)
     print(f"edge-depth demo: synthetic rig {engine.width}x{engine.height}, 16-beam LiDAR, "
-          f"{precision} bundle, {iters or engine.default_iters} iterations"
+          f"{engine.describe()}, {iters or engine.default_iters} iterations"
           + (f", deadline {deadline_ms:g} ms" if deadline_ms else ""))
     matcher = make_sgbm()
     sgbm_rows, picture = [], []

@@ -285,6 +285,11 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
     assert main(["replay", str(recording), "--out", str(default), "--iters", "1"]) == 0
     assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert compare(rows, default)["beyond_share"] == 0
+    sgbm = tmp_path / "sgbm.mcap"                    # the matcher flag reaches the engine
+    assert main(["replay", str(recording), "--out", str(sgbm), "--iters", "1",
+                 "--edge-matcher", "sgbm"]) == 0
+    assert "Edge matching: replaced a median" in capsys.readouterr().out
+    assert 0 < compare(default, sgbm)["beyond_share"] < 0.2     # only the matcher differs
     with pytest.raises(SystemExit) as stop:                      # one clear line
         main(["replay", str(recording), "--out", str(tmp_path / "x.mcap"), "--edge-match", "50"])
     assert stop.value.code == 2
@@ -328,3 +333,42 @@ def test_every_other_row_matches_half_the_rows_and_stands_for_the_next(tmp_path)
         load_robot_config(path)
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-match", "auto", "--edge-match-rows", "3"])
+
+
+def test_sgbm_as_the_matcher_fills_what_stereobm_leaves_and_is_switched_on_everywhere(tmp_path):
+    from edge_depth.baselines import sgbm_disparity
+    from edge_depth.config import load_robot_config
+    from edge_depth.runtime.engine import Engine
+    from edge_depth.tools import evaluate
+
+    left, right, gt, network, confidence = thin_bar_pair()
+    stage = EdgeMatch(64, matcher="sgbm")
+    got = stage.matched(left, right)
+    b = 5                                            # the baseline's SGBM, speckle per row step
+    expected = sgbm_disparity(left, right, cv2.StereoSGBM_create(
+        minDisparity=0, numDisparities=64, blockSize=b, P1=8 * b * b, P2=32 * b * b,
+        disp12MaxDiff=1, uniquenessRatio=10, speckleWindowSize=100, speckleRange=2,
+        mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY))
+    np.testing.assert_array_equal(got, expected)
+    assert np.mean(got > 0) > np.mean(EdgeMatch(64).matched(left, right) > 0)   # fewer holes
+    out, count = stage.apply(left, right, network, confidence)
+    inner = (slice(20, 180), slice(BAR.start + 2, BAR.stop - 2))
+    assert np.mean(np.abs(out[inner] - FOREGROUND) < 1.0) > 0.8 and count > 0
+    with pytest.raises(ConfigError, match="edge_matcher"):
+        EdgeMatch(64, matcher="census")
+    with pytest.raises(ConfigError, match="edge_matcher"):
+        Engine(precision="int8", threads=1, edge_matcher="census")
+    engine = Engine(precision="int8", threads=1, edge_matcher="sgbm")   # the bundle's count
+    assert engine.edge_match.matcher == "sgbm" and engine.edge_match.row_step == 2
+    assert engine.describe().endswith("edge matching auto with SGBM on every 2nd row "
+                                      "(the bundle's)")
+    path = tmp_path / "c.toml"
+    path.write_text('[engine]\nedge_matcher = "sgbm"\n')
+    assert load_robot_config(path).engine.edge_matcher == "sgbm"
+    path.write_text("[engine]\n")
+    assert load_robot_config(path).engine.edge_matcher == "bm"            # the default
+    path.write_text('[engine]\nedge_matcher = "census"\n')
+    with pytest.raises(ConfigError, match="edge_matcher"):
+        load_robot_config(path)
+    with pytest.raises(SystemExit):
+        evaluate.main([str(tmp_path), "--edge-matcher", "census"])

@@ -307,6 +307,8 @@ def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--frames", "2"]) == 0
     out = capsys.readouterr().out
     assert "network (int8) EPE" in out and "OpenCV SGBM" in out
+    # what runs, said first: the shipped bundle's own matching included
+    assert "edge matching auto on every 2nd row (the bundle's)" in out.splitlines()[0]
     net = float(out.split("network (int8) EPE ")[1].split()[0])
     sgbm = float(out.split("OpenCV SGBM     EPE ")[1].split()[0])
     assert net < sgbm

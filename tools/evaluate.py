@@ -88,12 +88,13 @@ class BundleNet:
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None, lidar_select: bool = True,
                  edge_match: int | str | None = None,
-                 edge_match_rows: int | None = None) -> None:
+                 edge_match_rows: int | None = None, edge_matcher: str = "bm") -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
                              lidar_select=lidar_select, edge_select=lidar_select,
-                             edge_match=edge_match, edge_match_rows=edge_match_rows)
+                             edge_match=edge_match, edge_match_rows=edge_match_rows,
+                             edge_matcher=edge_matcher)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -102,9 +103,10 @@ class BundleNet:
 
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
              bf16: bool | None = None, lidar_select: bool = True,
-             edge_match: int | str | None = None, edge_match_rows: int | None = None):
+             edge_match: int | str | None = None, edge_match_rows: int | None = None,
+             edge_matcher: str = "bm"):
     return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match,
-                     edge_match_rows) \
+                     edge_match_rows, edge_matcher) \
         if model.is_dir() else TorchNet(model)
 
 
@@ -112,14 +114,15 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              model: Path | None, precision: str = "int8", runtime: str = "auto",
              bf16: bool | None = None, lidar_select: bool = True,
              edge_match: int | str | None = None, first: dict | None = None,
-             edge_match_rows: int | None = None) -> dict[str, dict[str, float]]:
+             edge_match_rows: int | None = None,
+             edge_matcher: str = "bm") -> dict[str, dict[str, float]]:
     """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
     each method's prediction on it (by method name), for `picture`. `edge_match` and
-    `edge_match_rows` as the engine's (None: the bundle's)."""
+    `edge_match_rows` as the engine's (None: the bundle's), `edge_matcher` too."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
         net = load_net(model, precision, runtime, bf16, lidar_select, edge_match,
-                       edge_match_rows)
+                       edge_match_rows, edge_matcher)
         if isinstance(net, BundleNet):
             print(f"{model}: {net.engine.describe()}", file=sys.stderr)
     matched = isinstance(net, BundleNet) and net.engine.edge_match is not None
@@ -249,6 +252,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
                    help="2: the matching on every other row (half its time), 1: every row; "
                         "default: the bundle's (the shipped one: 2)")
+    p.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
+                   help="the matching's block matcher: bm (StereoBM) or sgbm (fewer holes, "
+                        "about SGBM's time more)")
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,
@@ -277,7 +283,7 @@ def main(argv: list[str] | None = None) -> int:
     first: dict | None = {} if args.picture else None
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
                        bf16, not args.no_select, args.edge_match, first,
-                       args.edge_match_rows)
+                       args.edge_match_rows, args.edge_matcher)
     print(markdown_table(summary))
     if args.picture:
         import cv2

@@ -51,6 +51,11 @@ AUTO_MARGIN_PX = 8   # ... plus this, rounded up to StereoBM's multiple of 16
 POINT_MARGIN = 0.8   # the LiDAR point's 5x5 warp cost must be below this x the network's
 MIN_TEXTURE = 4.0    # ... where the left image's 5x5 mean |d/dx| (grey levels / px) exceeds
 ROW_STEPS = (1, 2)   # StereoBM on every row, or every other row (session 30: half its time)
+# the block matcher: OpenCV's StereoBM (the default), or its SGBM (3-way, block 5: the
+# classical baseline's), which leaves far fewer holes in the gate for about SGBM's whole time
+# (docs/experiments.md, session 34: on Aloe past the SGBM + LiDAR fusion on both numbers)
+MATCHERS = ("bm", "sgbm")
+SGBM_BLOCK_PX = 5
 
 
 @dataclass
@@ -68,6 +73,7 @@ class EdgeMatch:
     point_margin: float = POINT_MARGIN
     min_texture: float = MIN_TEXTURE
     row_step: int = 1
+    matcher: str = "bm"
 
     def __post_init__(self) -> None:
         if self.num_disparities < 0 or self.num_disparities % 16:
@@ -75,9 +81,17 @@ class EdgeMatch:
                               "(StereoBM's disparity count: above the scene's largest)",
                               self.num_disparities)
         check_row_step(self.row_step)
-        self._matchers: dict[int, cv2.StereoBM] = {}
+        check_matcher(self.matcher)
+        self._matchers: dict[int, cv2.StereoMatcher] = {}
 
-    def _matcher(self, num_disparities: int) -> cv2.StereoBM:
+    def _matcher(self, num_disparities: int) -> cv2.StereoMatcher:
+        if num_disparities not in self._matchers and self.matcher == "sgbm":
+            b = SGBM_BLOCK_PX  # the baseline's matcher (edge.baselines.make_sgbm), its speckle
+            self._matchers[num_disparities] = cv2.StereoSGBM_create(  # window per row step
+                minDisparity=0, numDisparities=num_disparities, blockSize=b, P1=8 * b * b,
+                P2=32 * b * b, disp12MaxDiff=1, uniquenessRatio=10,
+                speckleWindowSize=100 // self.row_step, speckleRange=2,
+                mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
         if num_disparities not in self._matchers:  # a few counts per scene: kept
             matcher = cv2.StereoBM_create(numDisparities=num_disparities,
                                           blockSize=self.block_px)
@@ -104,7 +118,8 @@ class EdgeMatch:
 
     def matched(self, left: np.ndarray, right: np.ndarray,
                 num_disparities: int = 0) -> np.ndarray:
-        """StereoBM's disparity in px, (H, W) float32; 0 where it found no checked match.
+        """The block matcher's disparity in px (StereoBM's, or SGBM's with `matcher` "sgbm"),
+        (H, W) float32; 0 where it found no checked match.
         `num_disparities`: this call's count (required when the stage has none fixed). With
         `row_step` 2 it matches every other row (the columns, the disparity's own axis, at
         full resolution) and each value also stands for the row below."""
@@ -181,6 +196,13 @@ class Prepared:
     network_cost: np.ndarray
     point: np.ndarray | None
     point_ok: np.ndarray | None
+
+
+def check_matcher(matcher: str) -> None:
+    """`[engine] edge_matcher`: ConfigError unless one of MATCHERS."""
+    if matcher not in MATCHERS:
+        raise ConfigError("edge_matcher", " or ".join(f'"{m}"' for m in MATCHERS) + " (OpenCV's "
+                          "StereoBM, or its SGBM: fewer holes, about SGBM's time)", matcher)
 
 
 def check_row_step(row_step: int) -> None:

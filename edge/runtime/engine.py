@@ -25,6 +25,7 @@ from edge_depth.runtime.edge_match import (
     ROW_STEPS,
     EdgeMatch,
     as_grey8,
+    check_matcher,
     check_row_step,
     disparities_for,
 )
@@ -96,14 +97,16 @@ class Engine:
     2 matches every other row (half StereoBM's time), 1 every row. None (the default) for
     either: what the bundle declares in model.json's "engine" (`bundle_engine_defaults`:
     the shipped bundle's head is made for the matching, "auto" on every other row); 0 and
-    1 where it declares nothing. Tools that fit or check the network's own output pass 0."""
+    1 where it declares nothing. Tools that fit or check the network's own output pass 0.
+    `edge_matcher`: the matching's block matcher, "bm" (StereoBM) or "sgbm" (fewer holes at
+    about SGBM's time: for a robot with the cores)."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
                  runtime: str = "auto", bf16: bool | None = None,
                  lidar_select: bool = True, edge_select: bool = True,
                  edge_match: int | str | None = None,
-                 edge_match_rows: int | None = None) -> None:
+                 edge_match_rows: int | None = None, edge_matcher: str = "bm") -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -164,13 +167,15 @@ class Engine:
             else edge_match_rows
         self.edge_match = None
         check_row_step(edge_match_rows)  # also when the matching is off: a bad value is said
+        check_matcher(edge_matcher)
         if edge_match == AUTO:  # the count per frame, from the network's own disparity
-            self.edge_match = EdgeMatch(0, row_step=edge_match_rows)
+            self.edge_match = EdgeMatch(0, row_step=edge_match_rows, matcher=edge_matcher)
         elif edge_match:
             if not isinstance(edge_match, int) or isinstance(edge_match, bool):
                 raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a multiple of 16",
                                   edge_match)
-            self.edge_match = EdgeMatch(edge_match, row_step=edge_match_rows)
+            self.edge_match = EdgeMatch(edge_match, row_step=edge_match_rows,
+                                        matcher=edge_matcher)
             if edge_match >= self.width:  # StereoBM would silently find nothing
                 raise ConfigError("edge_match", f"below the bundle's input width "
                                   f"({self.width} px)", edge_match)
@@ -211,7 +216,8 @@ class Engine:
             return text + f", edge matching off{source}"
         count = m.num_disparities or AUTO
         rows = " on every 2nd row" if m.row_step == 2 else ""
-        return text + f", edge matching {count}{rows}{source}"
+        sgbm = " with SGBM" if m.matcher == "sgbm" else ""
+        return text + f", edge matching {count}{sgbm}{rows}{source}"
 
     @property
     def size(self) -> tuple[int, int]:
