@@ -221,7 +221,9 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
                 shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
             keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
             graphs[part]["shift_with_node_float"] = shifts
-            if keep_float:
+            if len(keep_float) == len(shifts):  # every convolution float is no int8 graph
+                graphs[part].update(int8=False, float_nodes=keep_float)  # (version 10's
+            elif keep_float:                     # upsampling has one besides its head)
                 quantize_graph(src, dst, record[part], keep_float)
                 trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
                 graphs[part]["float_nodes"] = keep_float
