@@ -27,6 +27,22 @@ def _edge_match(text: str) -> int | str:
     return count_argument(text)
 
 
+def add_edge_match_arguments(parser: argparse.ArgumentParser) -> None:
+    """The engine's edge matching flags, as its [engine] keys, for each command that runs the
+    engine (replay, tools/evaluate.py)."""
+    parser.add_argument("--edge-match", type=_edge_match, default=None, metavar="N|auto",
+                        help="StereoBM with N disparities (a multiple of 16 above the scene's "
+                             "largest) or each frame's from the network's own (auto) at the "
+                             "network's uncertain edges, as [engine] edge_match (README); 0 = "
+                             "off; default: the bundle's (the shipped one: auto)")
+    parser.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
+                        help="2: the matching on every other row, half its time, as [engine] "
+                             "edge_match_rows; default: the bundle's (the shipped one: 2)")
+    parser.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
+                        help="the matching's block matcher, as [engine] edge_matcher: bm "
+                             "(StereoBM) or sgbm (fewer holes, about SGBM's time more)")
+
+
 def _positive_int(text: str) -> int:
     try:
         value = int(text)
@@ -216,17 +232,7 @@ def build_parser() -> argparse.ArgumentParser:
                         help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
-    replay.add_argument("--edge-match", type=_edge_match, default=None, metavar="N|auto",
-                        help="StereoBM with N disparities (a multiple of 16 above the scene's "
-                             "largest) or each frame's from the network's own (auto) at the "
-                             "network's uncertain edges, as [engine] edge_match (README); 0 = "
-                             "off; default: the bundle's (the shipped one: auto)")
-    replay.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
-                        help="2: the matching on every other row, half its time, as [engine] "
-                             "edge_match_rows; default: the bundle's (the shipped one: 2)")
-    replay.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
-                        help="the matching's block matcher, as [engine] edge_matcher: bm "
-                             "(StereoBM) or sgbm (fewer holes, about SGBM's time more)")
+    add_edge_match_arguments(replay)
     replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
     run = sub.add_parser("run", help="the on-robot depth daemon")

@@ -45,8 +45,8 @@ from edge_depth.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
+from edge_depth.cli import add_edge_match_arguments
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
-from edge_depth.runtime.edge_match import count_argument
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -244,17 +244,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
-    p.add_argument("--edge-match", type=count_argument, default=None, metavar="N|auto",
-                   help="a bundle: the full-resolution block matching at the network's "
-                        "uncertain edges with N disparities (a multiple of 16) or each frame's "
-                        "from the network's own disparity (auto); 0 = off; default: the "
-                        "bundle's (the shipped one: auto)")
-    p.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
-                   help="2: the matching on every other row (half its time), 1: every row; "
-                        "default: the bundle's (the shipped one: 2)")
-    p.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
-                   help="the matching's block matcher: bm (StereoBM) or sgbm (fewer holes, "
-                        "about SGBM's time more)")
+    add_edge_match_arguments(p)  # a bundle's: the engine's edge matching
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,
