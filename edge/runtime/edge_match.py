@@ -34,7 +34,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.baselines import lidar_nearest
+from edge_depth.baselines import lidar_nearest, make_sgbm
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import local_range, warped_cost
 
@@ -86,12 +86,9 @@ class EdgeMatch:
 
     def _matcher(self, num_disparities: int) -> cv2.StereoMatcher:
         if num_disparities not in self._matchers and self.matcher == "sgbm":
-            b = SGBM_BLOCK_PX  # the baseline's matcher (edge.baselines.make_sgbm), its speckle
-            self._matchers[num_disparities] = cv2.StereoSGBM_create(  # window per row step
-                minDisparity=0, numDisparities=num_disparities, blockSize=b, P1=8 * b * b,
-                P2=32 * b * b, disp12MaxDiff=1, uniquenessRatio=10,
-                speckleWindowSize=100 // self.row_step, speckleRange=2,
-                mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
+            matcher = make_sgbm(num_disparities, SGBM_BLOCK_PX)  # the baseline's matcher,
+            matcher.setSpeckleWindowSize(100 // self.row_step)   # its speckle window per row
+            self._matchers[num_disparities] = matcher
         if num_disparities not in self._matchers:  # a few counts per scene: kept
             matcher = cv2.StereoBM_create(numDisparities=num_disparities,
                                           blockSize=self.block_px)
