@@ -182,6 +182,35 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     assert short.match_beyond_px == EdgeMatch(16).beyond_px(plain.disparity) > 0
 
 
+def test_auto_started_before_the_last_step_gives_the_late_starts_output(monkeypatch):
+    """Where the graphs leave a core idle, "auto" starts StereoBM (and the choice's pair-only
+    terms) one step before the last, with the count that step's disparity gives: the output
+    is the late start's, and a guess the final disparity disowns matches again."""
+    from edge_depth.runtime.engine import Engine
+
+    left, right, gt, _, _ = thin_bar_pair()
+    big = lambda im: cv2.resize(im, (640, 400), interpolation=cv2.INTER_NEAREST)  # noqa: E731
+    left, right = big(left), big(right)
+    sparse = np.zeros((400, 640), np.float32)
+    sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0
+    late, early = (Engine(precision="int8", threads=1, edge_match_rows=1) for _ in range(2))
+    late.match_early, early.match_early = False, True
+    for iters in (1, 4):                     # one step: the guess from the encoder's seed
+        for points in (sparse, np.zeros_like(sparse)):
+            a, b = (e.infer(left, right, points, iters=iters) for e in (late, early))
+            np.testing.assert_array_equal(a.disparity, b.disparity)
+            np.testing.assert_array_equal(a.confidence, b.confidence)
+            assert a.matched_px == b.matched_px and a.match_beyond_px == b.match_beyond_px
+            assert b.timings_ms["edge_match"] > 0
+    assert late.match_starts == {"early": 0, "again": 0} and early.match_starts["early"] == 4
+    again = early.match_starts["again"]
+    monkeypatch.setattr(early, "_guess_count", lambda disparity: 16)    # a wrong guess
+    a, b = (e.infer(left, right, sparse) for e in (late, early))
+    np.testing.assert_array_equal(a.disparity, b.disparity)
+    assert a.matched_px == b.matched_px > 0
+    assert early.match_starts == {"early": 5, "again": again + 1}
+
+
 def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line():
     from edge_depth.runtime.engine import (
         DEFAULT_BUNDLE,

@@ -130,6 +130,12 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
         stages["edge_match"]["median_ms"] / result["sgbm_ms"])
     assert "the engine's edge_match stage / SGBM" in md.read_text()
     assert result["engine"].endswith("edge matching auto on every 2nd row (the bundle's)")
+    # one thread leaves a core idle (where there are two): "auto" matches before the last step
+    from edge_depth.runtime.engine import usable_cores
+
+    starts = result["match_starts"]
+    assert (starts["early"] > 0) == (usable_cores() > 1) and starts["again"] <= starts["early"]
+    assert ("matching started before its last step" in md.read_text()) == (starts["early"] > 0)
     # two runs: the median of the per-run ratios, and how busy the machine was in each
     assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
     assert result["threads"] == result["opencv_threads"] == 1   # SGBM with the engine's count

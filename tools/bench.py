@@ -277,6 +277,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             int8_vs_sgbm_paired=float(np.median(paired)),
             int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
                                          float(np.percentile(paired, 90))])
+    if engines["int8"].edge_match is not None:
+        summary["match_starts"] = dict(engines["int8"].match_starts)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -308,6 +310,12 @@ def markdown(summary: dict) -> str:
         if "edge_match_vs_sgbm" in r:
             lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
                          "(inside the engine rows)")
+    if "match_starts" in summary:
+        early, again = summary["match_starts"]["early"], summary["match_starts"]["again"]
+        lines.append(f"the int8 engine's matching started before its last step in {early} "
+                     f"frames, {again} of them matched again with the final count"
+                     if early else "the int8 engine's matching started after its graphs "
+                     "(they use every core)")
     if "replay_peak_rss_mb" in summary:
         lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
     if "engine" in summary:

@@ -18,8 +18,10 @@ Whether it runs is the bundle's to declare (model.json's "engine", `[engine] edg
 image-guided refinement of its own) is made to hand its unsure edges to this stage, "auto" on
 every other row (`edge_match_rows = 2`); bundles of other heads keep it off unless asked. On
 every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`, session 25);
-the engine runs the block matching beside its graphs with a fixed count and beside the
-choice's preparation with "auto" (the shipped setting's time: README "Speed"). Its
+the engine runs the block matching on its own thread: beside its graphs with a fixed count;
+with "auto", where the graphs leave a core idle, beside the last step and the upsampling with
+the count guessed one step earlier (`pair_terms` with it), else beside the choice's
+preparation (the shipped setting's time: README "Speed"). Its
 parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
 chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
 reported. On the synthetic worlds it costs EPE (there SGBM-like matching is 3-4× less
@@ -144,25 +146,38 @@ class EdgeMatch:
                            disparity, matched)
 
     def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-                confidence: np.ndarray, sparse: np.ndarray | None = None) -> Prepared | None:
+                confidence: np.ndarray, sparse: np.ndarray | None = None,
+                terms: PairTerms | None = None) -> Prepared | None:
         """Everything of the choice that does not need StereoBM's answer: where the network
         is unsure at its edges (the gate), its own warp cost, and where the LiDAR's nearest
-        point would do for a hole. None when nothing is gated."""
+        point would do for a hole. None when nothing is gated. `terms`: `pair_terms(left,
+        right, sparse)` if already computed (the engine's matching thread does)."""
         gate = (confidence < self.max_confidence) & \
             (local_range(disparity, self.window_px) > self.min_range_px)
         if not gate.any():
             return None
+        if terms is None:
+            terms = self.pair_terms(left, right, sparse)
+        network_cost = warped_cost(*terms.grey, disparity, (self.photo_window_px,))[0]
+        point_ok = None
+        if terms.point is not None:
+            point_ok = gate & (terms.texture > self.min_texture) & \
+                (terms.point_cost < self.point_margin * network_cost)
+        return Prepared(gate, terms.grey, network_cost, terms.point, point_ok)
+
+    def pair_terms(self, left: np.ndarray, right: np.ndarray,
+                   sparse: np.ndarray | None = None) -> PairTerms:
+        """The choice's terms that need only the pair and the LiDAR, not the network: the grey
+        pair (float32), the nearest point's map, its 5×5 warp cost and the left image's
+        texture (the last three None without points)."""
         grey = [np.asarray(im, np.float32) for im in (left, right)]
+        if sparse is None or not (sparse > 0).any():
+            return PairTerms(grey)
         window = (self.photo_window_px,)
-        network_cost = warped_cost(*grey, disparity, window)[0]
-        point = point_ok = None
-        if sparse is not None and (sparse > 0).any():
-            point = lidar_nearest(sparse, sparse > 0)
-            gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
-            texture = cv2.blur(gradient, (self.photo_window_px,) * 2)  # mean |d/dx| in window
-            point_ok = gate & (texture > self.min_texture) & \
-                (warped_cost(*grey, point, window)[0] < self.point_margin * network_cost)
-        return Prepared(gate, grey, network_cost, point, point_ok)
+        point = lidar_nearest(sparse, sparse > 0)
+        gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
+        texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
+        return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
 
     def finish(self, prepared: Prepared | None, disparity: np.ndarray,
                matched: np.ndarray) -> tuple[np.ndarray, int]:
@@ -180,6 +195,16 @@ class EdgeMatch:
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take
         return out, int(take.sum())
+
+
+@dataclass
+class PairTerms:
+    """`EdgeMatch.pair_terms`' answer."""
+
+    grey: list[np.ndarray]
+    point: np.ndarray | None = None
+    point_cost: np.ndarray | None = None
+    texture: np.ndarray | None = None
 
 
 @dataclass

@@ -11,6 +11,7 @@ upsampling time of earlier frames, would finish after it; it always runs at leas
 from __future__ import annotations
 
 import json
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -24,7 +25,6 @@ from edge_depth.runtime.edge_match import (
     AUTO,
     ROW_STEPS,
     EdgeMatch,
-    as_grey8,
     check_matcher,
     check_row_step,
     disparities_for,
@@ -92,8 +92,12 @@ class Engine:
     0 (off), StereoBM's disparity count or "auto" (each frame's, from the network's own
     disparity) for the full-resolution matching at the network's uncertain edges
     (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
-    runs beside the graphs; "auto" needs the network's disparity first, and runs beside the
-    choice's preparation (`EdgeMatch.prepare`). `edge_match_rows`:
+    runs beside the graphs; "auto" needs the network's disparity: where the graphs leave a
+    core idle (`threads` below the usable cores) it starts with the count guessed from the
+    disparity one step before the last and matches beside that step and the upsampling
+    (again after them, should the final disparity need another count: `match_starts`
+    counts both), else after the graphs, beside the choice's preparation
+    (`EdgeMatch.prepare`); the outputs are the same either way. `edge_match_rows`:
     2 matches every other row (half StereoBM's time), 1 every row. None (the default) for
     either: what the bundle declares in model.json's "engine" (`bundle_engine_defaults`:
     the shipped bundle's head is made for the matching, "auto" on every other row); 0 and
@@ -182,6 +186,12 @@ class Engine:
         # its block matching needs only the images: it runs beside the network's graphs,
         # whose small 1/8-resolution tensors leave the second core partly idle
         self._matching: ThreadPoolExecutor | None = None  # started on first use
+        # frames whose matching started before the network's end, and of those, how many
+        # matched again because the final disparity needed another count than the guess
+        self.match_starts = {"early": 0, "again": 0}
+        # "auto" starts early only where the graphs leave a core idle: with every core in the
+        # graphs, StereoBM beside them slowed them by as much as it saved (session 35)
+        self.match_early = int(threads) < usable_cores()
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -193,6 +203,20 @@ class Engine:
         if self._matching is None:
             self._matching = ThreadPoolExecutor(1, "edge-match")
         return self._matching
+
+    def _match_early(self, count: int):
+        """StereoBM with `count` and the choice's pair-only terms (`EdgeMatch.pair_terms`) on
+        the matching's thread, from copies of this frame's inputs (the buffers get reused):
+        (count, the job, whose result is (matched, terms))."""
+        match = self.edge_match
+        left, right, sparse = (self._inputs[k][0, 0].copy() for k in ("left", "right", "sparse"))
+        return count, self._matcher_thread().submit(
+            lambda: (match.matched(left, right, count), match.pair_terms(left, right, sparse)))
+
+    def _guess_count(self, disparity: np.ndarray) -> int:
+        """The "auto" count a low-resolution step output (1, 1, h, w) would give: its largest
+        value brought to full-resolution pixels (the convex upsampling never exceeds it)."""
+        return disparities_for(disparity[0, 0] * self.downsample, self.width)
 
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
         """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale)."""
@@ -253,12 +277,15 @@ class Engine:
         np.copyto(buf["valid"][0, 0], finite, casting="unsafe")
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
 
-        matching = None
-        if self.edge_match is not None and self.edge_match.num_disparities and \
-                self.has_confidence:  # it gates on the confidence
-            # own copies of the pair: the input buffers get reused
-            copies = [as_grey8(buf[k][0, 0]) for k in ("left", "right")]
-            matching = self._matcher_thread().submit(self.edge_match.matched, *copies)
+        match = self.edge_match if self.has_confidence else None  # it gates on the confidence
+        early = None  # (count, the matching thread's job): started before the network ends
+        if match is not None and match.num_disparities:
+            early = self._match_early(match.num_disparities)
+        # "auto", where the graphs leave a core idle: the count guessed from the disparity with
+        # one step to go (after the encoder at one step), so that StereoBM matches beside the
+        # last step and the upsampling
+        guess_after = iters - 2 if match is not None and early is None and \
+            self.match_early else iters
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
@@ -272,6 +299,8 @@ class Engine:
         timings["encoder"] = (time.perf_counter() - t) * 1000
         state = {k: enc[k] for k in self._step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
+        if guess_after == -1:
+            early = self._match_early(self._guess_count(disparity))
         step_ms: list[float] = []
         step = self.sessions["step"]
         for i in range(iters):
@@ -284,6 +313,8 @@ class Engine:
             feeds = dict(state, disparity=disparity, hidden=hidden)
             disparity, hidden = step.run(feed("step", feeds))
             step_ms.append((time.perf_counter() - t) * 1000)
+            if i == guess_after:
+                early = self._match_early(self._guess_count(disparity))
         timings["steps"] = float(sum(step_ms))
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
@@ -315,17 +346,24 @@ class Engine:
             timings["select"] = (time.perf_counter() - t) * 1000
             up_ms += timings["select"]
         matched = beyond = None
-        if self.edge_match is not None and confidence is not None:
+        if match is not None and confidence is not None:
             t = time.perf_counter()  # from here: the wait for the matching, then the choice
             pair = (buf["left"][0, 0], buf["right"][0, 0])
-            if matching is not None:
-                beyond = self.edge_match.beyond_px(disp)
-            else:  # "auto": the count this frame's disparity needs; StereoBM matches while
-                count = disparities_for(disp, self.width)  # the choice prepares what it can
-                beyond = self.edge_match.beyond_px(disp, count)
-                matching = self._matcher_thread().submit(self.edge_match.matched, *pair, count)
-            prepared = self.edge_match.prepare(*pair, disp, confidence, buf["sparse"][0, 0])
-            disp, matched = self.edge_match.finish(prepared, disp, matching.result())
+            count = match.num_disparities or disparities_for(disp, self.width)
+            beyond = match.beyond_px(disp, count)
+            terms = None
+            if early is not None:
+                early_count, job = early
+                found, terms = job.result()
+                self.match_starts["early"] += 1
+                if early_count != count:  # the guess missed: StereoBM again, the count right
+                    self.match_starts["again"] += 1
+                    early = None
+            # late (no guess, or a missed one): StereoBM matches while the choice prepares
+            job = None if early is not None else \
+                self._matcher_thread().submit(match.matched, *pair, count)
+            prepared = match.prepare(*pair, disp, confidence, buf["sparse"][0, 0], terms)
+            disp, matched = match.finish(prepared, disp, found if job is None else job.result())
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
@@ -342,6 +380,14 @@ class Engine:
                            iterations=len(step_ms), timings_ms=timings, confidence=confidence,
                            selected_px=selected, edge_px=edge_px, matched_px=matched,
                            match_beyond_px=beyond)
+
+
+def usable_cores() -> int:
+    """The CPUs this process may run on (its affinity where the OS says, else all)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
 
 
 def disparity_to_depth(disparity: np.ndarray, focal_px: float | None,
