@@ -105,3 +105,20 @@ def test_openvino_runs_the_same_bundle_as_onnxruntime():
     assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder), edge matching off"
     epe = disparity_metrics(bf16.infer(*args).disparity, gt)["epe"]
     assert epe < 1.05 * base + 0.02
+
+
+@pytest.mark.skipif(not backends.openvino_available(), reason="OpenVINO not installed")
+def test_openvino_computes_only_the_encoder_outputs_the_other_graphs_read():
+    """The shipped head (version 10) reads no 1/4 features: OpenVINO's encoder is compiled
+    without them; ONNX Runtime's keeps every output; a session asked for a subset has it."""
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    ov = Engine(precision="fp32", threads=1, runtime="openvino", bf16=False, edge_match=0)
+    ort = Engine(precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
+    read = {"disparity", "hidden"}.union(ov.sessions["step"].input_names,
+                                         ov.sessions["upsample"].input_names)
+    assert "quarter_left" in ort._enc_outputs and "quarter_left" not in read
+    assert set(ov._enc_outputs) == set(ort._enc_outputs) & read
+    session = backends.OpenVinoSession(DEFAULT_BUNDLE / "encoder.onnx", 1,
+                                       outputs={"corr", "hidden"})
+    assert sorted(session.output_names) == ["corr", "hidden"]

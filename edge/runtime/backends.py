@@ -111,12 +111,22 @@ class OrtSession:
 
 
 class OpenVinoSession:
-    def __init__(self, path: Path, threads: int, bf16: bool = False) -> None:
+    """`outputs`: the output names the caller reads (None: all); the others are cut from the
+    graph before compiling, and what only they needed is not computed or copied out."""
+
+    def __init__(self, path: Path, threads: int, bf16: bool = False,
+                 outputs: set[str] | None = None) -> None:
         import openvino as ov
 
         config = {"INFERENCE_NUM_THREADS": int(threads), "PERFORMANCE_HINT": "LATENCY",
                   "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32"}
-        compiled = ov.Core().compile_model(str(path), "CPU", config)
+        core = ov.Core()
+        model = core.read_model(str(path))
+        if outputs is not None:
+            for result in list(model.get_results()):
+                if not result.output(0).get_names() & outputs:
+                    model.remove_result(result)
+        compiled = core.compile_model(model, "CPU", config)
         self._request = compiled.create_infer_request()
         self._outputs = list(compiled.outputs)
         self.input_names = [i.get_any_name() for i in compiled.inputs]
@@ -132,8 +142,10 @@ class OpenVinoSession:
         return [results[o] for o in self._outputs]
 
 
-def open_session(path: Path, runtime: str, threads: int, bf16: bool = False):
-    """`runtime` already resolved; `bf16` is honoured by OpenVINO only."""
+def open_session(path: Path, runtime: str, threads: int, bf16: bool = False,
+                 outputs: set[str] | None = None):
+    """`runtime` already resolved; `bf16` and `outputs` (the outputs read: the others cut
+    from the graph) are honoured by OpenVINO only."""
     if runtime == "openvino":
-        return OpenVinoSession(path, threads, bf16)
+        return OpenVinoSession(path, threads, bf16, outputs)
     return OrtSession(path, threads)
