@@ -19,9 +19,8 @@ image-guided refinement of its own) is made to hand its unsure edges to this sta
 every other row (`edge_match_rows = 2`); bundles of other heads keep it off unless asked. On
 every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`, session 25);
 the engine runs the block matching on its own thread: beside its graphs with a fixed count;
-with "auto", where the graphs leave a core idle, beside the last step and the upsampling with
-the count guessed one step earlier (`pair_terms` with it), else beside the choice's
-preparation (the shipped setting's time: README "Speed"). Its
+with "auto", where the graphs leave a core idle, beside the last step with the count guessed
+one step earlier (`pair_terms` beside the encoder), else beside the choice's preparation (the shipped setting's time: README "Speed"). Its
 parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
 chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
 reported. On the synthetic worlds it costs EPE (there SGBM-like matching is 3-4× less

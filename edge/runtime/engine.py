@@ -13,7 +13,7 @@ from __future__ import annotations
 import json
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -93,10 +93,10 @@ class Engine:
     disparity) for the full-resolution matching at the network's uncertain edges
     (`edge.runtime.edge_match`), after the selections. With a fixed count the block matching
     runs beside the graphs; "auto" needs the network's disparity: where the graphs leave a
-    core idle (`threads` below the usable cores) it starts with the count guessed from the
-    disparity one step before the last and matches beside that step and the upsampling
-    (again after them, should the final disparity need another count: `match_starts`
-    counts both), else after the graphs, beside the choice's preparation
+    core idle (`threads` below the usable cores) the choice's pair-only terms run beside the
+    encoder and StereoBM starts with the count guessed from the disparity one step before the
+    last, beside that step (again after the graphs, should the final disparity need another
+    count: `match_starts` counts both), else after the graphs, beside the choice's preparation
     (`EdgeMatch.prepare`); the outputs are the same either way. `edge_match_rows`:
     2 matches every other row (half StereoBM's time), 1 every row. None (the default) for
     either: what the bundle declares in model.json's "engine" (`bundle_engine_defaults`:
@@ -209,14 +209,22 @@ class Engine:
             self._matching = ThreadPoolExecutor(1, "edge-match")
         return self._matching
 
-    def _match_early(self, count: int):
-        """StereoBM with `count` and the choice's pair-only terms (`EdgeMatch.pair_terms`) on
-        the matching's thread, from copies of this frame's inputs (the buffers get reused):
-        (count, the job, whose result is (matched, terms))."""
+    def _pair_copies(self) -> list[np.ndarray]:
+        """This frame's left, right and sparse inputs, copied for the matching's thread (the
+        buffers get reused)."""
+        return [self._inputs[k][0, 0].copy() for k in ("left", "right", "sparse")]
+
+    def _match_early(self, count: int, terms: Future | None = None):
+        """StereoBM with `count` on the matching's thread, from copies of this frame's pair,
+        and the choice's pair-only terms (`EdgeMatch.pair_terms`: computed there after it, or
+        already submitted as `terms`): (count, the job, whose result is (matched, terms))."""
         match = self.edge_match
-        left, right, sparse = (self._inputs[k][0, 0].copy() for k in ("left", "right", "sparse"))
+        left, right, sparse = self._pair_copies()
+        if terms is None:
+            terms = self._matcher_thread().submit(match.pair_terms, left, right, sparse)
+        # the thread runs one job at a time, in order: `terms` is done before this one starts
         return count, self._matcher_thread().submit(
-            lambda: (match.matched(left, right, count), match.pair_terms(left, right, sparse)))
+            lambda: (match.matched(left, right, count), terms.result()))
 
     def _guess_count(self, disparity: np.ndarray) -> int:
         """The "auto" count a low-resolution step output (1, 1, h, w) would give: its largest
@@ -286,11 +294,15 @@ class Engine:
         early = None  # (count, the matching thread's job): started before the network ends
         if match is not None and match.num_disparities:
             early = self._match_early(match.num_disparities)
-        # "auto", where the graphs leave a core idle: the count guessed from the disparity with
-        # one step to go (after the encoder at one step), so that StereoBM matches beside the
-        # last step and the upsampling
+        # "auto", where the graphs leave a core idle: the choice's pair-only terms beside the
+        # encoder, then StereoBM with the count guessed from the disparity with one step to go
+        # (after the encoder at one step), beside the last step (session 35: beside the
+        # memory-bound upsampling, it slowed that graph by more than it saved)
         guess_after = iters - 2 if match is not None and early is None and \
             self.match_early else iters
+        terms_job = None
+        if guess_after < iters:
+            terms_job = self._matcher_thread().submit(match.pair_terms, *self._pair_copies())
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
@@ -305,7 +317,7 @@ class Engine:
         state = {k: enc[k] for k in self._step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
         if guess_after == -1:
-            early = self._match_early(self._guess_count(disparity))
+            early = self._match_early(self._guess_count(disparity), terms_job)
         step_ms: list[float] = []
         step = self.sessions["step"]
         for i in range(iters):
@@ -319,7 +331,7 @@ class Engine:
             disparity, hidden = step.run(feed("step", feeds))
             step_ms.append((time.perf_counter() - t) * 1000)
             if i == guess_after:
-                early = self._match_early(self._guess_count(disparity))
+                early = self._match_early(self._guess_count(disparity), terms_job)
         timings["steps"] = float(sum(step_ms))
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
