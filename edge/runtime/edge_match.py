@@ -20,11 +20,12 @@ every other row (`edge_match_rows = 2`); bundles of other heads keep it off unle
 every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`, session 25);
 the engine runs the block matching on its own thread: beside its graphs with a fixed count;
 with "auto", where the graphs leave a core idle, beside the last step with the count guessed
-one step earlier (`pair_terms` beside the encoder), else beside the choice's preparation (the shipped setting's time: README "Speed"). Its
-parameters (the point's margin and texture gate too: docs/experiments.md, session 25) were
-chosen on the Middlebury motorcycle pair (`tools/real_pairs.py --motorcycle`); Aloe was only
-reported. On the synthetic worlds it costs EPE (there SGBM-like matching is 3-4× less
-reliable than on real pairs): the README's tables give both.
+one step earlier (`pair_terms` beside the encoder), else beside the choice's preparation
+(the shipped setting's time: README "Speed"). Its parameters (the point's margin and texture
+gate too: docs/experiments.md, session 25) were chosen on the Middlebury motorcycle pair
+(`tools/real_pairs.py --motorcycle`); Aloe was only reported. On the synthetic worlds it costs
+EPE (there SGBM-like matching is 3-4× less reliable than on real pairs): the README's tables
+give both.
 """
 
 from __future__ import annotations
