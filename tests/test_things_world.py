@@ -297,15 +297,16 @@ def test_dims_set_the_widths_of_a_network_from_scratch_only(tmp_path, capsys):
     from edge_depth.model.config import ModelConfig
     from edge_depth.model.network import SparseStereoNet
     from edge_depth.tools import train
+    from edge_depth.tools.train_args import parse_dims
 
-    dims = train.parse_dims("feature=48,context=32,hidden=48,motion=48,head=32")  # stage 17's
+    dims = parse_dims("feature=48,context=32,hidden=48,motion=48,head=32")  # stage 17's
     assert dims == dict(feature_dim=48, context_dim=32, hidden_dim=48, motion_dim=48,
                         head_dim=32)
     net = SparseStereoNet(ModelConfig(**dims))
     assert net.config.hidden_dim == 48 and net.config.context_dim == 32
     for bad in ("hidden=0", "width=48", "hidden=4.5"):
         with pytest.raises(argparse.ArgumentTypeError, match="NAME=N"):
-            train.parse_dims(bad)
+            parse_dims(bad)
     with pytest.raises(SystemExit):
         train.main(["--out", str(tmp_path / "r"), "--steps", "1", "--dims", "hidden=48",
                     "--init", str(tmp_path / "x.pt")])
