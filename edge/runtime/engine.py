@@ -214,12 +214,14 @@ class Engine:
         buffers get reused)."""
         return [self._inputs[k][0, 0].copy() for k in ("left", "right", "sparse")]
 
-    def _match_early(self, count: int, terms: Future | None = None):
-        """StereoBM with `count` on the matching's thread, from copies of this frame's pair,
-        and the choice's pair-only terms (`EdgeMatch.pair_terms`: computed there after it, or
-        already submitted as `terms`): (count, the job, whose result is (matched, terms))."""
+    def _match_early(self, count: int, copies: list[np.ndarray] | None = None,
+                     terms: Future | None = None):
+        """StereoBM with `count` on the matching's thread, from copies of this frame's pair
+        (`copies`, else made here), and the choice's pair-only terms (`EdgeMatch.pair_terms`:
+        computed there after it, or already submitted as `terms`): (count, the job, whose
+        result is (matched, terms))."""
         match = self.edge_match
-        left, right, sparse = self._pair_copies()
+        left, right, sparse = copies or self._pair_copies()
         if terms is None:
             terms = self._matcher_thread().submit(match.pair_terms, left, right, sparse)
         # the thread runs one job at a time, in order: `terms` is done before this one starts
@@ -300,9 +302,10 @@ class Engine:
         # memory-bound upsampling, it slowed that graph by more than it saved)
         guess_after = iters - 2 if match is not None and early is None and \
             self.match_early else iters
-        terms_job = None
+        copies = terms_job = None
         if guess_after < iters:
-            terms_job = self._matcher_thread().submit(match.pair_terms, *self._pair_copies())
+            copies = self._pair_copies()
+            terms_job = self._matcher_thread().submit(match.pair_terms, *copies)
 
         def feed(part: str, feeds: dict) -> dict:
             if record is not None:
@@ -317,7 +320,7 @@ class Engine:
         state = {k: enc[k] for k in self._step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
         if guess_after == -1:
-            early = self._match_early(self._guess_count(disparity), terms_job)
+            early = self._match_early(self._guess_count(disparity), copies, terms_job)
         step_ms: list[float] = []
         step = self.sessions["step"]
         for i in range(iters):
@@ -331,7 +334,7 @@ class Engine:
             disparity, hidden = step.run(feed("step", feeds))
             step_ms.append((time.perf_counter() - t) * 1000)
             if i == guess_after:
-                early = self._match_early(self._guess_count(disparity), terms_job)
+                early = self._match_early(self._guess_count(disparity), copies, terms_job)
         timings["steps"] = float(sum(step_ms))
         timings["step_mean"] = float(np.mean(step_ms))
         t = time.perf_counter()
@@ -368,7 +371,9 @@ class Engine:
             pair = (buf["left"][0, 0], buf["right"][0, 0])
             count = match.num_disparities or disparities_for(disp, self.width)
             beyond = match.beyond_px(disp, count)
-            terms = None
+            # the terms already computed beside the encoder (a deadline may have stopped
+            # the steps before the guess)
+            terms = None if terms_job is None else terms_job.result()
             if early is not None:
                 early_count, job = early
                 found, terms = job.result()
