@@ -207,18 +207,20 @@ def feature_matrix(columns, scratch: Scratch | None = None) -> np.ndarray:
 
 
 class Scratch(threading.local):
-    """Float32 buffers a stage reuses from frame to frame, one set per thread, grown as frames
-    need. A fresh array of a megabyte or more is fresh pages each frame: the feature matrix's
-    merge took 0.75 ms into a new array and 0.2 into a reused one (session 23)."""
+    """Buffers (float32 unless asked) a stage reuses from frame to frame, one set per thread,
+    grown as frames need. A fresh array of a megabyte or more is fresh pages each frame: the
+    feature matrix's merge took 0.75 ms into a new array and 0.2 into a reused one (session
+    23)."""
 
     def __init__(self) -> None:
         self.buffers: dict[str, np.ndarray] = {}
 
-    def take(self, name: str, rows: int, columns: int) -> np.ndarray:
-        """A contiguous (rows, columns) float32 view of the named buffer (old contents)."""
+    def take(self, name: str, rows: int, columns: int, dtype=np.float32) -> np.ndarray:
+        """A contiguous (rows, columns) view of the named buffer (old contents)."""
         buffer = self.buffers.get(name)
-        if buffer is None or len(buffer) < rows or buffer.shape[1] != columns:
-            buffer = np.empty((max(rows + rows // 4, 4096), columns), np.float32)
+        if buffer is None or len(buffer) < rows or buffer.shape[1] != columns or \
+                buffer.dtype != dtype:
+            buffer = np.empty((max(rows + rows // 4, 4096), columns), dtype)
             self.buffers[name] = buffer
         return buffer[:rows]
 

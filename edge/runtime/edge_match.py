@@ -31,6 +31,7 @@ give both.
 from __future__ import annotations
 
 import argparse
+from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import cv2
@@ -39,6 +40,7 @@ import numpy as np
 from edge_depth.baselines import lidar_nearest, make_sgbm
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import local_range, warped_cost
+from edge_depth.runtime.edge_median import OFF, EdgeMedian
 
 BLOCK_PX = 7
 MAX_CONFIDENCE = 0.9
@@ -76,6 +78,7 @@ class EdgeMatch:
     min_texture: float = MIN_TEXTURE
     row_step: int = 1
     matcher: str = "bm"
+    median: str = OFF  # or a pattern of edge_median.PATTERNS: the gate's weighted median
 
     def __post_init__(self) -> None:
         if self.num_disparities < 0 or self.num_disparities % 16:
@@ -84,6 +87,7 @@ class EdgeMatch:
                               self.num_disparities)
         check_row_step(self.row_step)
         check_matcher(self.matcher)
+        self._median = None if self.median == OFF else EdgeMedian(self.median)
         self._matchers: dict[int, cv2.StereoMatcher] = {}
 
     def _matcher(self, num_disparities: int) -> cv2.StereoMatcher:
@@ -180,8 +184,10 @@ class EdgeMatch:
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
 
     def finish(self, prepared: Prepared | None, disparity: np.ndarray,
-               matched: np.ndarray) -> tuple[np.ndarray, int]:
-        """`apply`'s answer from `prepare`'s and StereoBM's."""
+               matched: np.ndarray, pool: Executor | None = None) -> tuple[np.ndarray, int]:
+        """`apply`'s answer from `prepare`'s and StereoBM's, then (`median`) the gate's
+        grey-guided weighted median (`edge.runtime.edge_median`; `pool`: a thread that takes
+        half its pixels)."""
         if prepared is None:
             return disparity.astype(np.float32, copy=True), 0
         found = matched > 0
@@ -194,6 +200,8 @@ class EdgeMatch:
             hole_take = prepared.point_ok & ~found
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take
+        if self._median is not None:
+            out = self._median.apply(out, prepared.grey[0], prepared.gate, pool)
         return out, int(take.sum())
 
 

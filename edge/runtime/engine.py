@@ -29,6 +29,7 @@ from edge_depth.runtime.edge_match import (
     check_row_step,
     disparities_for,
 )
+from edge_depth.runtime.edge_median import OFF, PATTERNS, check_pattern
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -54,7 +55,8 @@ def load_bundle_meta(bundle: Path) -> dict:
     return meta
 
 
-ENGINE_DEFAULTS = {"edge_match": 0, "edge_match_rows": 1}  # where a bundle declares nothing
+ENGINE_DEFAULTS = {"edge_match": 0, "edge_match_rows": 1,  # where a bundle declares nothing
+                   "edge_median": OFF}
 
 
 def bundle_engine_defaults(meta: dict, bundle: Path | str = "") -> dict:
@@ -76,6 +78,10 @@ def bundle_engine_defaults(meta: dict, bundle: Path | str = "") -> dict:
         raise ConfigError("bundle", "model.json's engine.edge_match_rows "
                           + " or ".join(map(str, ROW_STEPS)),
                           f"{values['edge_match_rows']!r} in {bundle}")
+    if values["edge_median"] != OFF and values["edge_median"] not in PATTERNS:
+        raise ConfigError("bundle", "model.json's engine.edge_median "
+                          + " or ".join(f'"{p}"' for p in (OFF, *PATTERNS)),
+                          f"{values['edge_median']!r} in {bundle}")
     return values
 
 
@@ -110,7 +116,8 @@ class Engine:
                  runtime: str = "auto", bf16: bool | None = None,
                  lidar_select: bool = True, edge_select: bool = True,
                  edge_match: int | str | None = None,
-                 edge_match_rows: int | None = None, edge_matcher: str = "bm") -> None:
+                 edge_match_rows: int | None = None, edge_matcher: str = "bm",
+                 edge_median: str | None = None) -> None:
         self.runtime = resolve_runtime(runtime)
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
@@ -174,17 +181,20 @@ class Engine:
         edge_match = declared["edge_match"] if edge_match is None else edge_match
         edge_match_rows = declared["edge_match_rows"] if edge_match_rows is None \
             else edge_match_rows
+        edge_median = declared["edge_median"] if edge_median is None else edge_median
         self.edge_match = None
         check_row_step(edge_match_rows)  # also when the matching is off: a bad value is said
         check_matcher(edge_matcher)
+        if edge_median != OFF:
+            check_pattern(edge_median)
+        options = dict(row_step=edge_match_rows, matcher=edge_matcher, median=edge_median)
         if edge_match == AUTO:  # the count per frame, from the network's own disparity
-            self.edge_match = EdgeMatch(0, row_step=edge_match_rows, matcher=edge_matcher)
+            self.edge_match = EdgeMatch(0, **options)
         elif edge_match:
             if not isinstance(edge_match, int) or isinstance(edge_match, bool):
                 raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a multiple of 16",
                                   edge_match)
-            self.edge_match = EdgeMatch(edge_match, row_step=edge_match_rows,
-                                        matcher=edge_matcher)
+            self.edge_match = EdgeMatch(edge_match, **options)
             if edge_match >= self.width:  # StereoBM would silently find nothing
                 raise ConfigError("edge_match", f"below the bundle's input width "
                                   f"({self.width} px)", edge_match)
@@ -256,7 +266,8 @@ class Engine:
         count = m.num_disparities or AUTO
         rows = " on every 2nd row" if m.row_step == 2 else ""
         sgbm = " with SGBM" if m.matcher == "sgbm" else ""
-        return text + f", edge matching {count}{sgbm}{rows}{source}"
+        median = f", weighted median {m.median}" if m.median != OFF else ""
+        return text + f", edge matching {count}{sgbm}{rows}{median}{source}"
 
     @property
     def size(self) -> tuple[int, int]:
@@ -385,7 +396,8 @@ class Engine:
             job = None if early is not None else \
                 self._matcher_thread().submit(match.matched, *pair, count)
             prepared = match.prepare(*pair, disp, confidence, buf["sparse"][0, 0], terms)
-            disp, matched = match.finish(prepared, disp, found if job is None else job.result())
+            disp, matched = match.finish(prepared, disp, found if job is None else job.result(),
+                                         self._matcher_thread())
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction

@@ -1,0 +1,181 @@
+"""A grey-guided weighted median over the matching's gate: the matching's last step.
+
+Why: after the matching's choice (`edge.runtime.edge_match`) the gate — the network's unsure
+edges — mixes three sources pixel by pixel: the network's value, StereoBM's and the LiDAR's
+nearest point. Each pixel is chosen alone, so the mix is salt and pepper, and its edges follow
+whichever source won rather than the image. A weighted median over a few neighbours, each
+weighted by how alike its grey level is to the pixel's own, gives each pixel the value that
+most of its own surface holds: on motorcycle bad-3 with LiDAR 7.82 → 7.21 %, and every world
+gains on both EPE and bad-3 (docs/experiments.md, session 36). A plain median does nothing:
+the grey guidance is what aligns the edges. Averaging instead (edge-aware smoothing) is worse
+than nothing: a blend across an edge is the error bad-3 counts.
+
+How, in numpy at a few ms a frame: only the gated pixels (a quarter to a third of the frame),
+`radius`/`stride` sampling (9×9 every 2nd pixel: 25 samples), each sample packed into one
+float32 key — its disparity in 1/16 px (StereoBM's own step) × 256 plus its weight in 0–255
+(exp(−Δgrey² / 2σ²), from a table) — sorted by a fixed network of min/max passes over
+(samples, pixels) arrays, then the first key where the running weight reaches half the total.
+A pixel whose median lies within 1/16 px of its own value keeps its own, unquantised.
+
+Pure numpy + OpenCV (robot side, no torch).
+"""
+
+from __future__ import annotations
+
+from concurrent.futures import Executor
+from dataclasses import dataclass
+from functools import cached_property
+
+import cv2
+import numpy as np
+
+from edge_depth.errors import ConfigError
+from edge_depth.runtime.cells import Scratch
+
+SIGMA_GREY = 8.0   # the weights' width in grey levels
+SUBPIXEL = 16      # disparity steps per pixel in a key
+WEIGHT_BITS = 8     # a key = disparity step × 2^WEIGHT_BITS + weight (0 … 255)
+WEIGHT_LEVELS = 1 << WEIGHT_BITS
+MAX_DISPARITY_PX = (2 ** 24 // WEIGHT_LEVELS - 1) / SUBPIXEL  # keys exact in float32
+# "radius/stride": the samples are the pixels (dy, dx) with dy, dx in −radius … radius by
+# stride (docs/experiments.md, session 36: 9×9 every 2nd chosen on motorcycle)
+PATTERNS = {"9x9/2": (4, 2), "13x13/3": (6, 3), "9x9/4": (4, 4)}
+OFF = "off"
+MIN_SHARE_PX = 2000  # fewer gated pixels than twice this: one thread does them all
+
+
+def sorting_network(count: int) -> list[tuple[int, int]]:
+    """Batcher's odd-even merge sort as (a, b) compare-exchange pairs for `count` items: the
+    network for the next power of two, without the pairs that touch the missing items (they
+    would hold +inf and never move)."""
+    size = 1 << max(count - 1, 0).bit_length()
+    pairs = []
+    p = 1
+    while p < size:
+        k = p
+        while k >= 1:
+            for j in range(k % p, size - k, 2 * k):
+                for i in range(min(k, size - j - k)):
+                    if (i + j) // (2 * p) == (i + j + k) // (2 * p) and i + j + k < count:
+                        pairs.append((i + j, i + j + k))
+            k //= 2
+        p *= 2
+    return pairs
+
+
+@dataclass(frozen=True)
+class EdgeMedian:
+    """`EdgeMedian(pattern)`; `apply(disparity, grey, mask)`. `pattern`: a key of PATTERNS."""
+
+    pattern: str = "9x9/2"
+    sigma_grey: float = SIGMA_GREY
+
+    def __post_init__(self) -> None:
+        check_pattern(self.pattern)
+        if not self.sigma_grey > 0:
+            raise ConfigError("edge_median", "a positive σ in grey levels", self.sigma_grey)
+
+    @cached_property
+    def offsets(self) -> list[tuple[int, int]]:
+        """The samples' (dy, dx), the pixel itself among them."""
+        radius, stride = PATTERNS[self.pattern]
+        steps = range(-radius, radius + 1, stride)
+        return [(dy, dx) for dy in steps for dx in steps]
+
+    def flat_offsets(self, width: int) -> np.ndarray:
+        """The samples' offsets in a row-major image `width` wide, int32."""
+        return np.array([dy * width + dx for dy, dx in self.offsets], np.int32)
+
+    @cached_property
+    def network(self) -> list[tuple[int, int]]:
+        """The samples' sorting network."""
+        return sorting_network(len(self.offsets))
+
+    @cached_property
+    def weight_table(self) -> np.ndarray:
+        """Weight (whole numbers 0 … 255, float32) by |Δgrey| 0 … 255."""
+        diff = np.arange(256, dtype=np.float64)
+        return np.rint((WEIGHT_LEVELS - 1) * np.exp(-diff ** 2 / (2 * self.sigma_grey ** 2))
+                       ).astype(np.float32)
+
+    def apply(self, disparity: np.ndarray, grey: np.ndarray, mask: np.ndarray,
+              pool: Executor | None = None) -> np.ndarray:
+        """(H, W) float32: `disparity` (px) with each pixel of `mask` replaced by the weighted
+        median of its samples (their values as they were before this call). `grey`: the left
+        image (H, W), grey levels 0–255 (rounded here). `pool`: a thread that computes half
+        the pixels beside this one (numpy and OpenCV release the GIL)."""
+        out = np.array(disparity, np.float32)
+        ys, xs = np.nonzero(mask)
+        if len(ys) == 0:
+            return out
+        radius = PATTERNS[self.pattern][0]
+        border = (radius,) * 4
+        width = disparity.shape[1] + 2 * radius
+        level = cv2.copyMakeBorder(np.clip(np.rint(grey), 0, 255).astype(np.uint8),
+                                   *border, cv2.BORDER_REPLICATE).ravel()
+        steps = np.rint(np.clip(out, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.float32)
+        steps *= np.float32(WEIGHT_LEVELS)
+        step_keys = cv2.copyMakeBorder(steps, *border, cv2.BORDER_REPLICATE).ravel()
+        centre = ((ys + radius) * width + xs + radius).astype(np.int32)
+        offsets = self.flat_offsets(width)
+        if pool is None or len(centre) < 2 * MIN_SHARE_PX:
+            median = self._medians(centre, offsets, step_keys, level)
+        else:
+            half = len(centre) // 2
+            other = pool.submit(self._medians, centre[half:], offsets, step_keys, level)
+            median = np.concatenate([self._medians(centre[:half], offsets, step_keys, level),
+                                     other.result()])
+        own = out[ys, xs]
+        out[ys, xs] = np.where(np.abs(median - own) < 1.0 / SUBPIXEL, own, median)
+        return out
+
+    def _medians(self, centre: np.ndarray, offsets: np.ndarray, step_keys: np.ndarray,
+                 level: np.ndarray) -> np.ndarray:
+        """The weighted median (px, (N,) float32) at the padded image's flat pixels `centre`
+        (N,), from the padded disparity keys and grey levels. Into buffers reused frame to
+        frame (fresh pages for these megabytes cost a third of the time)."""
+        count, n = len(offsets), len(centre)
+
+        def buffer(name: str, dtype=np.float32) -> np.ndarray:
+            return self._scratch.take(name, count * n, 1, dtype).reshape(count, n)
+
+        sample = buffer("sample", np.intp)  # (samples, pixels) flat indices
+        np.add(centre[None, :], offsets[:, None], out=sample)
+        keys, weights = buffer("keys"), buffer("weights")
+        np.take(step_keys, sample, out=keys)
+        levels, own = buffer("levels", np.uint8), buffer("own", np.uint8)
+        np.take(level, sample, out=levels)
+        own[...] = level[centre]
+        cv2.absdiff(levels, own, dst=levels)
+        cv2.LUT(levels, self.weight_table, dst=weights)
+        keys += weights
+        rows = list(keys)  # sorted per column (pixel) ascending, swapping rows, not copying
+        spare = self._scratch.take("spare", n, 1).reshape(n)
+        for a, b in self.network:
+            np.minimum(rows[a], rows[b], out=spare)
+            np.maximum(rows[a], rows[b], out=rows[b])
+            rows[a], spare = spare, rows[a]
+        whole, running = buffer("whole", np.int32), buffer("running", np.int32)
+        for target, row in zip(whole, rows, strict=True):
+            target[...] = row  # exact: whole numbers below 2^24
+        np.bitwise_and(whole, WEIGHT_LEVELS - 1, out=running)  # each sample's weight ...
+        for row in range(1, count):
+            running[row] += running[row - 1]                     # ... summed in order
+        # the first sorted sample where the running weight reaches half the total
+        below = buffer("below", np.bool_)
+        np.less(running, (running[-1] + 1) >> 1, out=below)
+        first = np.add.reduce(below.view(np.uint8), axis=0, dtype=np.uint8)
+        chosen = whole[first, np.arange(n)]
+        return (chosen >> WEIGHT_BITS).astype(np.float32) * np.float32(1 / SUBPIXEL)
+
+    @cached_property
+    def _scratch(self) -> Scratch:
+        return Scratch()
+
+
+def check_pattern(pattern: str) -> None:
+    """`[engine] edge_median`: ConfigError unless one of PATTERNS (or OFF, checked by the
+    caller)."""
+    if pattern not in PATTERNS:
+        raise ConfigError("edge_median", " or ".join(f'"{p}"' for p in (OFF, *PATTERNS))
+                          + " (the weighted median's samples: window / step)", pattern)
