@@ -220,9 +220,11 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
     )
 
     meta = load_bundle_meta(DEFAULT_BUNDLE)
-    assert bundle_engine_defaults(meta) == {"edge_match": "auto", "edge_match_rows": 2}
+    assert bundle_engine_defaults(meta) == {"edge_match": "auto", "edge_match_rows": 2,
+                                            "edge_median": "off"}
     older = {k: v for k, v in meta.items() if k != "engine"}     # stage 16 and before: off
-    assert bundle_engine_defaults(older) == {"edge_match": 0, "edge_match_rows": 1}
+    assert bundle_engine_defaults(older) == {"edge_match": 0, "edge_match_rows": 1,
+                                             "edge_median": "off"}
     off = Engine(precision="int8", threads=1, meta=older)
     assert off.edge_match is None and off.describe().endswith("edge matching off (the bundle's)")
     given = Engine(precision="int8", threads=1, meta=older, edge_match=64)   # the caller's
@@ -231,6 +233,7 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
     for engine, text in (({"edge_match": 40}, "engine.edge_match"),
                          ({"edge_match": True}, "engine.edge_match"),
                          ({"edge_match_rows": 3}, "engine.edge_match_rows"),
+                         ({"edge_median": "5x5"}, "engine.edge_median"),
                          ("auto", 'model.json\'s "engine" as a table')):
         with pytest.raises(ConfigError, match=text):
             Engine(precision="int8", threads=1, meta={**meta, "engine": engine})
