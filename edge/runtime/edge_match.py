@@ -54,6 +54,10 @@ AUTO = "auto"        # the count per frame, from the network's own largest dispa
 AUTO_MARGIN_PX = 8   # ... plus this, rounded up to StereoBM's multiple of 16
 POINT_MARGIN = 0.8   # the LiDAR point's 5x5 warp cost must be below this x the network's
 MIN_TEXTURE = 4.0    # ... where the left image's 5x5 mean |d/dx| (grey levels / px) exceeds
+# with the weighted median after the choice, which cleans a wrong point's single pixels, a
+# looser gate takes more points (docs/experiments.md, session 36, chosen on motorcycle)
+MEDIAN_POINT_MARGIN = 1.0
+MEDIAN_MIN_TEXTURE = 2.0
 ROW_STEPS = (1, 2)   # StereoBM on every row, or every other row (session 30: half its time)
 # the block matcher: OpenCV's StereoBM (the default), or its SGBM (3-way, block 5: the
 # classical baseline's), which leaves far fewer holes in the gate for about SGBM's whole time
@@ -74,8 +78,8 @@ class EdgeMatch:
     min_range_px: float = MIN_RANGE_PX
     window_px: int = WINDOW_PX
     photo_window_px: int = PHOTO_WINDOW_PX
-    point_margin: float = POINT_MARGIN
-    min_texture: float = MIN_TEXTURE
+    point_margin: float | None = None  # None: POINT_MARGIN, or MEDIAN_POINT_MARGIN with median
+    min_texture: float | None = None   # None: MIN_TEXTURE, or MEDIAN_MIN_TEXTURE with median
     row_step: int = 1
     matcher: str = "bm"
     median: str = OFF  # or a pattern of edge_median.PATTERNS: the gate's weighted median
@@ -88,6 +92,10 @@ class EdgeMatch:
         check_row_step(self.row_step)
         check_matcher(self.matcher)
         self._median = None if self.median == OFF else EdgeMedian(self.median)
+        if self.point_margin is None:
+            self.point_margin = POINT_MARGIN if self._median is None else MEDIAN_POINT_MARGIN
+        if self.min_texture is None:
+            self.min_texture = MIN_TEXTURE if self._median is None else MEDIAN_MIN_TEXTURE
         self._matchers: dict[int, cv2.StereoMatcher] = {}
 
     def _matcher(self, num_disparities: int) -> cv2.StereoMatcher:
