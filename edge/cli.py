@@ -41,6 +41,11 @@ def add_edge_match_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
                         help="the matching's block matcher, as [engine] edge_matcher: bm "
                              "(StereoBM) or sgbm (fewer holes, about SGBM's time more)")
+    parser.add_argument("--edge-median", choices=("off", "9x9/2", "13x13/3", "9x9/4"),
+                        default=None,
+                        help="the grey-guided weighted median over the matching's gate, as "
+                             "[engine] edge_median: its samples (window/step) or off; "
+                             "default: the bundle's (the shipped one: 9x9/2)")
 
 
 def _positive_int(text: str) -> int:
@@ -356,7 +361,7 @@ def main(argv: list[str] | None = None) -> int:
                                   args.threads, args.bundle, args.scale, args.profile,
                                   args.runtime, {"auto": None, "on": True,
                                                  "off": False}[args.bf16], args.edge_match,
-                                  args.edge_match_rows, args.edge_matcher)
+                                  args.edge_match_rows, args.edge_matcher, args.edge_median)
         if args.command == "run":
             from edge_depth.commands import run_command
 

@@ -39,12 +39,14 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    threads: int = 2, bundle=None, scale: float = 0.0,
                    profile: str = "foxglove", runtime: str = "auto",
                    bf16: bool | None = None, edge_match: int | str | None = None,
-                   edge_match_rows: int | None = None, edge_matcher: str = "bm") -> int:
+                   edge_match_rows: int | None = None, edge_matcher: str = "bm",
+                   edge_median: str | None = None) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth.
     `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
     (0 = off); `edge_match_rows` as `[engine] edge_match_rows`; None: the bundle's;
-    `edge_matcher` as `[engine] edge_matcher`."""
+    `edge_matcher` as `[engine] edge_matcher`, `edge_median` as `[engine] edge_median`
+    (None: the bundle's)."""
     from edge_depth.capture.replay import McapSource, TopicMap
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
@@ -55,7 +57,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     stereo, lidar = replay_calibration(source, calib)
     engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
                     scale=scale or None, runtime=runtime, bf16=bf16, edge_match=edge_match,
-                    edge_match_rows=edge_match_rows, edge_matcher=edge_matcher)
+                    edge_match_rows=edge_match_rows, edge_matcher=edge_matcher,
+                    edge_median=edge_median)
     log.info("engine: %s", engine.describe())
     stop = StopFlag()
     stop.install()
@@ -236,7 +239,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                     scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
                     lidar_select=e.lidar_select, edge_select=e.edge_select,
                     edge_match=e.edge_match_choice, edge_match_rows=e.edge_match_rows_choice,
-                    edge_matcher=e.edge_matcher)
+                    edge_matcher=e.edge_matcher, edge_median=e.edge_median_choice)
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()

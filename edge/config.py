@@ -53,6 +53,9 @@
     edge_matcher = "bm"         # "sgbm": the matching with OpenCV's SGBM instead of
                                 # StereoBM: far fewer holes, better on real pairs, for about
                                 # SGBM's whole time more per frame (README)
+    edge_median = "bundle"      # the grey-guided weighted median over the matching's gate:
+                                # "9x9/2" (the shipped bundle's), "13x13/3", "9x9/4" or "off";
+                                # "bundle" = the bundle's
 
     [log]
     out = "logs/depth.mcap"
@@ -136,6 +139,7 @@ class EngineConfig:
     edge_match: int | str = BUNDLE  # or "auto", or a count (0 = off)
     edge_match_rows: int | str = BUNDLE  # or 1, 2
     edge_matcher: str = "bm"  # or "sgbm"
+    edge_median: str = BUNDLE  # or "off", "9x9/2", "13x13/3", "9x9/4"
 
     @property
     def edge_match_choice(self) -> int | str | None:
@@ -145,6 +149,10 @@ class EngineConfig:
     @property
     def edge_match_rows_choice(self) -> int | None:
         return None if self.edge_match_rows == BUNDLE else self.edge_match_rows
+
+    @property
+    def edge_median_choice(self) -> str | None:
+        return None if self.edge_median == BUNDLE else self.edge_median
 
     @property
     def bf16_choice(self) -> bool | None:
@@ -184,6 +192,7 @@ CHOICES = {
     ("engine", "runtime"): ("auto", "onnxruntime", "openvino"),
     ("engine", "bf16"): ("auto", "on", "off"),
     ("engine", "edge_matcher"): ("bm", "sgbm"),
+    ("engine", "edge_median"): (BUNDLE, "off", "9x9/2", "13x13/3", "9x9/4"),
     ("log", "compression"): ("lz4", "zstd", "none"),
     ("log", "profile"): ("foxglove", "ros2"),
 }

@@ -78,8 +78,8 @@ def _scene(seed: int = 1_000_002):
 def test_onnxruntime_engine_describes_itself_and_never_uses_bf16():
     engine = Engine(precision="int8", threads=1, runtime="onnxruntime", bf16=True)
     assert engine.runtime == "onnxruntime" and not engine.bf16
-    assert engine.describe() == ("int8 on onnxruntime, edge matching auto on every 2nd row "
-                                 "(the bundle's)")
+    assert engine.describe() == ("int8 on onnxruntime, edge matching auto on every 2nd row, "
+                                 "weighted median 9x9/2 (the bundle's)")
 
 
 @pytest.mark.skipif(not backends.openvino_available(), reason="OpenVINO not installed")

@@ -221,9 +221,11 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     # version 10's head is made for the edge matching: its bundle declares it the default
     declared = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
     if version == 10:
-        assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2}
+        assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
+                                  "edge_median": "9x9/2"}
         assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
-        assert declared.describe().endswith("edge matching auto on every 2nd row (the bundle's)")
+        assert declared.describe().endswith("edge matching auto on every 2nd row, weighted "
+                                            "median 9x9/2 (the bundle's)")
     else:
         assert "engine" not in meta and declared.edge_match is None
         assert declared.describe().endswith("edge matching off (the bundle's)")

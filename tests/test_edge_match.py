@@ -151,8 +151,11 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     # the shipped bundle (stage 17) declares "auto" on every other row: the default engine
     shipped = engine.infer(big(left), big(right), sparse)
     assert engine.edge_match.num_disparities == 0 and engine.edge_match.row_step == 2
-    assert "edge matching auto on every 2nd row (the bundle's)" in engine.describe()
-    expected, replaced = EdgeMatch(disparities_for(plain.disparity, 640), row_step=2).apply(
+    assert engine.describe().endswith("edge matching auto on every 2nd row, weighted median "
+                                      "9x9/2 (the bundle's)")
+    # ... and its weighted median over the gate (half its pixels on the matching's thread)
+    expected, replaced = EdgeMatch(disparities_for(plain.disparity, 640), row_step=2,
+                                   median="9x9/2").apply(
         big(left), big(right), plain.disparity, plain.confidence, sparse)
     np.testing.assert_array_equal(shipped.disparity, expected)
     assert shipped.matched_px == replaced > 0 and shipped.timings_ms["edge_match"] > 0
@@ -162,8 +165,8 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     assert matched.matched_px is not None and matched.matched_px > 0
     assert matched.timings_ms["edge_match"] > 0
     # the same stage applied to the engine's output without it
-    expected, count = EdgeMatch(128).apply(big(left), big(right), plain.disparity,
-                                           plain.confidence, sparse)
+    expected, count = EdgeMatch(128, median="9x9/2").apply(
+        big(left), big(right), plain.disparity, plain.confidence, sparse)
     np.testing.assert_array_equal(matched.disparity, expected)
     assert matched.matched_px == count
     assert plain.match_beyond_px is None and matched.match_beyond_px == 0   # up to ~60 px
@@ -172,8 +175,8 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
         big(left), big(right), sparse)
     count = disparities_for(plain.disparity, 640)
     assert count == 16 * int(np.ceil((plain.disparity.max() + 8) / 16))
-    expected, replaced = EdgeMatch(count).apply(big(left), big(right), plain.disparity,
-                                                plain.confidence, sparse)
+    expected, replaced = EdgeMatch(count, median="9x9/2").apply(
+        big(left), big(right), plain.disparity, plain.confidence, sparse)
     np.testing.assert_array_equal(auto.disparity, expected)
     assert auto.matched_px == replaced and auto.match_beyond_px == 0
     # a count below the scene's disparities is counted, not silent
@@ -221,7 +224,7 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
 
     meta = load_bundle_meta(DEFAULT_BUNDLE)
     assert bundle_engine_defaults(meta) == {"edge_match": "auto", "edge_match_rows": 2,
-                                            "edge_median": "off"}
+                                            "edge_median": "9x9/2"}
     older = {k: v for k, v in meta.items() if k != "engine"}     # stage 16 and before: off
     assert bundle_engine_defaults(older) == {"edge_match": 0, "edge_match_rows": 1,
                                              "edge_median": "off"}
@@ -392,8 +395,8 @@ def test_sgbm_as_the_matcher_fills_what_stereobm_leaves_and_is_switched_on_every
         Engine(precision="int8", threads=1, edge_matcher="census")
     engine = Engine(precision="int8", threads=1, edge_matcher="sgbm")   # the bundle's count
     assert engine.edge_match.matcher == "sgbm" and engine.edge_match.row_step == 2
-    assert engine.describe().endswith("edge matching auto with SGBM on every 2nd row "
-                                      "(the bundle's)")
+    assert engine.describe().endswith("edge matching auto with SGBM on every 2nd row, "
+                                      "weighted median 9x9/2 (the bundle's)")
     path = tmp_path / "c.toml"
     path.write_text('[engine]\nedge_matcher = "sgbm"\n')
     assert load_robot_config(path).engine.edge_matcher == "sgbm"

@@ -308,7 +308,8 @@ def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
     out = capsys.readouterr().out
     assert "network (int8) EPE" in out and "OpenCV SGBM" in out
     # what runs, said first: the shipped bundle's own matching included
-    assert "edge matching auto on every 2nd row (the bundle's)" in out.splitlines()[0]
+    assert ("edge matching auto on every 2nd row, weighted median 9x9/2 (the bundle's)"
+            in out.splitlines()[0])
     net = float(out.split("network (int8) EPE ")[1].split()[0])
     sgbm = float(out.split("OpenCV SGBM     EPE ")[1].split()[0])
     assert net < sgbm

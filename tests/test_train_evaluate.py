@@ -129,7 +129,8 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert result["ratios"]["edge_match_vs_sgbm"] == pytest.approx(
         stages["edge_match"]["median_ms"] / result["sgbm_ms"])
     assert "the engine's edge_match stage / SGBM" in md.read_text()
-    assert result["engine"].endswith("edge matching auto on every 2nd row (the bundle's)")
+    assert result["engine"].endswith("edge matching auto on every 2nd row, weighted median "
+                                     "9x9/2 (the bundle's)")
     # one thread leaves a core idle (where there are two): "auto" matches before the last step
     from edge_depth.runtime.engine import usable_cores
 

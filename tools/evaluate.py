@@ -88,13 +88,14 @@ class BundleNet:
     def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
                  bf16: bool | None = None, lidar_select: bool = True,
                  edge_match: int | str | None = None,
-                 edge_match_rows: int | None = None, edge_matcher: str = "bm") -> None:
+                 edge_match_rows: int | None = None, edge_matcher: str = "bm",
+                 edge_median: str | None = None) -> None:
         from edge_depth.runtime.engine import Engine
 
         self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
                              lidar_select=lidar_select, edge_select=lidar_select,
                              edge_match=edge_match, edge_match_rows=edge_match_rows,
-                             edge_matcher=edge_matcher)
+                             edge_matcher=edge_matcher, edge_median=edge_median)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
@@ -104,9 +105,9 @@ class BundleNet:
 def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
              bf16: bool | None = None, lidar_select: bool = True,
              edge_match: int | str | None = None, edge_match_rows: int | None = None,
-             edge_matcher: str = "bm"):
+             edge_matcher: str = "bm", edge_median: str | None = None):
     return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match,
-                     edge_match_rows, edge_matcher) \
+                     edge_match_rows, edge_matcher, edge_median) \
         if model.is_dir() else TorchNet(model)
 
 
@@ -115,14 +116,16 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
              bf16: bool | None = None, lidar_select: bool = True,
              edge_match: int | str | None = None, first: dict | None = None,
              edge_match_rows: int | None = None,
-             edge_matcher: str = "bm") -> dict[str, dict[str, float]]:
+             edge_matcher: str = "bm",
+             edge_median: str | None = None) -> dict[str, dict[str, float]]:
     """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
     each method's prediction on it (by method name), for `picture`. `edge_match` and
-    `edge_match_rows` as the engine's (None: the bundle's), `edge_matcher` too."""
+    `edge_match_rows` as the engine's (None: the bundle's), `edge_matcher` and `edge_median`
+    too."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
         net = load_net(model, precision, runtime, bf16, lidar_select, edge_match,
-                       edge_match_rows, edge_matcher)
+                       edge_match_rows, edge_matcher, edge_median)
         if isinstance(net, BundleNet):
             print(f"{model}: {net.engine.describe()}", file=sys.stderr)
     matched = isinstance(net, BundleNet) and net.engine.edge_match is not None
@@ -273,7 +276,7 @@ def main(argv: list[str] | None = None) -> int:
     first: dict | None = {} if args.picture else None
     summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
                        bf16, not args.no_select, args.edge_match, first,
-                       args.edge_match_rows, args.edge_matcher)
+                       args.edge_match_rows, args.edge_matcher, args.edge_median)
     print(markdown_table(summary))
     if args.picture:
         import cv2

@@ -177,7 +177,8 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if edge_select and "edge_select" in self.meta else None
         declared = bundle_engine_defaults(self.meta, self.bundle)
-        self.edge_match_source = "bundle" if edge_match is None else "given"
+        self.edge_match_source = "bundle" if edge_match is None and edge_median is None \
+            else "given"
         edge_match = declared["edge_match"] if edge_match is None else edge_match
         edge_match_rows = declared["edge_match_rows"] if edge_match_rows is None \
             else edge_match_rows
@@ -256,8 +257,8 @@ class Engine:
         self.infer(blank, blank, np.zeros((self.height, self.width), np.float32), iters=iters)
 
     def describe(self) -> str:
-        """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row (the
-        bundle's)': what runs, for the first log line."""
+        """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
+        median 9x9/2 (the bundle's)': what runs, for the first log line."""
         text = f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
         m = self.edge_match
         source = " (the bundle's)" if self.edge_match_source == "bundle" else ""

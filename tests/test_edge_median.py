@@ -1,0 +1,153 @@
+"""The grey-guided weighted median over the matching's gate (edge.runtime.edge_median)."""
+
+from concurrent.futures import ThreadPoolExecutor
+
+import numpy as np
+import pytest
+
+from edge_depth.errors import ConfigError
+from edge_depth.runtime.edge_match import (
+    MEDIAN_MIN_TEXTURE,
+    MEDIAN_POINT_MARGIN,
+    MIN_TEXTURE,
+    POINT_MARGIN,
+    EdgeMatch,
+)
+from edge_depth.runtime.edge_median import PATTERNS, EdgeMedian, sorting_network
+
+
+def apply_network(pairs, values: np.ndarray) -> np.ndarray:
+    out = values.copy()
+    for a, b in pairs:
+        low = np.minimum(out[a], out[b])
+        out[b] = np.maximum(out[a], out[b])
+        out[a] = low
+    return out
+
+
+@pytest.mark.parametrize("count", [9, 16])
+def test_the_sorting_network_sorts_every_zero_one_input(count):
+    # the 0-1 principle: a comparator network that sorts every 0/1 input sorts everything
+    inputs = (np.arange(2 ** count)[None, :] >> np.arange(count)[:, None]) & 1
+    np.testing.assert_array_equal(apply_network(sorting_network(count), inputs),
+                                  np.sort(inputs, axis=0))
+
+
+def test_the_sorting_network_sorts_25_samples():
+    values = np.random.default_rng(0).normal(size=(25, 20000)).astype(np.float32)
+    values[:, :100] = 1.0                                              # ties
+    pairs = sorting_network(25)
+    assert len(pairs) < 150                                           # 25 log² 25 / 4 or so
+    np.testing.assert_array_equal(apply_network(pairs, values), np.sort(values, axis=0))
+
+
+def direct_median(median: EdgeMedian, disparity, grey, y, x) -> float:
+    """The weighted median at one pixel, written out: each sample's weight from the table,
+    the values in order, the first whose running weight reaches half the total."""
+    h, w = disparity.shape
+    level = np.clip(np.rint(grey), 0, 255).astype(int)
+    values, weights = [], []
+    for dy, dx in median.offsets:
+        yy, xx = min(max(y + dy, 0), h - 1), min(max(x + dx, 0), w - 1)   # edge replicated
+        values.append(disparity[yy, xx])
+        weights.append(median.weight_table[abs(level[yy, xx] - level[y, x])])
+    order = np.argsort(values, kind="stable")
+    running = np.cumsum(np.asarray(weights)[order])
+    return float(np.asarray(values)[order][np.argmax(running * 2 >= running[-1])])
+
+
+@pytest.mark.parametrize("pattern", sorted(PATTERNS))
+def test_the_median_is_the_written_out_weighted_median_at_each_masked_pixel(pattern):
+    rng = np.random.default_rng(1)
+    h, w = 48, 64
+    disparity = np.rint(rng.uniform(0, 90, (h, w)) * 16).astype(np.float32) / 16  # 1/16 px
+    grey = rng.integers(0, 256, (h, w)).astype(np.float32)
+    grey[:, w // 2:] = rng.integers(120, 140, (h, w - w // 2))       # a flat half: big weights
+    mask = rng.random((h, w)) < 0.4
+    median = EdgeMedian(pattern)
+    out = median.apply(disparity, grey, mask)
+    np.testing.assert_array_equal(out[~mask], disparity[~mask])        # the rest untouched
+    ys, xs = np.nonzero(mask)
+    expected = [direct_median(median, disparity, grey, y, x) for y, x in zip(ys, xs, strict=True)]
+    np.testing.assert_array_equal(out[ys, xs], np.asarray(expected, np.float32))
+    assert np.mean(out[ys, xs] != disparity[ys, xs]) > 0.3          # it did change values
+
+
+def test_half_the_pixels_on_another_thread_give_the_same_output():
+    rng = np.random.default_rng(2)
+    disparity = rng.uniform(0, 60, (120, 160)).astype(np.float32)
+    grey = rng.uniform(0, 255, (120, 160)).astype(np.float32)
+    mask = rng.random((120, 160)) < 0.5                                 # ~9 600 px: split
+    median = EdgeMedian()
+    with ThreadPoolExecutor(1) as pool:
+        np.testing.assert_array_equal(median.apply(disparity, grey, mask, pool),
+                                      median.apply(disparity, grey, mask))
+    assert median.apply(disparity, grey, np.zeros_like(mask)) is not disparity
+    np.testing.assert_array_equal(median.apply(disparity, grey, np.zeros_like(mask)), disparity)
+
+
+def test_salt_and_a_misplaced_edge_go_back_to_the_image_edge():
+    """A depth step whose edge sits 2 px off the image's, with 5 % wrong pixels around it:
+    the grey-guided median puts the step back on the image's edge; a plain median cannot
+    (every pixel there sees both sides)."""
+    rng = np.random.default_rng(3)
+    h, w, edge = 60, 80, 40
+    grey = np.where(np.arange(w)[None, :] < edge, 60.0, 190.0) * np.ones((h, 1))
+    grey += rng.normal(0, 2, (h, w))
+    truth = np.where(np.arange(w)[None, :] < edge, 30.0, 12.0) * np.ones((h, 1))
+    got = np.where(np.arange(w)[None, :] < edge + 2, 30.0, 12.0) * np.ones((h, 1))
+    salt = rng.random((h, w)) < 0.05
+    got[salt] = rng.uniform(0, 60, salt.sum())
+    band = np.abs(np.arange(w) - edge)[None, :].repeat(h, 0) < 8
+    out = EdgeMedian().apply(got.astype(np.float32), grey, band)
+    inner = band.copy()
+    inner[:4], inner[-4:] = False, False                                 # away from the border
+    assert np.mean(np.abs(got - truth)[inner] < 0.5) < 0.85
+    assert np.mean(np.abs(out - truth)[inner] < 0.5) > 0.99
+    np.testing.assert_array_equal(out[~band], got[~band].astype(np.float32))
+
+
+def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
+    from edge_depth.config import load_robot_config
+    from edge_depth.runtime.engine import Engine
+    from edge_depth.tools import evaluate
+
+    for bad in ("5x5", "9x9"):
+        with pytest.raises(ConfigError, match="edge_median.*9x9/2"):
+            EdgeMedian(bad)
+        with pytest.raises(ConfigError, match="edge_median"):
+            EdgeMatch(64, median=bad)
+    with pytest.raises(ConfigError, match="positive"):
+        EdgeMedian(sigma_grey=0.0)
+    with pytest.raises(ConfigError, match="edge_median"):
+        Engine(precision="int8", threads=1, edge_median="5x5")
+    path = tmp_path / "c.toml"
+    path.write_text('[engine]\nedge_median = "5x5"\n')
+    with pytest.raises(ConfigError, match="edge_median"):
+        load_robot_config(path)
+    path.write_text('[engine]\nedge_median = "off"\n')
+    assert load_robot_config(path).engine.edge_median_choice == "off"
+    path.write_text("[engine]\n")
+    assert load_robot_config(path).engine.edge_median_choice is None    # the bundle's
+    with pytest.raises(SystemExit):
+        evaluate.main([str(tmp_path), "--edge-median", "5x5"])
+
+
+def test_the_engine_takes_it_from_the_bundle_or_the_caller():
+    from edge_depth.runtime.engine import Engine
+
+    shipped = Engine(precision="int8", threads=1)
+    assert shipped.edge_match.median == "9x9/2"
+    off = Engine(precision="int8", threads=1, edge_median="off")
+    assert off.edge_match.median == "off" and "median" not in off.describe()
+    other = Engine(precision="int8", threads=1, edge_median="9x9/4")
+    assert other.describe().endswith("weighted median 9x9/4")
+
+
+def test_with_the_median_the_point_gate_is_the_looser_one():
+    assert (EdgeMatch(64).point_margin, EdgeMatch(64).min_texture) == (POINT_MARGIN, MIN_TEXTURE)
+    with_median = EdgeMatch(64, median="9x9/2")
+    assert (with_median.point_margin, with_median.min_texture) == \
+        (MEDIAN_POINT_MARGIN, MEDIAN_MIN_TEXTURE) == (1.0, 2.0)
+    given = EdgeMatch(64, median="9x9/2", point_margin=0.5, min_texture=8.0)   # the caller's
+    assert (given.point_margin, given.min_texture) == (0.5, 8.0)
