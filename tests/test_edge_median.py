@@ -86,6 +86,17 @@ def test_half_the_pixels_on_another_thread_give_the_same_output():
     np.testing.assert_array_equal(median.apply(disparity, grey, np.zeros_like(mask)), disparity)
 
 
+def test_a_non_finite_value_does_not_spread_to_its_neighbours():
+    disparity = np.full((40, 40), 20.0, np.float32)
+    disparity[20, 20], disparity[10, 10] = np.nan, np.inf
+    grey = np.full((40, 40), 100.0, np.float32)
+    mask = np.ones((40, 40), bool)
+    mask[10, 10] = False                                   # left as it is: inf stays inf
+    out = EdgeMedian().apply(disparity, grey, mask)
+    assert np.isinf(out[10, 10]) and np.isfinite(np.delete(out.ravel(), 10 * 40 + 10)).all()
+    np.testing.assert_array_equal(np.delete(out.ravel(), 10 * 40 + 10), 20.0)
+
+
 def test_salt_and_a_misplaced_edge_go_back_to_the_image_edge():
     """A depth step whose edge sits 2 px off the image's, with 5 % wrong pixels around it:
     the grey-guided median puts the step back on the image's edge; a plain median cannot

@@ -113,7 +113,10 @@ class EdgeMedian:
         width = disparity.shape[1] + 2 * radius
         level = cv2.copyMakeBorder(np.clip(np.rint(grey), 0, 255).astype(np.uint8),
                                    *border, cv2.BORDER_REPLICATE).ravel()
-        steps = np.rint(np.clip(out, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.float32)
+        # a non-finite value (none should reach here) must not become a garbage key that a
+        # neighbour's median could pick: NaN counts as 0, ±inf as the range's ends
+        finite = np.nan_to_num(out, nan=0.0, posinf=MAX_DISPARITY_PX, neginf=0.0)
+        steps = np.rint(np.clip(finite, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.float32)
         steps *= np.float32(WEIGHT_LEVELS)
         step_keys = cv2.copyMakeBorder(steps, *border, cv2.BORDER_REPLICATE).ravel()
         centre = ((ys + radius) * width + xs + radius).astype(np.int32)
