@@ -144,6 +144,20 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
         evaluate.main([str(tmp_path), "--edge-median", "5x5"])
 
 
+def test_the_command_line_and_the_config_offer_exactly_the_patterns():
+    import argparse
+
+    from edge_depth.cli import add_edge_match_arguments
+    from edge_depth.config import BUNDLE, CHOICES
+    from edge_depth.runtime.edge_median import OFF
+
+    parser = argparse.ArgumentParser()
+    add_edge_match_arguments(parser)
+    flag = next(a for a in parser._actions if a.dest == "edge_median")
+    assert tuple(flag.choices) == (OFF, *PATTERNS)
+    assert CHOICES[("engine", "edge_median")] == (BUNDLE, OFF, *PATTERNS)
+
+
 def test_the_engine_takes_it_from_the_bundle_or_the_caller():
     from edge_depth.runtime.engine import Engine
 

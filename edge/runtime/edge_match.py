@@ -12,6 +12,10 @@ the frame's pixels on motorcycle), the LiDAR's nearest point is the second candi
 where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
+With `median` (the shipped bundle's "9x9/2", session 36) the gate then goes through a
+grey-guided weighted median (`edge.runtime.edge_median`), which cleans the choice's
+pixel-by-pixel mix, and the point's gate is looser (`MEDIAN_POINT_MARGIN`,
+`MEDIAN_MIN_TEXTURE`).
 
 Whether it runs is the bundle's to declare (model.json's "engine", `[engine] edge_match =
 "bundle"` by default): since stage 17 the shipped bundle's head (refinement version 10, no

@@ -109,7 +109,10 @@ class Engine:
     the shipped bundle's head is made for the matching, "auto" on every other row); 0 and
     1 where it declares nothing. Tools that fit or check the network's own output pass 0.
     `edge_matcher`: the matching's block matcher, "bm" (StereoBM) or "sgbm" (fewer holes at
-    about SGBM's time: for a robot with the cores)."""
+    about SGBM's time: for a robot with the cores). `edge_median`: the matching's last step,
+    a grey-guided weighted median over its gate (`edge.runtime.edge_median`: a pattern of
+    its PATTERNS, or "off"); None: the bundle's (the shipped one's "9x9/2"), "off" where it
+    declares nothing."""
 
     def __init__(self, bundle: Path | str = DEFAULT_BUNDLE, precision: str = "int8",
                  threads: int = 2, meta: dict | None = None, scale: float | None = None,
