@@ -5,8 +5,9 @@ edges — mixes three sources pixel by pixel: the network's value, StereoBM's an
 nearest point. Each pixel is chosen alone, so the mix is salt and pepper, and its edges follow
 whichever source won rather than the image. A weighted median over a few neighbours, each
 weighted by how alike its grey level is to the pixel's own, gives each pixel the value that
-most of its own surface holds: on motorcycle bad-3 with LiDAR 7.82 → 7.21 %, and every world
-gains on both EPE and bad-3 (docs/experiments.md, session 36). A plain median does nothing:
+most of its own surface holds: on motorcycle bad-3 with LiDAR 7.82 → 7.21 % (6.98 with the
+looser LiDAR-point gate it allows), and every world gains on both EPE and bad-3
+(docs/experiments.md, session 36). A plain median does nothing:
 the grey guidance is what aligns the edges. Averaging instead (edge-aware smoothing) is worse
 than nothing: a blend across an edge is the error bad-3 counts.
 
