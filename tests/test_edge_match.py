@@ -153,7 +153,7 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     assert engine.edge_match.num_disparities == 0 and engine.edge_match.row_step == 2
     assert engine.describe().endswith("edge matching auto on every 2nd row, weighted median "
                                       "9x9/2 (the bundle's)")
-    # ... and its weighted median over the gate (half its pixels on the matching's thread)
+    # ... and its weighted median over the gate
     expected, replaced = EdgeMatch(disparities_for(plain.disparity, 640), row_step=2,
                                    median="9x9/2").apply(
         big(left), big(right), plain.disparity, plain.confidence, sparse)

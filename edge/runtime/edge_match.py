@@ -35,7 +35,6 @@ give both.
 from __future__ import annotations
 
 import argparse
-from concurrent.futures import Executor
 from dataclasses import dataclass
 
 import cv2
@@ -196,10 +195,9 @@ class EdgeMatch:
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
 
     def finish(self, prepared: Prepared | None, disparity: np.ndarray,
-               matched: np.ndarray, pool: Executor | None = None) -> tuple[np.ndarray, int]:
+               matched: np.ndarray) -> tuple[np.ndarray, int]:
         """`apply`'s answer from `prepare`'s and StereoBM's, then (`median`) the gate's
-        grey-guided weighted median (`edge.runtime.edge_median`; `pool`: a thread that takes
-        half its pixels)."""
+        grey-guided weighted median (`edge.runtime.edge_median`)."""
         if prepared is None:
             return disparity.astype(np.float32, copy=True), 0
         found = matched > 0
@@ -213,7 +211,7 @@ class EdgeMatch:
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take
         if self._median is not None:
-            out = self._median.apply(out, prepared.grey[0], prepared.gate, pool)
+            out = self._median.apply(out, prepared.grey[0], prepared.gate)
         return out, int(take.sum())
 
 

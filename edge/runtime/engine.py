@@ -400,8 +400,7 @@ class Engine:
             job = None if early is not None else \
                 self._matcher_thread().submit(match.matched, *pair, count)
             prepared = match.prepare(*pair, disp, confidence, buf["sparse"][0, 0], terms)
-            disp, matched = match.finish(prepared, disp, found if job is None else job.result(),
-                                         self._matcher_thread())
+            disp, matched = match.finish(prepared, disp, found if job is None else job.result())
             timings["edge_match"] = (time.perf_counter() - t) * 1000
             up_ms += timings["edge_match"]
         # what follows the last step, for the deadline's prediction
