@@ -71,6 +71,18 @@ def test_the_median_is_the_written_out_weighted_median_at_each_masked_pixel(patt
     assert np.mean(out[ys, xs] != disparity[ys, xs]) > 0.3          # it did change values
 
 
+def test_passes_over_the_gate_give_the_one_pass_output(monkeypatch):
+    import edge_depth.runtime.edge_median as edge_median
+
+    rng = np.random.default_rng(4)
+    disparity = rng.uniform(0, 60, (60, 80)).astype(np.float32)
+    grey = rng.uniform(0, 255, (60, 80)).astype(np.float32)
+    mask = rng.random((60, 80)) < 0.5
+    whole = EdgeMedian().apply(disparity, grey, mask)                 # ~2 400 px: one pass
+    monkeypatch.setattr(edge_median, "CHUNK_PX", 97)                  # ~25 passes, uneven
+    np.testing.assert_array_equal(EdgeMedian().apply(disparity, grey, mask), whole)
+
+
 def test_an_empty_mask_gives_an_unchanged_copy():
     disparity = np.random.default_rng(2).uniform(0, 60, (120, 160)).astype(np.float32)
     out = EdgeMedian().apply(disparity, np.zeros_like(disparity), np.zeros((120, 160), bool))
