@@ -178,9 +178,14 @@ class EdgeMedian:
         return Scratch()
 
 
+def settings_text() -> str:
+    """'"off" or "9x9/2" or …': what `edge_median` accepts, for error lines."""
+    return " or ".join(f'"{p}"' for p in (OFF, *PATTERNS))
+
+
 def check_pattern(pattern: str) -> None:
     """`[engine] edge_median`: ConfigError unless one of PATTERNS (or OFF, checked by the
     caller)."""
     if pattern not in PATTERNS:
-        raise ConfigError("edge_median", " or ".join(f'"{p}"' for p in (OFF, *PATTERNS))
+        raise ConfigError("edge_median", settings_text()
                           + " (the weighted median's samples: window / step)", pattern)

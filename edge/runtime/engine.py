@@ -29,7 +29,7 @@ from edge_depth.runtime.edge_match import (
     check_row_step,
     disparities_for,
 )
-from edge_depth.runtime.edge_median import OFF, PATTERNS, check_pattern
+from edge_depth.runtime.edge_median import OFF, PATTERNS, check_pattern, settings_text
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -79,8 +79,7 @@ def bundle_engine_defaults(meta: dict, bundle: Path | str = "") -> dict:
                           + " or ".join(map(str, ROW_STEPS)),
                           f"{values['edge_match_rows']!r} in {bundle}")
     if values["edge_median"] != OFF and values["edge_median"] not in PATTERNS:
-        raise ConfigError("bundle", "model.json's engine.edge_median "
-                          + " or ".join(f'"{p}"' for p in (OFF, *PATTERNS)),
+        raise ConfigError("bundle", "model.json's engine.edge_median " + settings_text(),
                           f"{values['edge_median']!r} in {bundle}")
     return values
 
