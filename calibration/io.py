@@ -18,7 +18,6 @@
 
 from __future__ import annotations
 
-import tomllib
 from pathlib import Path
 
 import numpy as np
@@ -26,6 +25,7 @@ import numpy as np
 from edge_depth.calibration.atomic import atomic_write
 from edge_depth.calibration.errors import CalibrationError, CalibrationFileError
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.calibration.tomlfile import TomlReadError, parse_toml, read_toml
 
 _SCHEMA: dict[str, set[str]] = {
     "": {"stereo", "lidar"},
@@ -68,13 +68,14 @@ def load_calibration(path: str | Path) -> tuple[StereoCalibration, LidarExtrinsi
     the file, the key and what was expected."""
     path = str(path)
     try:
-        with open(path, encoding="utf-8") as f:
-            text = f.read()
+        data = read_toml(path)
     except FileNotFoundError:
         raise CalibrationFileError("file not found", path) from None
-    except UnicodeDecodeError:
-        raise CalibrationFileError("not a text file", path) from None
-    return loads_calibration(text, path)
+    except IsADirectoryError:
+        raise CalibrationFileError("a directory, not a calibration file", path) from None
+    except TomlReadError as exc:
+        raise CalibrationFileError(str(exc), path) from None
+    return calibration_from_toml(data, path)
 
 
 MAX_TIME_OFFSET_NS = 3600 * 10**9  # an hour: beyond it the clocks are not the same kind
@@ -94,9 +95,15 @@ def loads_calibration(text: str, path: str = "<string>"
                       ) -> tuple[StereoCalibration, LidarExtrinsics | None]:
     """`load_calibration` from TOML text; `path` names where it came from in errors."""
     try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CalibrationFileError(f"not valid TOML ({exc})", path) from None
+        data = parse_toml(text)
+    except TomlReadError as exc:
+        raise CalibrationFileError(str(exc), path) from None
+    return calibration_from_toml(data, path)
+
+
+def calibration_from_toml(data: dict, path: str
+                          ) -> tuple[StereoCalibration, LidarExtrinsics | None]:
+    """The validated calibration from a parsed file's tables."""
     _check_keys(path, data, "")
     s = data["stereo"]
     size = s["image_size"]

@@ -9,6 +9,7 @@ import cv2
 import numpy as np
 
 from edge_depth.calibration.errors import CalibrationError
+from edge_depth.calibration.geometry import check_image_geometry
 
 
 def _array(name: str, value, shape: tuple[int, ...]) -> np.ndarray:
@@ -29,6 +30,8 @@ def check_rotation(name: str, R: np.ndarray, tol: float = 1e-4) -> None:
 MAX_IMAGE_SIDE = 16384
 MAX_DISTORTION = 1000.0  # |coefficient|: rational models reach hundreds, nothing real 1e3
 MAX_BASELINE_M = 10.0
+MAX_SKEW = 0.01  # |s| / fx: calibration tools fix the skew at 0; a real one is tiny
+MAX_LIDAR_OFFSET_M = 10.0  # a LiDAR mounted on the same robot as the camera
 
 
 def _check_K(name: str, K: np.ndarray, size: tuple[int, int]) -> None:
@@ -40,6 +43,9 @@ def _check_K(name: str, K: np.ndarray, size: tuple[int, int]) -> None:
                                f"fy={K[1, 1]}", key=name)
     if K[2, 2] != 1 or K[1, 0] != 0 or K[2, 0] != 0 or K[2, 1] != 0:
         raise CalibrationError("expected [[fx, s, cx], [0, fy, cy], [0, 0, 1]]", key=name)
+    if abs(K[0, 1]) > MAX_SKEW * K[0, 0]:
+        raise CalibrationError(f"expected a skew near zero (|s| <= {MAX_SKEW:g} fx = "
+                               f"{MAX_SKEW * K[0, 0]:g} px), got {K[0, 1]:g}", key=name)
     for f, axis in ((K[0, 0], "fx"), (K[1, 1], "fy")):
         if not 0.05 * w <= f <= 50 * w:
             raise CalibrationError(f"expected {axis} within 0.05-50 image widths "
@@ -108,6 +114,8 @@ class StereoCalibration:
             self.K_left, self.dist_left, self.K_right, self.dist_right, (w, h), self.R,
             self.T.reshape(3, 1), flags=cv2.CALIB_ZERO_DISPARITY, alpha=0)
         set_(self, "rect", dict(R1=R1, R2=R2, P1=P1, P2=P2, Q=Q))
+        check_image_geometry(self.K_left, self.dist_left, self.K_right, self.dist_right,
+                             self.rect, (w, h))
 
     @classmethod
     def ideal(cls, focal_px: float, baseline_m: float, size: tuple[int, int],
@@ -178,5 +186,10 @@ class LidarExtrinsics:
         if not np.allclose(T[3], [0, 0, 0, 1]):
             raise CalibrationError("expected last row [0, 0, 0, 1]", key="lidar.T_cam_lidar")
         check_rotation("lidar.T_cam_lidar", T[:3, :3])
+        offset = float(np.abs(T[:3, 3]).max())  # the norm of 1e308s overflows
+        if offset > MAX_LIDAR_OFFSET_M:
+            raise CalibrationError(f"expected the LiDAR within {MAX_LIDAR_OFFSET_M:g} m of the "
+                                   f"camera, got a translation of {offset:g} m along an axis",
+                                   key="lidar.T_cam_lidar")
         object.__setattr__(self, "T_cam_lidar", T)
         object.__setattr__(self, "time_offset_ns", int(self.time_offset_ns))

@@ -99,13 +99,12 @@ def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
 
 
 def load_topic_map(path: Path) -> dict:
-    import tomllib
-
+    from edge_depth.calibration.tomlfile import TomlReadError, read_toml
     from edge_depth.errors import ConfigError
 
     try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        data = read_toml(path)
+    except (OSError, TomlReadError) as exc:
         raise ConfigError("topics", "a readable TOML file", str(exc), str(path)) from None
     if not isinstance(data.get("topics"), dict):
         raise ConfigError("topics", "a [topics] table", sorted(data), str(path))

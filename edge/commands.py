@@ -86,6 +86,8 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     print(lidar_summary(pipeline))
     if selected := selection_summary(stats.timings):
         print(selected)
+    if unhealthy := pipeline.health.summary():
+        print(unhealthy)
     if source.stats.errors:
         print(f"messages skipped while reading: {sum(source.stats.errors.values())} "
               f"{dict(source.stats.errors)}")
@@ -233,13 +235,18 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
 
     config = load_robot_config(config_path)
     mode = sync_mode(config)
-    source, stereo, lidar = open_sources(config, max_frames)
     e = config.engine
-    engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
-                    scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
-                    lidar_select=e.lidar_select, edge_select=e.edge_select,
-                    edge_match=e.edge_match_choice, edge_match_rows=e.edge_match_rows_choice,
-                    edge_matcher=e.edge_matcher, edge_median=e.edge_median_choice)
+    try:
+        engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
+                        scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
+                        lidar_select=e.lidar_select, edge_select=e.edge_select,
+                        edge_match=e.edge_match_choice,
+                        edge_match_rows=e.edge_match_rows_choice,
+                        edge_matcher=e.edge_matcher, edge_median=e.edge_median_choice)
+        source, stereo, lidar = open_sources(config, max_frames)
+        engine.plan_for(tuple(stereo.image_size))  # a camera the bundle cannot run: now
+    except ConfigError as exc:
+        raise exc.naming(config.path, "engine") from None
     lg = config.log
     topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
     stop = StopFlag()
@@ -270,6 +277,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     print(lidar_summary(pipeline))
     if selected := selection_summary(stats.timings):
         print(selected)
+    if unhealthy := pipeline.health.summary():
+        print(unhealthy)
     if lat:
         fps = stats.throughput()
         print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s"
@@ -295,7 +304,10 @@ def record_command(config_path, out, max_frames: int | None = None,
     from edge_depth.mcap_log import RAW_TOPICS
 
     config = load_robot_config(config_path)
-    source, stereo, lidar = open_sources(config, max_frames)
+    try:
+        source, stereo, lidar = open_sources(config, max_frames)
+    except ConfigError as exc:
+        raise exc.naming(config.path, "camera") from None
     stop = StopFlag()
     stop.install()
     try:

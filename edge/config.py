@@ -71,12 +71,16 @@ types are errors that name the file and the key.
 
 from __future__ import annotations
 
+import logging
 import math
-import tomllib
+import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
+
+_log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -199,7 +203,8 @@ CHOICES = {
 # accepted ranges, inclusive (NaN and inf are outside every one); OFF_OR: 0 also accepted
 RANGES = {
     ("camera", "fps"): (0.5, 1000.0),
-    ("camera", "size"): (8, 16384),  # each side
+    ("camera", "size"): (64, 16384),  # each side; below 64 the network's 1/4-resolution
+    #                                   features and StereoBM's window have nothing to match
     ("lidar", "baudrate"): (0, 10_000_000),
     ("sync", "window_ms"): (1.0, 10_000.0),
     ("sync", "max_wait_ms"): (0.0, 10_000.0),
@@ -288,23 +293,31 @@ def _log_out(log: LogConfig, path: str) -> LogConfig:
                           "set log.raw = false and point log.out at a scratch folder)",
                           log.out, path)
     if out.is_dir() or log.out.endswith("/"):
-        return replace(log, out=str(out / "depth.mcap"))
+        log_ = replace(log, out=str(out / "depth.mcap"))
+        _log.warning("%s: log.out = %r is a directory: recordings go to %s (set log.out to a "
+                     "file name to choose it)", path, log.out, log_.out)
+        return log_
     return log
+
+
+def _warn_threads(engine: EngineConfig, path: str) -> None:
+    cores = os.cpu_count() or 1
+    if engine.threads > cores:
+        _log.warning("%s: engine.threads = %d on a machine with %d cores: the engine's threads "
+                     "will wait for each other (set engine.threads <= %d)", path,
+                     engine.threads, cores, cores)
 
 
 def load_robot_config(path: str | Path) -> RobotConfig:
     path = str(path)
     try:
-        with open(path, "rb") as f:
-            data = tomllib.load(f)
+        data = read_toml(path)
     except FileNotFoundError:
         raise ConfigError("file", "an existing TOML file", path) from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError("file", f"valid TOML ({exc})", path) from None
-    except UnicodeDecodeError as exc:
-        raise ConfigError("file", f"UTF-8 text (byte {exc.start} is not)", path) from None
     except IsADirectoryError:
         raise ConfigError("file", "a TOML file, not a directory", path) from None
+    except TomlReadError as exc:
+        raise ConfigError("file", "a robot config (TOML)", str(exc), path) from None
     sections = {f.name: f for f in fields(RobotConfig) if f.name != "path"}
     unknown = set(data) - set(sections)
     if unknown:
@@ -331,6 +344,7 @@ def load_robot_config(path: str | Path) -> RobotConfig:
         built[name] = cls(**values)
     _resolve_paths(built, Path(path).parent)
     built["log"] = _log_out(built["log"], path)
+    _warn_threads(built["engine"], path)
     config = RobotConfig(**built, path=path)
     if config.lidar.model == "sim" and config.camera.source != "sim":
         raise ConfigError("lidar.model", "'sim' only with camera.source = 'sim'", "sim", path)

@@ -24,6 +24,7 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
+from edge_depth.health import OutputHealth, score_frame
 from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics
 from edge_depth.runtime.edge_match import BEYOND_PCT
@@ -116,6 +117,7 @@ class Pipeline:
                               sync.max_wait_ms)
         self.sync = LidarSync(sync)
         self.stats = PipelineStats()
+        self.health = OutputHealth()
         self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
         self._warned_unpaired = False
         if lidar is None and engine is not None:
@@ -261,7 +263,9 @@ class Pipeline:
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
+        health = score_frame(result.disparity, p.left, p.sparse)
         with self._lock:
+            self.health.add(health)
             self.stats.frames += 1
             self.stats.done.append(time.monotonic())
             self.stats.timings.append(timings)

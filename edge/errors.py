@@ -27,3 +27,12 @@ class ConfigError(EdgeError, ValueError):
         self.source = source
         where = f"{source}: " if source else ""
         super().__init__(f"{where}{key}: expected {expected}, got {got!r}")
+
+    def naming(self, source: str, section: str) -> ConfigError:
+        """This error as raised from the config file `source`: a bare key (an engine or
+        source option) gains its section, `engine.edge_match`; one that names a file already
+        is returned as it is."""
+        if self.source is not None:
+            return self
+        key = self.key if "." in self.key or self.key.startswith("-") else f"{section}.{self.key}"
+        return ConfigError(key, self.expected, self.got, source)

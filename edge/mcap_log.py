@@ -121,7 +121,11 @@ JSON_SCHEMAS = {
         "edge_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}},
         # per frame with the edge matching, the % of pixels beyond its disparity count
-        "edge_match_beyond_pct": {"type": "array", "items": {"type": "number"}}}},
+        "edge_match_beyond_pct": {"type": "array", "items": {"type": "number"}},
+        # the depth map's health (edge.health): level OK / WARN / ERROR and its cause
+        "output_health": {"type": "object", "properties": {
+            "level": {"type": "string"}, "invalid_pct": {"type": "number"},
+            "message": {"type": "string"}}}}},
 }
 
 
@@ -203,6 +207,8 @@ class McapLogger:
         self.server = None
         self.min_free_bytes = min_free_bytes
         self.stopped: str | None = None  # why logging stopped early (the disk filling up)
+        self._closing_at: int | None = None  # the frame after which a full disk closes
+        self._low_space = ""
         if live:
             self.server = foxglove.start_server(context=self.context, host=live_host,
                                                 port=live_port, name="edge-depth",
@@ -244,22 +250,39 @@ class McapLogger:
         return foxglove.open_mcap(path, allow_overwrite=True, context=self.context,
                                   writer_options=options)
 
-    def _disk_full(self) -> bool:
-        """True once logging has stopped for want of space (checked now)."""
+    def _reserve_bytes(self, total: int) -> int:
+        """The free space kept for the frame in hand and the file's summary: min_free_bytes,
+        or an eighth of a small disk (a 16 MiB tmpfs keeps 2 MiB, not more than it has)."""
+        return min(self.min_free_bytes, total // 8)
+
+    def _disk_full(self, stamp_ns: int) -> bool:
+        """True once logging has stopped for want of space. When the space falls below the
+        reserve, the frame in hand (`stamp_ns`: its images, then its result) is still
+        written, and the file is closed with its summary before the next frame."""
         if self.stopped is not None:
             return True
+        if self._closing_at is not None:
+            if stamp_ns == self._closing_at:
+                return False  # the frame in hand: its result goes in too
+            self._stop_for_space()
+            return True
         try:
-            free = shutil.disk_usage(self.files[-1].parent).free
+            usage = shutil.disk_usage(self.files[-1].parent)
         except OSError:
             return False
-        if free >= self.min_free_bytes:
+        reserve = self._reserve_bytes(usage.total)
+        if usage.free >= reserve:
             return False
-        self.stopped = (f"the disk holding {self.files[-1]} is full ({free / 2**20:.0f} MB "
-                        f"free, below {self.min_free_bytes / 2**20:.0f} MB): closed the file "
-                        "with its summary; make space and restart")
+        self._closing_at = stamp_ns
+        self._low_space = (f"the disk holding {self.files[-1]} is full ({usage.free / 2**20:.0f}"
+                           f" MB free, below {reserve / 2**20:.0f} MB)")
+        return False
+
+    def _stop_for_space(self) -> None:
+        self.stopped = (f"{self._low_space}: wrote the frame in hand and closed the file with "
+                        "its summary; make space and restart")
         log.error("%s", self.stopped)
         self._close_writer()
-        return True
 
     def _maybe_rotate(self, stamp_ns: int) -> None:
         if self._writer is None:  # stopped: no new file either
@@ -388,7 +411,7 @@ class McapLogger:
 
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:
-        if self._disk_full():
+        if self._disk_full(frame.stamp_ns):
             return
         self._maybe_rotate(frame.stamp_ns)
         left, right = ("left", "right") if frame.rectified else ("left_raw", "right_raw")
@@ -429,7 +452,7 @@ class McapLogger:
         """The result's images and, with the camera's focal length and principal point, the
         depth as a point cloud (each point's intensity from `left`, the rectified image)."""
         t = result.stamp_ns
-        if self._disk_full():
+        if self._disk_full(t):
             return
         self._maybe_rotate(t)
         if sparse is not None:
@@ -443,6 +466,8 @@ class McapLogger:
                                              principal_point, image=left if left is not None
                                              else np.zeros(result.depth.shape, np.uint8))
             self._log("points", self._cloud(pts, t, CAMERA_FRAME, intensity), t)
+        if self._closing_at == t:  # the frame in hand is in: close while the summary fits
+            self._stop_for_space()
 
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)

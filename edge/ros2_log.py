@@ -178,8 +178,12 @@ class Ros2Logger(McapLogger):
         if beyond:
             message += (f", {len(beyond)} frames nearer than [engine] edge_match reaches "
                         "(raise it)")
-        status = {"level": 1 if errors or beyond else 0, "name": "edge-depth",  # WARN / OK
-                  "message": message,
+        level = 1 if errors or beyond else 0  # WARN / OK
+        health = values.get("output_health") or {}
+        if health.get("level", "OK") != "OK":  # diagnostic_msgs: 1 WARN, 2 ERROR
+            level = max(level, {"WARN": 1, "ERROR": 2}[health["level"]])
+            message += f", output {health['message']}"
+        status = {"level": level, "name": "edge-depth", "message": message,
                   "hardware_id": "", "values": [{"key": k, "value": v}
                                                 for k, v in flat.items()]}
         self._log("diagnostics", {"header": header(stamp_ns, ""), "status": [status]},

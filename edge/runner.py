@@ -235,7 +235,8 @@ class Runner:
                 edge_match_replaced_pct=[round(s, 2) for s in
                                          replaced_shares(window, "matched_pct")],
                 edge_match_beyond_pct=[round(s, 2) for s in
-                                       replaced_shares(window, "match_beyond_pct")]))
+                                       replaced_shares(window, "match_beyond_pct")],
+                output_health=pipeline.health.diagnostics()))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

@@ -9,11 +9,14 @@ plausible chunk header found by scanning forward, whether or not the file has a 
 (a scan also finds chunks a damaged length would have skipped). The messages each damaged
 chunk held are counted from the MessageIndex records that follow it, where they survive.
 Schemas and channels come from the summary when it is readable, so a message whose chunk
-is intact still decodes when the chunk that declared its channel is not.
+is intact still decodes when the chunk that declared its channel is not, or comes later in
+the file (chunks out of order). Without a readable summary, a message on a channel not yet
+declared waits (up to MAX_WAITING_BYTES) until a later record declares it.
 """
 
 from __future__ import annotations
 
+import hashlib
 import mmap
 import os
 import struct
@@ -27,6 +30,7 @@ DATA_END = 15
 KNOWN_OPCODES = set(range(1, 16))
 COMPRESSIONS = (b"", b"lz4", b"zstd")
 MAX_UNCOMPRESSED = 1 << 31  # a chunk claiming more is damaged (and would exhaust memory)
+MAX_WAITING_BYTES = 256 << 20  # messages held for a channel declared later in the file
 
 
 @dataclass
@@ -41,6 +45,9 @@ class ReadReport:
     damage: list[Damage] = field(default_factory=list)
     truncated_at: int | None = None  # where the file ends inside a record
     unknown_channel: int = 0  # messages whose channel no intact record declares
+    waiting: dict = field(default_factory=dict)  # channel id -> messages before its record
+    waiting_bytes: int = 0
+    duplicates: list[tuple[int, int]] = field(default_factory=list)  # (offset, first's offset)
 
 
 def _u64(buf, pos: int) -> int:
@@ -117,13 +124,17 @@ def iter_messages(path, report: ReadReport) -> Iterator[tuple]:
         size = os.fstat(f.fileno()).st_size
         if size < len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
             raise ValueError("not an MCAP file (no MCAP magic at the start)")
+        f.seek(0)  # the summary reader locates the footer from the file's start
         schemas, channels = _summary_records(f)
         with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as buf:
             yield from _walk(buf, size, report, schemas, channels)
+        report.unknown_channel += sum(len(held) for held in report.waiting.values())
+        report.waiting.clear()
 
 
 def _walk(buf, size: int, report: ReadReport, schemas: dict, channels: dict):
     pos, lost = len(MAGIC), None  # lost: the damage the next MessageIndex records count for
+    chunks_read: dict[bytes, int] = {}  # digest of a chunk's bytes -> where it was first read
     while pos + 9 <= size:
         opcode, end = buf[pos], pos + 9 + _u64(buf, pos + 1)
         if opcode not in KNOWN_OPCODES or end > size:
@@ -136,6 +147,12 @@ def _walk(buf, size: int, report: ReadReport, schemas: dict, channels: dict):
             continue
         body = buf[pos + 9:end]
         if opcode == CHUNK:
+            digest = hashlib.blake2b(body, digest_size=16).digest()
+            if digest in chunks_read:  # a copied chunk: its messages were read already
+                report.duplicates.append((pos, chunks_read[digest]))
+                pos = end
+                continue
+            chunks_read[digest] = pos
             try:
                 records = _chunk_records(body) if plausible_chunk(buf, pos, size) else None
             except Exception as exc:  # noqa: BLE001 MemoryError, lz4/zstd errors, CRC, lengths
@@ -177,9 +194,15 @@ def _messages(records, report: ReadReport, schemas: dict, channels: dict):
             schemas[record.id] = record
         elif isinstance(record, Channel):
             channels[record.id] = record
+            for held in report.waiting.pop(record.id, []):
+                report.waiting_bytes -= len(held.data)
+                yield schemas.get(record.schema_id), record, held
         elif isinstance(record, Message):
             channel = channels.get(record.channel_id)
-            if channel is None:
+            if channel is not None:
+                yield schemas.get(channel.schema_id), channel, record
+            elif report.waiting_bytes + len(record.data) <= MAX_WAITING_BYTES:
+                report.waiting.setdefault(record.channel_id, []).append(record)
+                report.waiting_bytes += len(record.data)
+            else:
                 report.unknown_channel += 1
-                continue
-            yield schemas.get(channel.schema_id), channel, record

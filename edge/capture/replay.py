@@ -270,6 +270,11 @@ class McapSource(Source):
             raise ReplayError(f"{path}: not a readable MCAP file ({exc})") from None
         for d in report.damage[seen:]:
             self._damaged(d, path)
+        if report.duplicates:
+            self.stats.errors["chunk stored twice (read once)"] += len(report.duplicates)
+            log.warning("%s: %d chunk(s) repeat an earlier chunk byte for byte (the first at "
+                        "byte %d repeats byte %d): each was read once", path,
+                        len(report.duplicates), *report.duplicates[0])
         if report.unknown_channel:
             self.stats.errors["message on a channel no intact record declares"] += \
                 report.unknown_channel
