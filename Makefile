@@ -18,7 +18,7 @@ $(BASE): pyproject.toml Makefile constraints/robot.txt
 
 $(STAMP): $(BASE)
 	$(BIN)/pip install --quiet torch==$(TORCH_VERSION)
-	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino]'
+	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino,fleet]'
 	touch $(STAMP)
 
 demo: $(BASE)

@@ -164,6 +164,64 @@ PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas)
                 "messages in CDR, for ros2 bag play)")
 
 
+def add_replay_arguments(parser: argparse.ArgumentParser, threads: int) -> None:
+    """The engine and recording options of `replay`, shared by `fleet`."""
+    parser.add_argument("--iters", type=_positive_int, default=None)
+    parser.add_argument("--deadline-ms", type=float, default=None)
+    parser.add_argument("--calib", type=Path, default=None,
+                        help="calibration TOML (default: the recording's /edge/calibration, "
+                             "else its CameraInfo pair + /tf_static)")
+    parser.add_argument("--topics", type=Path, default=None,
+                        help="TOML with a [topics] table mapping roles (left, right, lidar, "
+                             "left_info, right_info, tf_static, gt) to the recording's topics")
+    parser.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    parser.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
+    parser.add_argument("--scale", type=float, default=0.0,
+                        help="camera → network scale (0: the largest that fits the bundle)")
+    parser.add_argument("--threads", type=_positive_int, default=threads,
+                        help=f"the engine's threads (default {threads})")
+    parser.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"),
+                        default="auto", help="the engine's runtime (auto: OpenVINO on x86-64 "
+                                             "when installed, else ONNX Runtime)")
+    parser.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
+                        help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
+    add_edge_match_arguments(parser)
+    parser.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+                        help=PROFILE_HELP)
+
+
+def engine_options(args: argparse.Namespace) -> dict:
+    """`replay_engine`'s keyword arguments (but threads) from add_replay_arguments' flags."""
+    return dict(precision=args.precision, bundle=args.bundle, scale=args.scale,
+                runtime=args.runtime, bf16={"auto": None, "on": True, "off": False}[args.bf16],
+                edge_match=args.edge_match, edge_match_rows=args.edge_match_rows,
+                edge_matcher=args.edge_matcher, edge_median=args.edge_median)
+
+
+def add_fleet_parser(sub) -> None:
+    fleet = sub.add_parser("fleet", help="replay, compare or evaluate many recordings on Ray "
+                                         "(pip install 'edge-depth[fleet]')")
+    fleet.add_argument("fleet_command", choices=("replay", "compare", "evaluate"),
+                       help="replay: DIR/NAME.mcap per recording; compare: that, then compare "
+                            "with --base DIR/NAME.mcap (exit 1 on a regression); evaluate: "
+                            "EPE / bad-3 against the recordings' ground truth, no output")
+    fleet.add_argument("sources", type=Path, nargs="+",
+                       help="recordings, folders of recordings, ROS 2 bag directories")
+    fleet.add_argument("--out", type=Path, required=True,
+                       help="outputs, result records and summary.md / summary.json")
+    fleet.add_argument("--address", default=None,
+                       help="a Ray cluster to join: auto or HOST:PORT (default: Ray local)")
+    fleet.add_argument("--workers", type=_positive_int, default=None,
+                       help="engines at once (default: the cluster's CPUs / --threads)")
+    fleet.add_argument("--base", type=Path, default=None,
+                       help="compare: the folder of golden replays (an earlier fleet replay)")
+    fleet.add_argument("--tolerance-px", type=float, default=0.25,
+                       help="compare: a pixel differs beyond this")
+    fleet.add_argument("--max-share", type=_share, default=0.01,
+                       help="compare: the share of differing pixels allowed")
+    add_replay_arguments(fleet, threads=1)
+
+
 def build_parser() -> argparse.ArgumentParser:
     from edge_depth.sim.lidar import PATTERNS
 
@@ -216,29 +274,10 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
     replay.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
     replay.add_argument("--out", type=Path, required=True, help="output MCAP")
-    replay.add_argument("--iters", type=_positive_int, default=None)
-    replay.add_argument("--deadline-ms", type=float, default=None)
-    replay.add_argument("--calib", type=Path, default=None,
-                        help="calibration TOML (default: the recording's /edge/calibration, "
-                             "else its CameraInfo pair + /tf_static)")
-    replay.add_argument("--topics", type=Path, default=None,
-                        help="TOML with a [topics] table mapping roles (left, right, lidar, "
-                             "left_info, right_info, tf_static, gt) to the recording's topics")
-    replay.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    replay.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
-    replay.add_argument("--scale", type=float, default=0.0,
-                        help="camera → network scale (0: the largest that fits the bundle)")
-    replay.add_argument("--threads", type=_positive_int, default=2)
-    replay.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"),
-                        default="auto", help="the engine's runtime (auto: OpenVINO on x86-64 "
-                                             "when installed, else ONNX Runtime)")
-    replay.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
-                        help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
+    add_replay_arguments(replay, threads=2)
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
-    add_edge_match_arguments(replay)
-    replay.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
-                        help=PROFILE_HELP)
+    add_fleet_parser(sub)
     run = sub.add_parser("run", help="the on-robot depth daemon")
     run.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
     run.add_argument("--out", type=Path, default=None, help="override log.out")
@@ -285,6 +324,19 @@ def _share(text: str) -> float:
     if not 0 <= value <= 1:
         raise argparse.ArgumentTypeError(f"expected a share in 0 … 100 %, got {text!r}")
     return value
+
+
+def fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+    from edge_depth.fleet import FleetJob, fleet_command
+
+    if (args.fleet_command == "compare") != (args.base is not None):
+        parser.error("fleet: --base DIR (the golden replays) goes with compare, and only there")
+    topics = load_topic_map(args.topics) if args.topics else None
+    job = FleetJob(args.fleet_command, args.out, engine_options(args),
+                   dict(iters=args.iters, deadline_ms=args.deadline_ms, calib=args.calib,
+                        topics=topics, profile=args.profile),
+                   args.threads, args.base, args.tolerance_px, args.max_share)
+    return fleet_command(job, args.sources, args.address, args.workers)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -356,11 +408,11 @@ def main(argv: list[str] | None = None) -> int:
 
             topics = load_topic_map(args.topics) if args.topics else None
             return replay_command(args.input, args.out, args.iters, args.deadline_ms,
-                                  args.calib, topics, args.precision, args.realtime,
-                                  args.threads, args.bundle, args.scale, args.profile,
-                                  args.runtime, {"auto": None, "on": True,
-                                                 "off": False}[args.bf16], args.edge_match,
-                                  args.edge_match_rows, args.edge_matcher, args.edge_median)
+                                  args.calib, topics, realtime=args.realtime,
+                                  threads=args.threads, profile=args.profile,
+                                  **engine_options(args))
+        if args.command == "fleet":
+            return fleet(args, parser)
         if args.command == "run":
             from edge_depth.commands import run_command
 

@@ -6,6 +6,7 @@ the key before any device is opened — then wires sources, the pipeline and the
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import logging
 import os
@@ -34,6 +35,83 @@ log = logging.getLogger(__name__)
 SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
 
 
+@dataclasses.dataclass
+class ReplayRun:
+    """One recording replayed: what the closing summary and a fleet's result record say."""
+
+    stats: object  # PipelineStats
+    pipeline: Pipeline
+    source: object  # McapSource
+    files: list[Path]
+
+    @property
+    def lidar_counts(self) -> tuple[int, int]:
+        """(frames with LiDAR, frames paired or not) as the sync counted them."""
+        counters = self.pipeline.sync.counters()
+        paired = counters["frames_with_lidar"]
+        return paired, paired + counters["frames_without_lidar"]
+
+    def record(self) -> dict:
+        """The numbers of a fleet's result record and summary table."""
+        stats = self.stats
+        lat = summarise(stats.timings)
+        with_lidar, frames_seen = self.lidar_counts
+        metrics = stats.metrics
+        return dict(frames=stats.frames, frames_with_lidar=with_lidar if self.pipeline.lidar
+                    else 0, ms_per_frame=lat["frame"]["median"] if lat else None,
+                    engine_ms=lat["engine"]["median"] if lat else None,
+                    epe=float(np.mean([m["epe"] for m in metrics])) if metrics else None,
+                    bad3=float(np.mean([m["bad3"] for m in metrics])) if metrics else None,
+                    skipped=dict(stats.errors), read_errors=dict(self.source.stats.errors),
+                    output_health=self.pipeline.health.worst, files=[str(f) for f in self.files])
+
+
+def replay_engine(precision: str = "int8", threads: int = 2, bundle=None, scale: float = 0.0,
+                  runtime: str = "auto", bf16: bool | None = None,
+                  edge_match: int | str | None = None, edge_match_rows: int | None = None,
+                  edge_matcher: str = "bm", edge_median: str | None = None) -> Engine:
+    """The engine `replay` runs (loaded once; a fleet's worker keeps it for many recordings).
+    `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
+    (0 = off); `edge_match_rows` as `[engine] edge_match_rows`; None: the bundle's;
+    `edge_matcher` as `[engine] edge_matcher`, `edge_median` as `[engine] edge_median`
+    (None: the bundle's)."""
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    return Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
+                  scale=scale or None, runtime=runtime, bf16=bf16, edge_match=edge_match,
+                  edge_match_rows=edge_match_rows, edge_matcher=edge_matcher,
+                  edge_median=edge_median)
+
+
+def replay_recording(engine: Engine, path, out, iters: int | None = None,
+                     deadline_ms: float | None = None, calib=None, topics=None,
+                     realtime: bool = False, profile: str = "foxglove",
+                     on_output=None) -> ReplayRun:
+    """The pipeline over one recording with a loaded engine, its output to `out` (None: no
+    output file, as `fleet evaluate`). ReplayError for a recording that cannot be read."""
+    from edge_depth.capture.replay import McapSource, TopicMap
+
+    if out is not None and Path(out).exists() and Path(path).exists() \
+            and os.path.samefile(out, path):
+        raise ConfigError("--out", "a file other than the input recording", str(out))
+    source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
+    source.check_topics()
+    stereo, lidar = replay_calibration(source, calib)
+    stop = StopFlag()
+    stop.install()
+    try:
+        with contextlib.ExitStack() as stack:
+            logger = None if out is None else stack.enter_context(open_logger(out, profile))
+            pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
+            # with --calib given, the recording's own calibration is ignored
+            if calib is not None:
+                source.topics = dataclasses.replace(source.topics, calibration="")
+            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output)
+    finally:
+        stop.restore()
+    return ReplayRun(stats, pipeline, source, [] if logger is None else list(logger.files))
+
+
 def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
                    calib=None, topics=None, precision: str = "int8", realtime: bool = False,
                    threads: int = 2, bundle=None, scale: float = 0.0,
@@ -42,26 +120,20 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
                    edge_match_rows: int | None = None, edge_matcher: str = "bm",
                    edge_median: str | None = None) -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
-    EPE / bad-3 per frame and overall where the recording carries ground truth.
-    `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
-    (0 = off); `edge_match_rows` as `[engine] edge_match_rows`; None: the bundle's;
-    `edge_matcher` as `[engine] edge_matcher`, `edge_median` as `[engine] edge_median`
-    (None: the bundle's)."""
+    EPE / bad-3 per frame and overall where the recording carries ground truth. The engine
+    options are `replay_engine`'s."""
+    from edge_depth.calibration.io import load_calibration
     from edge_depth.capture.replay import McapSource, TopicMap
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     if Path(out).exists() and Path(path).exists() and os.path.samefile(out, path):
         raise ConfigError("--out", "a file other than the input recording", str(out))
-    source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
-    source.check_topics()
-    stereo, lidar = replay_calibration(source, calib)
-    engine = Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
-                    scale=scale or None, runtime=runtime, bf16=bf16, edge_match=edge_match,
-                    edge_match_rows=edge_match_rows, edge_matcher=edge_matcher,
-                    edge_median=edge_median)
+    # a missing topic or a bad --calib: one line before the engine loads
+    McapSource(path, TopicMap.from_dict(topics or {})).check_topics()
+    if calib is not None:
+        load_calibration(calib)
+    engine = replay_engine(precision, threads, bundle, scale, runtime, bf16, edge_match,
+                           edge_match_rows, edge_matcher, edge_median)
     log.info("engine: %s", engine.describe())
-    stop = StopFlag()
-    stop.install()
 
     def on_output(frame, output) -> None:
         m = output.metrics
@@ -71,15 +143,9 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
             line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
         print(line, flush=True)
 
-    try:
-        with open_logger(out, profile) as logger:
-            pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
-            # with --calib given, the recording's own calibration is ignored
-            if calib is not None:
-                source.topics = dataclasses.replace(source.topics, calibration="")
-            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output)
-    finally:
-        stop.restore()
+    done = replay_recording(engine, path, out, iters, deadline_ms, calib, topics, realtime,
+                            profile, on_output)
+    stats, pipeline, source = done.stats, done.pipeline, done.source
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
@@ -99,7 +165,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
         print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
-    print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    print(f"wrote {', '.join(str(p) for p in done.files)}")
     if stats.fatal:
         print(f"error: {stats.fatal}", file=sys.stderr)
         return 1
