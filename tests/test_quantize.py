@@ -44,8 +44,7 @@ def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_
 def test_quantize_keeps_the_confidence_head_float(small_bundle, tmp_path):
     import onnx
 
-    from edge_depth.tools.graph_ab import random_feeds
-    from edge_depth.tools.quantize import ALWAYS_FLOAT, quantize_graph
+    from edge_depth.tools.quantize import ALWAYS_FLOAT, quantize_graph, random_feeds
 
     src, dst = small_bundle[0] / "upsample.onnx", tmp_path / "upsample.int8.onnx"
     quantize_graph(src, dst, [random_feeds(src)])
@@ -58,6 +57,15 @@ def test_quantize_keeps_the_confidence_head_float(small_bundle, tmp_path):
     assert "DequantizeLinear" in {v for k, v in weights.items() if k not in confidence}
 
 
+def pinned_agreement(engine_a, engine_b, frames, iters) -> dict[str, float]:
+    """What int8 moves, pinned: 0.1 px and 0.005 of confidence per int8 graph of engine_a.
+    The quantizer's decisions are under test, not this host's int8 kernels (without VNNI
+    they move the confidence by more than the 0.03 the quantizer allows a graph)."""
+    files = engine_a.meta["precisions"][engine_a.precision].values()
+    int8 = sum(f.endswith(".int8.onnx") for f in files)
+    return dict(px=0.1 * int8, confidence=0.005 * int8)
+
+
 def test_quantize_checks_the_confidence_on_the_runtime_that_will_run_it(
         small_bundle, tmp_path, monkeypatch):
     """A confidence map that only OpenVINO's int8 ruins (as it did stage 12's: 0.99
@@ -68,10 +76,9 @@ def test_quantize_checks_the_confidence_on_the_runtime_that_will_run_it(
     from edge_depth.tools import quantize
 
     monkeypatch.setattr(quantize, "paired_ms", lambda engines, frames, iters: (10.0, 5.0, 0.5))
-    measured = quantize.agreement
 
     def openvino_ruins_the_confidence(engine_a, engine_b, frames, iters):
-        out = measured(engine_a, engine_b, frames, iters)
+        out = pinned_agreement(engine_a, engine_b, frames, iters)
         files = engine_a.meta["precisions"][engine_a.precision].values()
         if engine_a.runtime == "openvino" and any(f.endswith(".int8.onnx") for f in files):
             out["confidence"] += 0.5
@@ -156,6 +163,7 @@ def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
     timed = []
     monkeypatch.setattr(quantize, "paired_ms", lambda engines, frames, iters:
                         timed.append([e.runtime for e in engines]) or (10.0, 5.0, 0.5))
+    monkeypatch.setattr(quantize, "agreement", pinned_agreement)
     bundle = tmp_path / "b"
     shutil.copytree(small_bundle[0], bundle)
     q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,
