@@ -25,7 +25,7 @@ demo: $(BASE)
 	$(BIN)/edge-depth demo
 
 test: $(STAMP)
-	$(BIN)/ruff check edge calibration tools tests
+	$(BIN)/ruff check edge calibration tools tests experiments
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)

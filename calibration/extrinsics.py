@@ -203,3 +203,17 @@ def overlay(left: np.ndarray, points: np.ndarray, calib: StereoCalibration, T: n
         scaled = np.clip((d - lo) / max(hi - lo, 1e-6) * 255, 0, 255).astype(np.uint8)
         image[valid] = cv2.applyColorMap(scaled[:, None], cv2.COLORMAP_JET)[:, 0]
     return image
+
+
+def perturbed(T: np.ndarray, degrees: float, metres: float, seed: int = 0) -> np.ndarray:
+    """T (4, 4) moved by `degrees` about a random axis and `metres` in a random direction
+    (a misregistered LiDAR, for checks and studies)."""
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    axis = rng.normal(size=3)
+    D = np.eye(4)
+    D[:3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))[0]
+    direction = rng.normal(size=3)
+    D[:3, 3] = direction / np.linalg.norm(direction) * metres
+    return D @ T

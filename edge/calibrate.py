@@ -184,7 +184,7 @@ def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarra
     print(f"wrote {path}")
 
 
-# fewer frames than this refine unreliably on the rig (tools/extrinsics_study.py: 3 frames end
+# fewer frames than this refine unreliably on the rig (experiments/extrinsics_study.py: 3 frames end
 # up to 0.25 degrees / 6.3 mm off, 6 frames within 0.14 degrees / 2.5 mm)
 MIN_REFINE_FRAMES = 6
 

@@ -131,9 +131,7 @@ TOOL_COMMANDS = {
     "export": ("tools.export", "export a checkpoint to an ONNX bundle"),
     "quantize": ("tools.quantize", "int8-quantize a bundle, calibrated on frames"),
     "bench": ("tools.bench", "benchmark the stages, the engine and SGBM"),
-    "ablation": ("tools.ablation", "the paper's ablation in miniature"),
     "real-pairs": ("tools.real_pairs", "unpack the real evaluation pair (opencv-doc)"),
-    "upsampling-study": ("tools.upsampling_study", "what the upsampling recovers at 1/8"),
     "adapt": ("tools.adapt", "fine-tune on the robot's recordings into a checked int8 bundle"),
 }
 TRAIN_MODULES = ("torch", "onnx", "onnxscript", "tqdm", "matplotlib")

@@ -3,7 +3,7 @@
 numpy's BLAS (OpenBLAS) and OpenCV each start a thread per core in every process. A pool of N
 workers on an N-core machine then runs N² busy threads: on a 16-core machine `edge-depth synth
 --workers 16` rendered one pair a second instead of 6.8, and training beside it ran five to
-seven times slower (docs/experiments.md, session 27). Every pool of ours starts its workers inside
+seven times slower (docs/experiments.md). Every pool of ours starts its workers inside
 `one_thread_each`.
 
 The limits are set in the parent, around the moment the workers start, and not in the

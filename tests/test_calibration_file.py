@@ -67,7 +67,7 @@ def _good_text():
     (lambda t: t.replace("dist = [-0.1,", "dist = [nan,"), "stereo.left.dist", "finite"),
     (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = 0\nextra = 1"), "lidar.extra",
      "unexpected key"),
-    # absurd but finite values (issue 17): each refused, naming the key
+    # absurd but finite values: each refused, naming the key
     (lambda t: re.sub(r"\[stereo.left\]\nK = \[\[452.0", "[stereo.left]\nK = [[1e300", t),
      "stereo.left.K", "image widths"),
     (lambda t: re.sub(r"\[stereo.left\]\nK = \[\[452.0", "[stereo.left]\nK = [[1e-308", t),

@@ -1,4 +1,4 @@
-"""Mutation fuzz of the two files a robot owner writes (issue 17): 300 mutated robot configs
+"""Mutation fuzz of the two files a robot owner writes: 300 mutated robot configs
 and 300 mutated calibration files each load or fail with one error naming the file —
 never another exception, never a hang. Seeded, a few seconds in all."""
 

@@ -45,7 +45,7 @@ def write(tmp_path, text, name="robot.toml"):
     ("[engine]\nbatch = 4\n", "engine.batch"),
     ("[motors]\n", "motors"),
     ("[camera]\nsource = 'oak'\n[lidar]\nmodel = 'sim'\n", "lidar.model"),
-    # values that are the right type but cannot be meant (issue 17: tracebacks or hangs)
+    # values that are the right type but cannot be meant (tracebacks or hangs)
     ("[camera]\nfps = 1e-300\n", "camera.fps"),
     ("[camera]\nfps = 1e-3\n", "camera.fps"),
     ("[camera]\nsize = [100000, 400]\n", "camera.size"),

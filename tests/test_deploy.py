@@ -61,13 +61,13 @@ def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_b
 
     bundle, _ = small_bundle
     names = lambda path, part: [v.name for v in getattr(onnx.load(str(path)).graph, part)]  # noqa: E731
-    # since session 26 the step reads the GRU's context terms, which the encoder computes once
+    # the step reads the GRU's context terms, which the encoder computes once
     assert {"context_zr", "context_q"} <= set(names(bundle / "step.onnx", "input"))
     assert "context" not in names(bundle / "step.onnx", "input")
     assert {"context_zr", "context_q"} <= set(names(bundle / "encoder.onnx", "output"))
-    # the shipped bundle too, since stage 16 (session 28)
+    # the shipped bundle too, since stage 16 (docs/experiments.md)
     assert {"context_zr", "context_q"} <= set(names(DEFAULT_BUNDLE / "step.onnx", "input"))
-    # a step from one export with an encoder from the other (one from before session 26
+    # a step from one export with an encoder from the other (an older one
     # writes "context", not its terms): refused when the bundle loads
     mixed = tmp_path / "mixed"
     mixed.mkdir()
@@ -288,21 +288,13 @@ def test_an_engine_scale_beyond_the_bundle_is_a_config_error():
         engine.plan_for((1280, 800))
 
 
-def test_graph_ab_times_graphs_in_turn_on_their_declared_shapes(small_bundle, tmp_path):
-    from edge_depth.tools import graph_ab
+def test_random_feeds_take_each_graphs_declared_shapes(small_bundle):
+    from edge_depth.tools.quantize import random_feeds
 
     bundle = small_bundle[0]
-    feeds = graph_ab.random_feeds(bundle / "upsample.onnx")
-    assert feeds["disparity"].shape == (1, 1, SMALL[1] // 8, SMALL[0] // 8)
-    assert graph_ab.random_feeds(bundle / "encoder.onnx")["left"].shape == \
-        (1, 1, SMALL[1], SMALL[0])
-    graphs = [bundle / "upsample.onnx", bundle / "step.onnx"]
-    result = graph_ab.interleaved_ms(graphs, "onnxruntime", rounds=3, warmup=1, threads=1)
-    assert list(result) == [str(g) for g in graphs]
-    for r in result.values():
-        assert r["runtime"] == "onnxruntime" and 0 < r["p10_ms"] <= r["median_ms"]
-    with pytest.raises(SystemExit):
-        graph_ab.main([str(tmp_path / "missing.onnx")])
+    assert random_feeds(bundle / "upsample.onnx")["disparity"].shape == \
+        (1, 1, SMALL[1] // 8, SMALL[0] // 8)
+    assert random_feeds(bundle / "encoder.onnx")["left"].shape == (1, 1, SMALL[1], SMALL[0])
 
 
 def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bundle, tmp_path):

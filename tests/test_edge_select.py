@@ -163,26 +163,6 @@ def test_fit_learns_a_choice_that_lowers_the_error():
     assert before[0] > 1.5 and after[0] < 0.6 and after[1] < 10.0
 
 
-def test_selection_cost_times_both_stages_on_the_same_frames(tmp_path):
-    from edge_depth.cli import main
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE
-    from edge_depth.tools.selection_cost import measure
-
-    assert main(["synth", "--out", str(tmp_path / "s"), "--count", "2", "--seed", "1000000",
-                 "--lidar", "beams16"]) == 0
-    result = measure(DEFAULT_BUNDLE, tmp_path / "s", frames=2, rounds=2, runtime="onnxruntime")
-    assert set(result) == {"lidar_select", "edge_select"}
-    for r in result.values():
-        assert r["calls"] == 4 and 0 < r["median_ms"] <= r["p90_ms"]
-    # another fit of the LiDAR selection, timed in the same rounds
-    result = measure(DEFAULT_BUNDLE, tmp_path / "s", frames=2, rounds=1, runtime="onnxruntime",
-                     against=DEFAULT_BUNDLE)
-    assert set(result) == {"lidar_select", "edge_select", "lidar_select_against"}
-    assert result["lidar_select_against"]["calls"] == 2
-    with pytest.raises(SystemExit, match="no scene folders"):
-        measure(DEFAULT_BUNDLE, tmp_path, frames=2, rounds=1, runtime="onnxruntime")
-
-
 def test_the_fit_tools_fit_on_the_networks_own_outputs():
     """A refit of a bundle that holds both selections must not see either's choices."""
     import argparse

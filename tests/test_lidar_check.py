@@ -7,12 +7,11 @@ import numpy as np
 import pytest
 
 from edge_depth.calibrate import make_frame
-from edge_depth.calibration.extrinsics import disagreement, pose_difference
+from edge_depth.calibration.extrinsics import disagreement, perturbed, pose_difference
 from edge_depth.calibration.io import save_calibration
 from edge_depth.calibration.model import LidarExtrinsics
 from edge_depth.cli import main
 from edge_depth.sim import RigConfig, make_sample
-from edge_depth.tools.extrinsics_study import perturbed
 
 
 def test_disagreement_grows_when_the_extrinsics_are_wrong():
@@ -74,8 +73,8 @@ def test_refinement_recovers_a_one_degree_two_centimetre_error():
     bad = perturbed(T, 1.0, 0.02, seed=0)
     refined, result = refine_extrinsics(frames, calib, bad)
     angle, shift = pose_difference(refined, T)
-    # this case measured 0.142 deg, 1.13 mm; 36 runs of tools/extrinsics_study.py: <= 0.162 deg,
-    # <= 2.67 mm (README)
+    # this case measured 0.142 deg, 1.13 mm; 36 runs of experiments/extrinsics_study.py:
+    # <= 0.162 deg, <= 2.67 mm (docs/calibration.md)
     assert angle < 0.2 and shift < 0.005
     assert result["cost_after"] < result["cost_before"]
     # the cost is lowest near the truth: the true pose beats the start by a clear margin

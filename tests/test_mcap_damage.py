@@ -1,4 +1,4 @@
-"""A damaged MCAP file costs the damaged chunk, not the rest (issue 17): each damage kind,
+"""A damaged MCAP file costs the damaged chunk, not the rest: each damage kind,
 a mutation fuzz of the reader, and replay past a bad chunk of one of our recordings."""
 
 from __future__ import annotations
@@ -189,7 +189,7 @@ def test_replay_mutation_fuzz_ends_in_frames_or_one_clear_error(tmp_path):
 
 def test_a_corrupt_log_time_past_2_to_the_32_seconds_is_counted_and_replay_goes_on(
         recording, tmp_path):
-    """Issue 17: such a time used to end replay in an OverflowError."""
+    """such a time used to end replay in an OverflowError."""
     from mcap.reader import make_reader
     from mcap.writer import Writer
 

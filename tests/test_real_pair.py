@@ -4,7 +4,6 @@ the stereo-only net and the trivial SGBM + LiDAR fusion on it."""
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -93,47 +92,3 @@ def test_evaluate_scores_the_fusion_and_the_stereo_only_net(tmp_path):
     sgbm = tiles[200 + 30:2 * 200 - 10, 10:320 - 10]                     # sgbm: holes in red
     holes = lambda tile: ((tile[..., 2] > 200) & (tile[..., :2] < 60).all(-1)).mean()  # noqa: E731
     assert nearest.mean() < 40 and holes(nearest) < 0.01 < holes(sgbm)
-
-
-def test_upsampling_study_reports_the_ceiling_and_the_network_variants(tmp_path):
-    from edge_depth.sim.folder import write_pfm
-    from edge_depth.tools import upsampling_study
-
-    scene = tmp_path / "plane"       # a fronto-parallel plane 10 px away: a flat GT
-    scene.mkdir()
-    rng = np.random.default_rng(2)
-    left = cv2.GaussianBlur(rng.uniform(0, 255, (64, 96)).astype(np.float32), (0, 0), 1.5)
-    cv2.imwrite(str(scene / "left.png"), left.astype(np.uint8))
-    cv2.imwrite(str(scene / "right.png"), np.roll(left, -10, axis=1).astype(np.uint8))
-    write_pfm(scene / "disp.pfm", np.full((64, 96), 10.0, np.float32))
-    sparse = np.zeros((64, 96), np.float32)
-    sparse[::8, ::2] = 10.0
-    write_pfm(scene / "sparse.pfm", sparse)
-    out = tmp_path / "study.json"
-    assert upsampling_study.main([str(scene), "--iters", "2", "--json", str(out)]) == 0
-    summary = json.loads(out.read_text())
-    rows = {"GT 1/8, bilinear", "GT 1/8, nearest", "net 1/8, bilinear", "net 1/8, convex",
-            "net 1/8, convex + refinement"}
-    quarter = {"net 1/4 stage's estimate alone", "oracle gate: the closer of convex and 1/4"}
-    from edge_depth.tools.export import load_checkpoint
-
-    version = load_checkpoint(Path("edge/models/sparse_stereo.pt"))[0].config.refine
-    # refinement version 4 adds its 1/4 estimate and the oracle gate
-    assert set(summary) == (rows | quarter if version == 4 else rows)
-    if version == 4:
-        oracle = summary["oracle gate: the closer of convex and 1/4"]["epe"]
-        assert oracle <= min(summary["net 1/8, convex"]["epe"],
-                             summary["net 1/4 stage's estimate alone"]["epe"]) + 1e-6
-    assert summary["GT 1/8, bilinear"]["epe"] < 1e-4   # a flat GT survives 1/8 exactly
-    assert summary["GT 1/8, nearest"]["epe"] < 1e-4
-    assert all(0 <= m["bad3"] <= 100 and m["epe"] >= 0 for m in summary.values())
-
-
-def test_gt_at_an_eighth_averages_the_known_values_of_each_cell():
-    from edge_depth.tools.upsampling_study import gt_at_eighth
-
-    gt = np.full((16, 16), 16.0, np.float32)
-    gt[:8, :8] = np.inf            # unknown cell
-    gt[8:, 8:12] = 32.0            # half of a cell at 32, half at 16
-    low = gt_at_eighth(gt)
-    np.testing.assert_allclose(low, [[0.0, 2.0], [2.0, 3.0]])

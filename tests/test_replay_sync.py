@@ -155,7 +155,7 @@ def test_a_1242x375_recording_replays_on_the_shipped_bundle(tmp_path, capsys):
 @pytest.mark.parametrize("pipelined, bound_mb", [(False, 16), (True, 32)])
 def test_two_hundred_dropped_frames_leave_nothing_behind(engine, pipelined, bound_mb):
     """A live source far faster than inference: frames drop, and neither they nor their
-    ground truth (1 MB each) outlive them (issue 17: RSS grew 192 MB over 182 drops).
+    ground truth (1 MB each) outlive them (RSS grew 192 MB over 182 drops).
     Measured as tracemalloc's peak (numpy's arrays are traced), not RSS, which the C
     allocator's reuse of freed memory makes noisy."""
     import time

@@ -1,4 +1,4 @@
-"""The ros2 output profile (issue 13): every topic decodes with mcap-ros2-support's decoder
+"""The ros2 output profile: every topic decodes with mcap-ros2-support's decoder
 and agrees with the same run written in the foxglove profile; both replay to the same frames,
 points and calibration."""
 

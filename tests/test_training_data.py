@@ -136,8 +136,8 @@ def test_torchrun_two_cpu_processes_keep_identical_replicas(tmp_path):
            "--threads", "1"]
     result = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT,
                             env=dict(os.environ, OMP_NUM_THREADS="1"))
-    # the ranks' own errors come first in stderr, torchrun's summary of them last (session
-    # 30's one failure in CI, rank 1 aborted with SIGABRT, showed only the summary)
+    # the ranks' own errors come first in stderr, torchrun's summary of them last (a
+    # failure in CI, rank 1 aborted with SIGABRT, showed only the summary)
     assert result.returncode == 0, result.stderr[:3000] + "\n...\n" + result.stderr[-1500:]
     sums = json.loads((out / "replicas.json").read_text())
     assert len(sums) == 2 and sums[0] == sums[1]

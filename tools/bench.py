@@ -24,7 +24,7 @@ summary says the ratio should not be trusted.
 `--threads N` sets the engine's threads and OpenCV's (SGBM's) alike, so the ratio compares
 like with like. On a 2-vCPU host one thread each gives the steadiest ratio: SGBM's gain from
 its second thread drifted from 1.1x to 1.85x within a minute there, one thread stayed
-within ±4 % (docs/experiments.md, session 31).
+within ±4 % (docs/experiments.md).
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@
 
 For a new checkpoint whose trunk was frozen (the network's estimate before its refinement is
 the old one's): the selections fitted on the old bundle may serve it as they are, and whether
-they do is measured, not assumed (`docs/experiments.md`, session 28: stage 16 ships with stage
+they do is measured, not assumed (`docs/experiments.md`: stage 16 ships with stage
 15's because the refitted ones lost on motorcycle). `make bundle SELECTIONS=carry` runs this
 with the bundle being replaced; the default, `SELECTIONS=fit`, fits new ones.
 """

@@ -26,7 +26,7 @@ from edge_depth.cli import parse_size
 
 ENCODER_INPUTS = ["left", "right", "sparse", "valid"]
 # the context enters the step as the GRU's two fixed terms, computed once per frame by the
-# encoder graph (`UpdateBlock.context_terms`; bundles before session 26 fed "context" itself,
+# encoder graph (`UpdateBlock.context_terms`; older bundles fed "context" itself,
 # and the engine runs both: it feeds the step whatever it asks for by name)
 STATE = ["corr", "context_zr", "context_q", "weights", "centre", "sparse_low", "valid_low"]
 STEP_INPUTS = ["disparity", "hidden", *STATE]
@@ -46,7 +46,7 @@ LOW_RES_CONFIDENCE = (3, 5, 6, 7, 8, 9)
 # is trained to hand its unsure edges to the full-resolution matching, so its bundles declare
 # the matching as the engine's default in model.json's "engine" (config and command line
 # still override it; without it stage 17's bad-3 on motorcycle is 9.3 %, with it 7.8 %, with
-# the weighted median over its gate as well 7.0 %: session 36)
+# the weighted median over its gate as well 7.0 %: docs/experiments.md)
 MATCHED_HEADS = (10,)
 MATCHED_ENGINE = {"edge_match": "auto", "edge_match_rows": 2, "edge_median": "9x9/2"}
 

@@ -103,7 +103,7 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_fit_arguments(p)
     # defaults: the variant the held-out frames chose on stage 15's bundle
-    # (docs/experiments.md, session 21)
+    # (docs/experiments.md)
     p.add_argument("--side-cells", type=int, default=SIDE_CELLS,
                    help="the near / far sides: max / min over this many cells square (odd)")
     p.add_argument("--min-margin", type=float, default=0.0,

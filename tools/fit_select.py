@@ -22,8 +22,8 @@ the pixels the choice replaces is fitted on the same frames: sigmoid(a · logit 
 share of those pixels within 1 px of the truth (held-out: predicted vs measured). With
 `--confirm`, the stored fit is also scored on frames from another folder and seed.
 
-`--side-cells 3 --blend 0.5` fits the four-candidate variant (docs/experiments.md, session
-22): the network's own near and far sides are candidates too, at the cells where they
+`--side-cells 3 --blend 0.5` fits the four-candidate variant (docs/experiments.md): the
+network's own near and far sides are candidates too, at the cells where they
 differ as well; each candidate's label is whether it is nearer the truth than the network,
 errors above 16 px counting at half their excess. More accurate on every synthetic set, but
 1.65× the shipped stage's cost: not the shipped recipe.
@@ -348,14 +348,14 @@ def calibrate(select, fit_rows: list[dict], hold_rows: list[dict], heldout: dict
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     add_fit_arguments(p)
-    # defaults: the variant the held-out frames chose (docs/experiments.md, sessions 18-20),
+    # defaults: the variant the held-out frames chose (docs/experiments.md),
     # the one the shipped bundle holds
     p.add_argument("--max-disagreement", type=float, default=16.0,
                    help="px: the LiDAR point is a candidate where it differs from the "
                         "network's value by at most this (0 = any)")
     p.add_argument("--side-cells", type=int, default=0,
                    help=f"the network's near / far sides (max / min over this many cells "
-                        f"square, odd; {SIDE_CELLS} in session 22) are candidates too: more "
+                        f"square, odd; {SIDE_CELLS} when tried) are candidates too: more "
                         "accurate, 1.65× the cost (not shipped); 0: the LiDAR point only")
     p.add_argument("--blend", type=float, default=1.0,
                    help="a pixel's error above 16 px counts at this share of its excess in "

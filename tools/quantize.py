@@ -110,6 +110,18 @@ def conv_nodes(path: Path) -> list[str]:
     return [n.name for n in onnx.load(str(path)).graph.node if n.op_type == "Conv"]
 
 
+def random_feeds(path: Path, seed: int = 0) -> dict[str, np.ndarray]:
+    """Float inputs 0-10 (images, disparities, features alike) at the declared shapes."""
+    import onnx
+
+    rng = np.random.default_rng(seed)
+    feeds = {}
+    for value in onnx.load(str(path), load_external_data=False).graph.input:
+        dims = [d.dim_value or 1 for d in value.type.tensor_type.shape.dim]
+        feeds[value.name] = (rng.random(dims) * 10).astype(np.float32)
+    return feeds
+
+
 def agreement(engine_a: Engine, engine_b: Engine, frames, iters: int) -> dict[str, float]:
     """Mean |disparity difference| ("px") and mean |confidence difference| ("confidence", 0-1;
     0 for a bundle without confidence) between two engines over the frames."""

@@ -7,7 +7,7 @@ ships) as a scene folder.
         [--textures data/textures] [--rows 16] [--seed 0]
     python tools/real_pairs.py --motorcycle [--out data/motorcycle] [--rows 16] [--seed 0]
 
-The recipe (issue 11): aloeL/R.jpg halved with INTER_AREA, aloeGT.png (pixels at full size,
+The recipe: aloeL/R.jpg halved with INTER_AREA, aloeGT.png (pixels at full size,
 0 = unknown) with INTER_NEAREST and ×0.5, centre-cropped to 640x400; the LiDAR is `--rows`
 rows of the GT at the centres of equal horizontal bands, every 2nd column, plus N(0, 0.1 px)
 (`edge.sim.gt_lidar.GtLidarPattern.evenly`). Without --deb or --from it runs

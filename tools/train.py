@@ -363,7 +363,7 @@ def _train(argv: list[str] | None) -> int:
             print(f"replica weight checksums: {sums} "
                   f"({'identical' if len(set(sums)) == 1 else 'DIFFERENT'})")
         # every rank leaves the group together: a rank tearing it down while another still
-        # wrote its files aborted at exit now and then under load (sessions 30, 36)
+        # wrote its files aborted at exit now and then under load (docs/experiments.md)
         torch.distributed.barrier()
         torch.distributed.destroy_process_group()
     if main_rank:

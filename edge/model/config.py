@@ -35,7 +35,7 @@ class ModelConfig:
     resolution versions 3 and 5-9 score their candidates at, 1/4 (shipped) or 1/2;
     motion_dim: the motion encoder's output (its correlation branch as wide), an input of the
     GRU's gates; head_dim: the hidden width of the Δd and upsampling-mask heads (the two
-    last: knobs of a lighter update block, `tools/prune.py`)."""
+    last: knobs of a lighter update block, `experiments/prune.py`)."""
 
     widths: tuple[int, ...] = (16, 32, 48)
     feature_dim: int = 64

@@ -102,7 +102,7 @@ class ThingsTrainSet(IterableDataset):
     """Endless augmented stream from a folder of things samples (plus `rig_share` rig
     samples, seeds < 1 000 000). `rig_stereo_only_share`: how many of the rig samples come
     without their LiDAR (default none: the rig then trains with LiDAR only, and its
-    stereo-only accuracy drifts as the trunk learns the things world; session 32)."""
+    stereo-only accuracy drifts as the trunk learns the things world; docs/experiments.md)."""
 
     def __init__(self, root, crop: tuple[int, int] = (320, 192), seed: int = 0,
                  rig_share: float = 0.15, relist_every: int = 200, shard: int = 0,

@@ -42,7 +42,7 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
     """The CPU the graphs run on, for what benchmarks and quantization record: its model name
     and whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
     SDOT/UDOT; None where unknown). Without them int8 graphs run no faster than float (ONNX
-    Runtime ×1.00 on an AVX2 host, docs/experiments.md session 21), so ratios and quantization
+    Runtime ×1.00 on an AVX2 host, docs/experiments.md), so ratios and quantization
     choices from the two kinds of CPU differ. `cpuinfo`: /proc/cpuinfo's text (read here on
     Linux)."""
     if cpuinfo is None:

@@ -62,7 +62,7 @@ def warped_cost(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
 def log1p32(x) -> np.ndarray:
     """log(1 + x) in float32, same shape: OpenCV's vectorised log. numpy's log1p ran as a
     scalar loop on an AVX2 host — 0.27 ms per 23 k values, 18× slower, and a dozen of them
-    per frame (docs/experiments.md, session 21); the two agree to 1 ulp."""
+    per frame (docs/experiments.md); the two agree to 1 ulp."""
     x = np.asarray(x, np.float32)
     return cv2.log(x.reshape(-1) + np.float32(1.0)).reshape(x.shape)
 
@@ -195,7 +195,7 @@ def cell_lidar(sparse: np.ndarray) -> np.ndarray:
 def feature_matrix(columns, scratch: Scratch | None = None) -> np.ndarray:
     """N-long columns → (N, len(columns)) float32, interleaved by OpenCV's merge: writing each
     into a strided column of an empty array took 1.0 ms a frame at 17 k cells × 22, the merge
-    0.2 (np.stack + astype 1.4; docs/experiments.md, session 23). With `scratch`, into its
+    0.2 (np.stack + astype 1.4; docs/experiments.md). With `scratch`, into its
     "features" buffer (valid until that buffer's next use)."""
     columns = [np.ascontiguousarray(c, np.float32).reshape(1, -1) for c in columns]
     n, f = columns[0].shape[1], len(columns)
@@ -209,8 +209,8 @@ def feature_matrix(columns, scratch: Scratch | None = None) -> np.ndarray:
 class Scratch(threading.local):
     """Buffers (float32 unless asked) a stage reuses from frame to frame, one set per thread,
     grown as frames need. A fresh array of a megabyte or more is fresh pages each frame: the
-    feature matrix's merge took 0.75 ms into a new array and 0.2 into a reused one (session
-    23)."""
+    feature matrix's merge took 0.75 ms into a new array and 0.2 into a reused one
+    (docs/experiments.md)."""
 
     def __init__(self) -> None:
         self.buffers: dict[str, np.ndarray] = {}
@@ -250,8 +250,8 @@ class Perceptron:
     pass over the hidden layer cost ~0.7 ms a frame more than gemm's add and OpenCV's
     threshold). OpenCV's gemm, not numpy's `@`: OpenBLAS's threads spin after each call and,
     on a 2-core robot, took the CPU from the inference runtime's next graphs (encoder 13 →
-    23 ms in tools/bench.py while the stage ran; docs/experiments.md, session 18); and
-    (N, F) · (F, K): its feature-major transpose took 3 ms, not 0.7 (session 20)."""
+    23 ms in tools/bench.py while the stage ran; docs/experiments.md); and
+    (N, F) · (F, K): its feature-major transpose took 3 ms, not 0.7 (docs/experiments.md)."""
 
     def __init__(self, mean: np.ndarray, std: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                  w2: np.ndarray, b2) -> None:

@@ -2,7 +2,7 @@
 
 The network works at 1/8 resolution; on real pairs all of its bad-3 loss against the SGBM +
 LiDAR fusion lies at depth edges, where thin structures (leaves, spokes, cables) are finer
-than its grid (docs/experiments.md, session 24). This stage runs OpenCV's StereoBM over the
+than its grid (docs/experiments.md). This stage runs OpenCV's StereoBM over the
 frame and takes its left-right-checked value where the network is unsure at its own edges:
 confidence below `max_confidence`, the network's disparity ranging over more than
 `min_range_px` within `window` × `window` pixels, and the matched value warping the right view
@@ -12,7 +12,7 @@ the frame's pixels on motorcycle), the LiDAR's nearest point is the second candi
 where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
-With `median` (the shipped bundle's "9x9/2", session 36) the gate then goes through a
+With `median` (the shipped bundle's "9x9/2") the gate then goes through a
 grey-guided weighted median (`edge.runtime.edge_median`), which cleans the choice's
 pixel-by-pixel mix, and the point's gate is looser (`MEDIAN_POINT_MARGIN`,
 `MEDIAN_MIN_TEXTURE`).
@@ -21,12 +21,12 @@ Whether it runs is the bundle's to declare (model.json's "engine", `[engine] edg
 "bundle"` by default): since stage 17 the shipped bundle's head (refinement version 10, no
 image-guided refinement of its own) is made to hand its unsure edges to this stage, "auto" on
 every other row (`edge_match_rows = 2`); bundles of other heads keep it off unless asked. On
-every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`, session 25);
+every row with 64 disparities it cost about 0.8× SGBM's time (`tools/bench.py`);
 the engine runs the block matching on its own thread: beside its graphs with a fixed count;
 with "auto", where the graphs leave a core idle, beside the last step with the count guessed
 one step earlier (`pair_terms` beside the encoder), else beside the choice's preparation
 (the shipped setting's time: README "Speed"). Its parameters (the point's margin and texture
-gate too: docs/experiments.md, session 25) were chosen on the Middlebury motorcycle pair
+gate too: docs/experiments.md) were chosen on the Middlebury motorcycle pair
 (`tools/real_pairs.py --motorcycle`); Aloe was only reported. On the synthetic worlds it costs
 EPE (there SGBM-like matching is 3-4× less reliable than on real pairs): the README's tables
 give both.
@@ -58,13 +58,13 @@ AUTO_MARGIN_PX = 8   # ... plus this, rounded up to StereoBM's multiple of 16
 POINT_MARGIN = 0.8   # the LiDAR point's 5x5 warp cost must be below this x the network's
 MIN_TEXTURE = 4.0    # ... where the left image's 5x5 mean |d/dx| (grey levels / px) exceeds
 # with the weighted median after the choice, which cleans a wrong point's single pixels, a
-# looser gate takes more points (docs/experiments.md, session 36, chosen on motorcycle)
+# looser gate takes more points (docs/experiments.md, chosen on motorcycle)
 MEDIAN_POINT_MARGIN = 1.0
 MEDIAN_MIN_TEXTURE = 2.0
-ROW_STEPS = (1, 2)   # StereoBM on every row, or every other row (session 30: half its time)
+ROW_STEPS = (1, 2)   # StereoBM on every row, or every other row (half its time)
 # the block matcher: OpenCV's StereoBM (the default), or its SGBM (3-way, block 5: the
 # classical baseline's), which leaves far fewer holes in the gate for about SGBM's whole time
-# (docs/experiments.md, session 34: on Aloe past the SGBM + LiDAR fusion on both numbers)
+# (docs/experiments.md: on Aloe past the SGBM + LiDAR fusion on both numbers)
 MATCHERS = ("bm", "sgbm")
 SGBM_BLOCK_PX = 5
 

@@ -7,7 +7,7 @@ whichever source won rather than the image. A weighted median over a few neighbo
 weighted by how alike its grey level is to the pixel's own, gives each pixel the value that
 most of its own surface holds: on motorcycle bad-3 with LiDAR 7.82 → 7.21 % (6.98 with the
 looser LiDAR-point gate it allows), and every world gains on both EPE and bad-3
-(docs/experiments.md, session 36). A plain median does nothing:
+(docs/experiments.md). A plain median does nothing:
 the grey guidance is what aligns the edges. Averaging instead (edge-aware smoothing) is worse
 than nothing: a blend across an edge is the error bad-3 counts.
 
@@ -38,12 +38,12 @@ WEIGHT_BITS = 8     # a key = disparity step × 2^WEIGHT_BITS + weight (0 … 25
 WEIGHT_LEVELS = 1 << WEIGHT_BITS
 MAX_DISPARITY_PX = (2 ** 24 // WEIGHT_LEVELS - 1) / SUBPIXEL  # keys exact in float32
 # "radius/stride": the samples are the pixels (dy, dx) with dy, dx in −radius … radius by
-# stride (docs/experiments.md, session 36: 9×9 every 2nd chosen on motorcycle)
+# stride (docs/experiments.md: 9×9 every 2nd chosen on motorcycle)
 PATTERNS = {"9x9/2": (4, 2), "13x13/3": (6, 3), "9x9/4": (4, 4)}
 OFF = "off"
 # gated pixels per pass: the (samples, pixels) buffers stay ~6 MB whatever the gate (a whole
 # 640×400 frame in one pass would take ~180 MB) and nearer the cache — motorcycle's 75 k
-# pixels 13.5 → 11.2 ms in passes of 8 k (docs/experiments.md, session 36)
+# pixels 13.5 → 11.2 ms in passes of 8 k (docs/experiments.md)
 CHUNK_PX = 8192
 
 

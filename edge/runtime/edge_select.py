@@ -2,8 +2,8 @@
 take the near or the far side's, chosen by a small learned scorer.
 
 Why: stereo only, the network loses to SGBM at depth edges and nowhere else (on Aloe 6.6
-of its 14.2 bad-3 points lie within 4 px of an edge, SGBM's 2.4; docs/experiments.md,
-session 21): at 1/8 resolution its value there is often a blend, or the other side's. Both
+of its 14.2 bad-3 points lie within 4 px of an edge, SGBM's 2.4; docs/experiments.md): at
+1/8 resolution its value there is often a blend, or the other side's. Both
 sides' values are in its own output a few cells away — the largest and the smallest of its
 cell means over SIDE_CELLS × SIDE_CELLS cells — and an oracle choosing among the three per
 cell removes a sixth to a quarter of the bad-3 pixels (3 to 5 cells square). The scorer

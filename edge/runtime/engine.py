@@ -154,7 +154,7 @@ class Engine:
                             if n not in ("disparity", "hidden")]
         upsample = self.sessions["upsample"]
         # the step and the upsampling read what the encoder wrote, by name: graphs from two
-        # exports (bundles since session 26 pass the context as two precomputed terms; a
+        # exports (newer bundles pass the context as two precomputed terms, older ones as itself; a
         # refinement's version decides what the upsampling reads) would fail on frame 1
         fed = {"disparity", "hidden", *self._enc_outputs}
         for part, extra in (("step", set()), ("upsample", {"left", "right", "sparse", "valid"})):
@@ -208,7 +208,7 @@ class Engine:
         # matched again because the final disparity needed another count than the guess
         self.match_starts = {"early": 0, "again": 0}
         # "auto" starts early only where the graphs leave a core idle: with every core in the
-        # graphs, StereoBM beside them slowed them by as much as it saved (session 35)
+        # graphs, StereoBM beside them slowed them by as much as it saved (docs/experiments.md)
         self.match_early = int(threads) < usable_cores()
         self._upsample_ms = 0.0  # running estimate for the deadline
         self.scale = scale
@@ -312,7 +312,7 @@ class Engine:
             early = self._match_early(match.num_disparities)
         # "auto", where the graphs leave a core idle: the choice's pair-only terms beside the
         # encoder, then StereoBM with the count guessed from the disparity with one step to go
-        # (after the encoder at one step), beside the last step (session 35: beside the
+        # (after the encoder at one step), beside the last step (docs/experiments.md: beside the
         # memory-bound upsampling, it slowed that graph by more than it saved)
         guess_after = iters - 2 if match is not None and early is None and \
             self.match_early else iters

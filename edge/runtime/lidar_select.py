@@ -4,10 +4,10 @@ take the nearest LiDAR point's, chosen by a small learned scorer.
 Why: the network estimates at 1/8 (refined at 1/4), so at depth edges its value is often the
 other side's; the nearest LiDAR point's value is exact where it lies on the pixel's side of
 the edge. Neither the image nor a matching cost alone says which (`docs/experiments.md`,
-"Analysis" and session 17); this stage learns it from both: the photometric cost of each
+"Analysis"); this stage learns it from both: the photometric cost of each
 candidate (3×3 and 5×5 windows at half resolution: 6 and 10 px), how far they disagree and in
 which direction, the network's confidence, the distance to the LiDAR point, the image
-gradient and the point's own residual; and, for spatial context (session 20), whether the cell
+gradient and the point's own residual; and, for spatial context, whether the cell
 lies at an edge of the network's disparity or between two points' zones (their local ranges),
 the grey step from the cell to its point's cell and the point's row offset. The scorer (a
 2-layer perceptron, ~600 weights) is fitted on the bundle's own int8 outputs over training
@@ -18,7 +18,7 @@ logit), not the network's, which was low there by construction.
 
 Everything runs on 2×2 cells (half resolution) and only where the network's confidence is
 below the fitted gate: at full resolution the stage cost 25–30 ms a frame on a 2-core robot,
-over the engine's budget (docs/experiments.md, sessions 18–19). A chosen cell's four pixels
+over the engine's budget (docs/experiments.md). A chosen cell's four pixels
 all take the LiDAR value. Without LiDAR points the disparity is returned unchanged.
 
 Pure numpy + OpenCV (robot side, no torch).
@@ -59,14 +59,14 @@ FEATURES = ("cost5_net_minus_lidar", "cost9_net_minus_lidar", "log_cost5_net",
             "log_distance_to_lidar", "log_gradient", "log_point_residual",
             "log_grey_step_to_point", "log_net_range3", "log_net_range7",
             "log_lidar_range3", "log_lidar_range7", "log_grey_range5", "rows_to_point")
-# with the network's own sides as candidates too (`side_cells` > 0; session 22)
+# with the network's own sides as candidates too (`side_cells` > 0; docs/experiments.md)
 SIDE_FEATURES = ("near_minus_net", "net_minus_far", "grey_side", "log_lidar_to_near",
                  "log_lidar_to_far")
 CANDIDATES = ("network", "LiDAR point", "near side", "far side")
 # a cell the LiDAR point is no candidate for is scored for its sides only if one lies this far
 # from the network's value: with 0.5 px, the cells whose sides lie nearer were 10 % of the
 # stage's cells and held 6.5 % of the sides' oracle bad-3 gain at such cells (60 fitting
-# frames; docs/experiments.md, session 23)
+# frames; docs/experiments.md)
 SIDE_ONLY_MIN_PX = 1.0
 
 
@@ -88,7 +88,7 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     (max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map
     say whether the cell sits at an edge of either: without them the scorer could not tell a
     network that missed an edge from a LiDAR point across one, and a cap of 8 px on the
-    disagreement had to keep the large ones out (docs/experiments.md, session 20).
+    disagreement had to keep the large ones out (docs/experiments.md).
 
     side_cells > 0: the network's own near and far sides (the largest and smallest of its
     cell means over side_cells × side_cells cells) are candidates too. The cells are then
@@ -189,7 +189,7 @@ class LidarSelect:
     keep its values. confidence_scale/bias: a replaced cell's pixels get the confidence
     sigmoid(scale · logit + bias) (the chosen candidate's logit), fitted as the share of such
     pixels within 1 px of the truth (the network's confidence means the same); None
-    (bundles fitted before session 20) keeps the network's confidence there."""
+    (bundles fitted without it) keeps the network's confidence there."""
 
     mean: np.ndarray
     std: np.ndarray

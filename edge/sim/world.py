@@ -48,7 +48,7 @@ class WorldConfig:
     max_disparity_range_px: tuple[float, float] = (40.0, 140.0)
     # how much the two cameras' responses differ (`CameraResponse.for_view`'s ranges times
     # this): 1 is the world every shipped model trained on, where SGBM's own matches are
-    # 3-4x less reliable than on the rig or a real pair (docs/experiments.md, session 23)
+    # 3-4x less reliable than on the rig or a real pair (docs/experiments.md)
     view_spread: float = 1.0
     # one response for both views, gamma 1, no vignetting, blur or JPEG, read noise 0.5 (the
     # scene and its seeds unchanged): SGBM's matches about as reliable as on a real pair

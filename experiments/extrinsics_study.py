@@ -17,25 +17,17 @@ import json
 import time
 from pathlib import Path
 
-import cv2
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def perturbed(T: np.ndarray, degrees: float, metres: float, seed: int = 0) -> np.ndarray:
-    """T moved by `degrees` about a random axis and `metres` in a random direction."""
-    rng = np.random.default_rng(seed)
-    axis = rng.normal(size=3)
-    D = np.eye(4)
-    D[:3, :3] = cv2.Rodrigues(axis / np.linalg.norm(axis) * np.radians(degrees))[0]
-    direction = rng.normal(size=3)
-    D[:3, 3] = direction / np.linalg.norm(direction) * metres
-    return D @ T
-
-
 def main(argv: list[str] | None = None) -> int:
-    from edge_depth.calibration.extrinsics import pose_difference, refine_extrinsics
+    from edge_depth.calibration.extrinsics import (
+        perturbed,
+        pose_difference,
+        refine_extrinsics,
+    )
     from edge_depth.sim import make_sample
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -1,4 +1,4 @@
-"""How much of the 1/8-resolution ceiling the upsampling recovers (issue 11).
+"""How much of the 1/8-resolution ceiling the upsampling recovers.
 
     python tools/upsampling_study.py DATA_DIR [--model CKPT] [--iters 4] [--json OUT]
 

@@ -19,18 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from edge_depth.runtime.backends import open_session, resolve_runtime
-
-
-def random_feeds(path: Path, seed: int = 0) -> dict[str, np.ndarray]:
-    """Float inputs 0-10 (images, disparities, features alike) at the declared shapes."""
-    import onnx
-
-    rng = np.random.default_rng(seed)
-    feeds = {}
-    for value in onnx.load(str(path), load_external_data=False).graph.input:
-        dims = [d.dim_value or 1 for d in value.type.tensor_type.shape.dim]
-        feeds[value.name] = (rng.random(dims) * 10).astype(np.float32)
-    return feeds
+from edge_depth.tools.quantize import random_feeds
 
 
 def interleaved_ms(paths: list[Path], runtime: str = "auto", rounds: int = 40,

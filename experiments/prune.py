@@ -5,8 +5,8 @@ layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`)
         --hidden 48 --context 32 --motion 48 --head 32 --feature 48
 
 The step graph's cost is mostly the GRU's gates, whose convolutions scale with (hidden +
-motion) × hidden; at 4 iterations it is ~40 % of the int8 engine (`docs/experiments.md`,
-session 31). Cutting channels of a trained network keeps most of what it does, which
+motion) × hidden; at 4 iterations it is ~40 % of the int8 engine (`docs/experiments.md`).
+Cutting channels of a trained network keeps most of what it does, which
 training from scratch would take the ~50 000 steps the shipped model had to relearn.
 
 Each group keeps the channels whose weights in the layers that read them have the largest
