@@ -96,8 +96,8 @@ def run(args: argparse.Namespace) -> int:
             print("wrote " + ", ".join(str(p) for p in paths))
             return 0
         if args.calib_command == "lidar":
+            from edge_depth.arguments import load_topic_map
             from edge_depth.capture.replay import TopicMap
-            from edge_depth.cli import load_topic_map
 
             topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
             return lidar_command(args.recording, args.calib, args.out, args.refine,
@@ -123,9 +123,9 @@ def _stereo(args: argparse.Namespace) -> int:
 
 
 def _import_oak(args: argparse.Namespace) -> int:
+    from edge_depth.arguments import parse_size
     from edge_depth.calibration.io import save_calibration
     from edge_depth.calibration.oak import stereo_from_oak
-    from edge_depth.cli import parse_size
 
     size = parse_size(args.size)
     stereo = stereo_from_oak(args.eeprom_json, size)

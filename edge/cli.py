@@ -6,56 +6,18 @@ import argparse
 import sys
 from pathlib import Path
 
+from edge_depth.arguments import (
+    load_topic_map,
+    parse_host_port,
+    parse_size,
+    positive_int,
+    share,
+)
 from edge_depth.calibration.errors import CalibrationError
 from edge_depth.errors import EdgeError
+from edge_depth.runtime.options import add_engine_arguments, options_from_args
 
-
-def parse_size(text: str) -> tuple[int, int]:
-    """'640x400' -> (640, 400); raises argparse.ArgumentTypeError otherwise."""
-    parts = text.lower().split("x")
-    if len(parts) != 2 or not all(p.isdigit() for p in parts):
-        raise argparse.ArgumentTypeError(f"size must be WxH, e.g. 640x400, got {text!r}")
-    w, h = int(parts[0]), int(parts[1])
-    if w < 16 or h < 16:
-        raise argparse.ArgumentTypeError(f"size must be at least 16x16, got {text!r}")
-    return w, h
-
-
-def _edge_match(text: str) -> int | str:
-    from edge_depth.runtime.edge_match import count_argument  # (OpenCV: only when given)
-
-    return count_argument(text)
-
-
-def add_edge_match_arguments(parser: argparse.ArgumentParser) -> None:
-    """The engine's edge matching flags, as its [engine] keys, for each command that runs the
-    engine (replay, tools/evaluate.py)."""
-    parser.add_argument("--edge-match", type=_edge_match, default=None, metavar="N|auto",
-                        help="StereoBM with N disparities (a multiple of 16 above the scene's "
-                             "largest) or each frame's from the network's own (auto) at the "
-                             "network's uncertain edges, as [engine] edge_match (README); 0 = "
-                             "off; default: the bundle's (the shipped one: auto)")
-    parser.add_argument("--edge-match-rows", type=int, choices=(1, 2), default=None,
-                        help="2: the matching on every other row, half its time, as [engine] "
-                             "edge_match_rows; default: the bundle's (the shipped one: 2)")
-    parser.add_argument("--edge-matcher", choices=("bm", "sgbm"), default="bm",
-                        help="the matching's block matcher, as [engine] edge_matcher: bm "
-                             "(StereoBM) or sgbm (fewer holes, about SGBM's time more)")
-    parser.add_argument("--edge-median", choices=("off", "9x9/2", "13x13/3", "9x9/4"),
-                        default=None,
-                        help="the grey-guided weighted median over the matching's gate, as "
-                             "[engine] edge_median: its samples (window/step) or off; "
-                             "default: the bundle's (the shipped one: 9x9/2)")
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value <= 0:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}")
-    return value
+FLEET_THREADS = 1  # fleet: one engine thread per worker, as many workers as cores
 
 
 def _view_spread(text: str) -> float:
@@ -98,31 +60,6 @@ def configure_logging(verbose: bool = False, quiet: bool = False) -> None:
     logging.getLogger().setLevel(level)
 
 
-def load_topic_map(path: Path) -> dict:
-    from edge_depth.calibration.tomlfile import TomlReadError, read_toml
-    from edge_depth.errors import ConfigError
-
-    try:
-        data = read_toml(path)
-    except (OSError, TomlReadError) as exc:
-        raise ConfigError("topics", "a readable TOML file", str(exc), str(path)) from None
-    if not isinstance(data.get("topics"), dict):
-        raise ConfigError("topics", "a [topics] table", sorted(data), str(path))
-    return data["topics"]
-
-
-def parse_host_port(text: str) -> tuple[str, int]:
-    """'8765', ':8765' or 'HOST:8765' -> (host, port); the host defaults to 127.0.0.1."""
-    host, _, port = text.rpartition(":")
-    try:
-        number = int(port)
-    except ValueError:
-        number = -1
-    if not 0 <= number <= 65535:
-        raise argparse.ArgumentTypeError(f"expected [HOST:]PORT, got {text!r}")
-    return host or "127.0.0.1", number
-
-
 # the jobs around the robot: `edge-depth NAME ARGS...` runs tools/NAME.py's main(ARGS);
 # the ones that need torch or onnx say so in one line when the `train` extra is missing
 TOOL_COMMANDS = {
@@ -162,38 +99,18 @@ PROFILE_HELP = ("the output's MCAP profile: foxglove (protobuf Foxglove schemas)
                 "messages in CDR, for ros2 bag play)")
 
 
-def add_replay_arguments(parser: argparse.ArgumentParser, threads: int) -> None:
-    """The engine and recording options of `replay`, shared by `fleet`."""
-    parser.add_argument("--iters", type=_positive_int, default=None)
-    parser.add_argument("--deadline-ms", type=float, default=None)
+def add_replay_arguments(parser: argparse.ArgumentParser, **defaults) -> None:
+    """The recording and engine options of `replay`, shared by `fleet`: one engine flag per
+    `EngineOptions` field (`defaults`: the command's own, e.g. fleet's one thread)."""
     parser.add_argument("--calib", type=Path, default=None,
                         help="calibration TOML (default: the recording's /edge/calibration, "
                              "else its CameraInfo pair + /tf_static)")
     parser.add_argument("--topics", type=Path, default=None,
                         help="TOML with a [topics] table mapping roles (left, right, lidar, "
                              "left_info, right_info, tf_static, gt) to the recording's topics")
-    parser.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    parser.add_argument("--bundle", type=Path, default=None, help="model bundle directory")
-    parser.add_argument("--scale", type=float, default=0.0,
-                        help="camera → network scale (0: the largest that fits the bundle)")
-    parser.add_argument("--threads", type=_positive_int, default=threads,
-                        help=f"the engine's threads (default {threads})")
-    parser.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"),
-                        default="auto", help="the engine's runtime (auto: OpenVINO on x86-64 "
-                                             "when installed, else ONNX Runtime)")
-    parser.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
-                        help="OpenVINO: the encoder in bf16 (auto: where the CPU has it)")
-    add_edge_match_arguments(parser)
     parser.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
                         help=PROFILE_HELP)
-
-
-def engine_options(args: argparse.Namespace) -> dict:
-    """`replay_engine`'s keyword arguments (but threads) from add_replay_arguments' flags."""
-    return dict(precision=args.precision, bundle=args.bundle, scale=args.scale,
-                runtime=args.runtime, bf16={"auto": None, "on": True, "off": False}[args.bf16],
-                edge_match=args.edge_match, edge_match_rows=args.edge_match_rows,
-                edge_matcher=args.edge_matcher, edge_median=args.edge_median)
+    add_engine_arguments(parser, **defaults)
 
 
 def add_fleet_parser(sub) -> None:
@@ -209,15 +126,15 @@ def add_fleet_parser(sub) -> None:
                        help="outputs, result records and summary.md / summary.json")
     fleet.add_argument("--address", default=None,
                        help="a Ray cluster to join: auto or HOST:PORT (default: Ray local)")
-    fleet.add_argument("--workers", type=_positive_int, default=None,
+    fleet.add_argument("--workers", type=positive_int, default=None,
                        help="engines at once (default: the cluster's CPUs / --threads)")
     fleet.add_argument("--base", type=Path, default=None,
                        help="compare: the folder of golden replays (an earlier fleet replay)")
     fleet.add_argument("--tolerance-px", type=float, default=0.25,
                        help="compare: a pixel differs beyond this")
-    fleet.add_argument("--max-share", type=_share, default=0.01,
+    fleet.add_argument("--max-share", type=share, default=0.01,
                        help="compare: the share of differing pixels allowed")
-    add_replay_arguments(fleet, threads=1)
+    add_replay_arguments(fleet, threads=FLEET_THREADS)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -234,7 +151,7 @@ def build_parser() -> argparse.ArgumentParser:
     synth.add_argument("--mcap", type=Path, default=None,
                        help="write one MCAP recording here instead (robot topics, the "
                             "calibration, GT disparity on /sim/gt_disparity)")
-    synth.add_argument("--count", "--frames", type=_positive_int, default=1,
+    synth.add_argument("--count", "--frames", type=positive_int, default=1,
                        help="number of scenes (frames)")
     synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
     synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
@@ -244,7 +161,7 @@ def build_parser() -> argparse.ArgumentParser:
                             "world as OUT/NNNNNNN.npz (LiDAR sampled at training time); "
                             "street: a recording (--mcap) of a road at 1242x375 with a "
                             "64-beam LiDAR, a world no shipped model trained on")
-    synth.add_argument("--workers", type=_positive_int, default=1,
+    synth.add_argument("--workers", type=positive_int, default=1,
                        help="rendering processes (--world things)")
     synth.add_argument("--view-spread", type=_view_spread, default=1.0,
                        help="--world things: how much the two cameras' responses differ "
@@ -260,11 +177,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
     demo.add_argument("--out", type=Path, default=Path("out"))
-    demo.add_argument("--frames", type=_positive_int, default=3)
+    demo.add_argument("--frames", type=positive_int, default=3)
     demo.add_argument("--seed", type=int, default=1_000_000,
                       help="first scene (default: the test split's first)")
     demo.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    demo.add_argument("--iters", type=_positive_int, default=None,
+    demo.add_argument("--iters", type=positive_int, default=None,
                       help="GRU iterations (default: the bundle's)")
     demo.add_argument("--deadline-ms", type=float, default=None)
     demo.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
@@ -272,7 +189,7 @@ def build_parser() -> argparse.ArgumentParser:
     replay = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
     replay.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
     replay.add_argument("--out", type=Path, required=True, help="output MCAP")
-    add_replay_arguments(replay, threads=2)
+    add_replay_arguments(replay)
     replay.add_argument("--realtime", action="store_true",
                         help="pace by the recording's clock (drops frames when behind)")
     add_fleet_parser(sub)
@@ -283,14 +200,14 @@ def build_parser() -> argparse.ArgumentParser:
                      type=parse_host_port, metavar="[HOST:]PORT",
                      help="also serve a Foxglove WebSocket (default 127.0.0.1:8765; "
                           "0.0.0.0:8765 to reach it from another machine)")
-    run.add_argument("--max-frames", type=_positive_int, default=None,
+    run.add_argument("--max-frames", type=positive_int, default=None,
                      help="stop after this many frames (dry runs)")
     run.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
                      help="override log.profile (foxglove or ros2)")
     record = sub.add_parser("record", help="record the live sensors to MCAP")
     record.add_argument("--config", type=Path, required=True)
     record.add_argument("--out", type=Path, required=True)
-    record.add_argument("--max-frames", type=_positive_int, default=None)
+    record.add_argument("--max-frames", type=positive_int, default=None)
     record.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
                         help="override log.profile (foxglove or ros2)")
     for name, (_, description) in TOOL_COMMANDS.items():
@@ -304,7 +221,7 @@ def build_parser() -> argparse.ArgumentParser:
     compare.add_argument("new", type=Path, help="the replay output under test (MCAP)")
     compare.add_argument("--tolerance-px", type=float, default=0.25,
                          help="a pixel differs when |Δ disparity| exceeds this (default 0.25)")
-    compare.add_argument("--max-share", type=_share, default=0.01,
+    compare.add_argument("--max-share", type=share, default=0.01,
                          help="the share of differing pixels allowed, e.g. 1%% or 0.01")
     compare.add_argument("--json", type=Path, default=None, help="also write the report")
     from edge_depth.calibrate import add_parsers
@@ -313,27 +230,16 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _share(text: str) -> float:
-    try:
-        value = float(text[:-1]) / 100 if text.endswith("%") else float(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a share like 1% or 0.01, got {text!r}"
-                                         ) from None
-    if not 0 <= value <= 1:
-        raise argparse.ArgumentTypeError(f"expected a share in 0 … 100 %, got {text!r}")
-    return value
-
-
 def fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
     from edge_depth.fleet import FleetJob, fleet_command
 
     if (args.fleet_command == "compare") != (args.base is not None):
         parser.error("fleet: --base DIR (the golden replays) goes with compare, and only there")
     topics = load_topic_map(args.topics) if args.topics else None
-    job = FleetJob(args.fleet_command, args.out, engine_options(args),
-                   dict(iters=args.iters, deadline_ms=args.deadline_ms, calib=args.calib,
-                        topics=topics, profile=args.profile),
-                   args.threads, args.base, args.tolerance_px, args.max_share)
+    job = FleetJob(args.fleet_command, args.out,
+                   options_from_args(args, threads=FLEET_THREADS),
+                   dict(calib=args.calib, topics=topics, profile=args.profile),
+                   args.base, args.tolerance_px, args.max_share)
     return fleet_command(job, args.sources, args.address, args.workers)
 
 
@@ -405,10 +311,8 @@ def main(argv: list[str] | None = None) -> int:
             from edge_depth.commands import replay_command
 
             topics = load_topic_map(args.topics) if args.topics else None
-            return replay_command(args.input, args.out, args.iters, args.deadline_ms,
-                                  args.calib, topics, realtime=args.realtime,
-                                  threads=args.threads, profile=args.profile,
-                                  **engine_options(args))
+            return replay_command(args.input, args.out, options_from_args(args), args.calib,
+                                  topics, realtime=args.realtime, profile=args.profile)
         if args.command == "fleet":
             return fleet(args, parser)
         if args.command == "run":

@@ -26,9 +26,10 @@ from edge_depth.daemon import (
     summarise,
 )
 from edge_depth.errors import ConfigError
-from edge_depth.mcap_log import open_logger
+from edge_depth.loggers import open_logger
 from edge_depth.runner import StopFlag, run
 from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.options import EngineOptions
 from edge_depth.types import LidarScan
 
 log = logging.getLogger(__name__)
@@ -66,29 +67,12 @@ class ReplayRun:
                     output_health=self.pipeline.health.worst, files=[str(f) for f in self.files])
 
 
-def replay_engine(precision: str = "int8", threads: int = 2, bundle=None, scale: float = 0.0,
-                  runtime: str = "auto", bf16: bool | None = None,
-                  edge_match: int | str | None = None, edge_match_rows: int | None = None,
-                  edge_matcher: str = "bm", edge_median: str | None = None) -> Engine:
-    """The engine `replay` runs (loaded once; a fleet's worker keeps it for many recordings).
-    `edge_match`: the matching stage's disparity count or "auto", as `[engine] edge_match`
-    (0 = off); `edge_match_rows` as `[engine] edge_match_rows`; None: the bundle's;
-    `edge_matcher` as `[engine] edge_matcher`, `edge_median` as `[engine] edge_median`
-    (None: the bundle's)."""
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE
-
-    return Engine(bundle or DEFAULT_BUNDLE, precision=precision, threads=threads,
-                  scale=scale or None, runtime=runtime, bf16=bf16, edge_match=edge_match,
-                  edge_match_rows=edge_match_rows, edge_matcher=edge_matcher,
-                  edge_median=edge_median)
-
-
-def replay_recording(engine: Engine, path, out, iters: int | None = None,
-                     deadline_ms: float | None = None, calib=None, topics=None,
+def replay_recording(engine: Engine, path, out, calib=None, topics=None,
                      realtime: bool = False, profile: str = "foxglove",
                      on_output=None) -> ReplayRun:
-    """The pipeline over one recording with a loaded engine, its output to `out` (None: no
-    output file, as `fleet evaluate`). ReplayError for a recording that cannot be read."""
+    """The pipeline over one recording with a loaded engine (its iterations and deadline from
+    `engine.options`), its output to `out` (None: no output file, as `fleet evaluate`).
+    ReplayError for a recording that cannot be read."""
     from edge_depth.capture.replay import McapSource, TopicMap
 
     if out is not None and Path(out).exists() and Path(path).exists() \
@@ -102,26 +86,23 @@ def replay_recording(engine: Engine, path, out, iters: int | None = None,
     try:
         with contextlib.ExitStack() as stack:
             logger = None if out is None else stack.enter_context(open_logger(out, profile))
-            pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
+            o = engine.options
+            pipeline = Pipeline(engine, stereo, lidar, logger, o.iters or None,
+                                o.deadline_ms or None)
             # with --calib given, the recording's own calibration is ignored
             if calib is not None:
                 source.topics = dataclasses.replace(source.topics, calibration="")
-            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output)
+            stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output,
+                        pipelined=realtime and o.pipelined)
     finally:
         stop.restore()
     return ReplayRun(stats, pipeline, source, [] if logger is None else list(logger.files))
 
 
-def replay_command(path, out, iters: int | None = None, deadline_ms: float | None = None,
-                   calib=None, topics=None, precision: str = "int8", realtime: bool = False,
-                   threads: int = 2, bundle=None, scale: float = 0.0,
-                   profile: str = "foxglove", runtime: str = "auto",
-                   bf16: bool | None = None, edge_match: int | str | None = None,
-                   edge_match_rows: int | None = None, edge_matcher: str = "bm",
-                   edge_median: str | None = None) -> int:
+def replay_command(path, out, options: EngineOptions | None = None, calib=None, topics=None,
+                   realtime: bool = False, profile: str = "foxglove") -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
-    EPE / bad-3 per frame and overall where the recording carries ground truth. The engine
-    options are `replay_engine`'s."""
+    EPE / bad-3 per frame and overall where the recording carries ground truth."""
     from edge_depth.calibration.io import load_calibration
     from edge_depth.capture.replay import McapSource, TopicMap
 
@@ -131,8 +112,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
     McapSource(path, TopicMap.from_dict(topics or {})).check_topics()
     if calib is not None:
         load_calibration(calib)
-    engine = replay_engine(precision, threads, bundle, scale, runtime, bf16, edge_match,
-                           edge_match_rows, edge_matcher, edge_median)
+    engine = Engine(options=options)
     log.info("engine: %s", engine.describe())
 
     def on_output(frame, output) -> None:
@@ -143,8 +123,7 @@ def replay_command(path, out, iters: int | None = None, deadline_ms: float | Non
             line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
         print(line, flush=True)
 
-    done = replay_recording(engine, path, out, iters, deadline_ms, calib, topics, realtime,
-                            profile, on_output)
+    done = replay_recording(engine, path, out, calib, topics, realtime, profile, on_output)
     stats, pipeline, source = done.stats, done.pipeline, done.source
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
@@ -297,18 +276,12 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
     from edge_depth.config import load_robot_config, sync_mode
     from edge_depth.mcap_log import RESULT_TOPICS, TOPICS
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     config = load_robot_config(config_path)
     mode = sync_mode(config)
     e = config.engine
     try:
-        engine = Engine(e.bundle or DEFAULT_BUNDLE, precision=e.precision, threads=e.threads,
-                        scale=e.scale or None, runtime=e.runtime, bf16=e.bf16_choice,
-                        lidar_select=e.lidar_select, edge_select=e.edge_select,
-                        edge_match=e.edge_match_choice,
-                        edge_match_rows=e.edge_match_rows_choice,
-                        edge_matcher=e.edge_matcher, edge_median=e.edge_median_choice)
+        engine = Engine(options=e)
         source, stereo, lidar = open_sources(config, max_frames)
         engine.plan_for(tuple(stereo.image_size))  # a camera the bundle cannot run: now
     except ConfigError as exc:
@@ -323,7 +296,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
         if live is not None:
             options.update(live=True, live_host=live[0], live_port=live[1])
         with open_logger(out or lg.out, topics=topics, **options) as logger:
-            pipeline = Pipeline(engine, stereo, lidar, logger, e.iters, e.deadline_ms or None,
+            pipeline = Pipeline(engine, stereo, lidar, logger, e.iters or None,
+                                e.deadline_ms or None,
                                 SyncConfig(mode, config.sync.window_ms,
                                            max_wait_ms=config.sync.max_wait_ms),
                                 log_raw=lg.raw)

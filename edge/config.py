@@ -22,40 +22,9 @@
     window_ms = 100.0
     max_wait_ms = 200.0         # a frame waits this long for the scans that cover it
 
-    [engine]
-    bundle = ""                 # "" = the shipped bundle
-    precision = "int8"
-    scale = 0.0                 # camera → network scale; 0 = the largest that fits the bundle
-    threads = 2
-    iters = 4
-    deadline_ms = 0.0           # 0 = no deadline
-    runtime = "auto"            # "onnxruntime" | "openvino" | "auto": OpenVINO on x86-64
-                                # when installed (pip install 'edge-depth[openvino]')
-    bf16 = "auto"               # OpenVINO: the encoder in bf16 | "on" | "off"; auto = where
-                                # the CPU has it natively (AVX512-BF16, AMX)
-    pipelined = false           # live: rectify/project, engine and logging overlap in
-                                # threads; at a higher latency. On 2 cores it gained 35 %
-                                # frames/s with a 40 ms engine and lost 8 % with an 87 ms
-                                # one (README "Speed")
-    lidar_select = true         # the bundle's per-2×2-cell choice between the network and
-                                # the nearest LiDAR point (if it has one; README)
-    edge_select = true          # on frames without LiDAR points, the bundle's per-cell
-                                # choice of an edge's near or far side (if it has one)
-    edge_match = "bundle"       # the full-resolution matching at the network's uncertain
-                                # edges: "bundle" = as the bundle's model.json declares
-                                # (the shipped one: "auto"; bundles of heads other than
-                                # version 10: off); "auto": StereoBM's disparity count per
-                                # frame from the network's own disparity; N: a fixed count
-                                # (a multiple of 16 above the scene's largest disparity at
-                                # the network's input size); 0 = off (README)
-    edge_match_rows = "bundle"  # 2: StereoBM on every other row, half its time (the
-                                # shipped bundle's); 1: every row; "bundle" = the bundle's
-    edge_matcher = "bm"         # "sgbm": the matching with OpenCV's SGBM instead of
-                                # StereoBM: far fewer holes, better on real pairs, for about
-                                # SGBM's whole time more per frame (README)
-    edge_median = "bundle"      # the grey-guided weighted median over the matching's gate:
-                                # "9x9/2" (the shipped bundle's), "13x13/3", "9x9/4" or "off";
-                                # "bundle" = the bundle's
+    [engine]                    # every key of edge.runtime.options.EngineOptions, with its
+    iters = 4                   # default and doc (docs/configuration.md's table is made
+    deadline_ms = 80.0          # from it)
 
     [log]
     out = "logs/depth.mcap"
@@ -79,6 +48,7 @@ from pathlib import Path
 
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
+from edge_depth.runtime.options import BUNDLE, ROW_STEPS, EngineOptions
 
 _log = logging.getLogger(__name__)
 
@@ -124,45 +94,6 @@ def sync_mode(config: RobotConfig) -> str:
     return SYNC_MODE_BY_LIDAR.get(config.lidar.model, "accumulate")
 
 
-BUNDLE = "bundle"  # an engine setting taken from the bundle's model.json
-
-
-@dataclass(frozen=True)
-class EngineConfig:
-    bundle: str = ""
-    precision: str = "int8"
-    scale: float = 0.0  # camera → network scale; 0 = the largest that fits the bundle
-    threads: int = 2
-    iters: int = 4
-    deadline_ms: float = 0.0
-    runtime: str = "auto"
-    bf16: str = "auto"
-    pipelined: bool = False
-    lidar_select: bool = True
-    edge_select: bool = True
-    edge_match: int | str = BUNDLE  # or "auto", or a count (0 = off)
-    edge_match_rows: int | str = BUNDLE  # or 1, 2
-    edge_matcher: str = "bm"  # or "sgbm"
-    edge_median: str = BUNDLE  # or "off", "9x9/2", "13x13/3", "9x9/4"
-
-    @property
-    def edge_match_choice(self) -> int | str | None:
-        """For `Engine(edge_match=...)`: None = the bundle's."""
-        return None if self.edge_match == BUNDLE else self.edge_match
-
-    @property
-    def edge_match_rows_choice(self) -> int | None:
-        return None if self.edge_match_rows == BUNDLE else self.edge_match_rows
-
-    @property
-    def edge_median_choice(self) -> str | None:
-        return None if self.edge_median == BUNDLE else self.edge_median
-
-    @property
-    def bf16_choice(self) -> bool | None:
-        return {"auto": None, "on": True, "off": False}[self.bf16]
-
-
 @dataclass(frozen=True)
 class LogConfig:
     out: str = "logs/depth.mcap"
@@ -183,7 +114,7 @@ class RobotConfig:
     lidar: LidarConfig = field(default_factory=LidarConfig)
     calibration: CalibrationConfig = field(default_factory=CalibrationConfig)
     sync: SyncSection = field(default_factory=SyncSection)
-    engine: EngineConfig = field(default_factory=EngineConfig)
+    engine: EngineOptions = field(default_factory=EngineOptions)
     log: LogConfig = field(default_factory=LogConfig)
     path: str = "<defaults>"
 
@@ -192,11 +123,6 @@ CHOICES = {
     ("camera", "source"): ("oak", "sim"),
     ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
     ("sync", "mode"): ("auto", "nearest", "accumulate"),
-    ("engine", "precision"): ("int8", "fp32"),
-    ("engine", "runtime"): ("auto", "onnxruntime", "openvino"),
-    ("engine", "bf16"): ("auto", "on", "off"),
-    ("engine", "edge_matcher"): ("bm", "sgbm"),
-    ("engine", "edge_median"): (BUNDLE, "off", "9x9/2", "13x13/3", "9x9/4"),
     ("log", "compression"): ("lz4", "zstd", "none"),
     ("log", "profile"): ("foxglove", "ros2"),
 }
@@ -208,16 +134,17 @@ RANGES = {
     ("lidar", "baudrate"): (0, 10_000_000),
     ("sync", "window_ms"): (1.0, 10_000.0),
     ("sync", "max_wait_ms"): (0.0, 10_000.0),
-    ("engine", "scale"): (0.0, 4.0),
-    ("engine", "threads"): (1, 256),
-    ("engine", "iters"): (1, 64),
-    ("engine", "deadline_ms"): (0.0, 60_000.0),
-    ("engine", "edge_match_rows"): (1, 2),
     ("log", "rotate_mb"): (1.0, 1e7),
     ("log", "rotate_s"): (1.0, 1e8),
     ("log", "queue"): (1, 1000),
     ("log", "tf_parent_xyz_rpy"): (-1000.0, 1000.0),  # each: metres, or degrees
 }
+# the engine's, from its options' own
+CHOICES.update({("engine", f.name): f.metadata["choices"] for f in fields(EngineOptions)
+                if f.metadata["choices"]})
+RANGES.update({("engine", f.name): f.metadata["bounds"] for f in fields(EngineOptions)
+               if f.metadata["bounds"]})
+RANGES[("engine", "edge_match_rows")] = ROW_STEPS
 OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
 
 
@@ -300,7 +227,7 @@ def _log_out(log: LogConfig, path: str) -> LogConfig:
     return log
 
 
-def _warn_threads(engine: EngineConfig, path: str) -> None:
+def _warn_threads(engine: EngineOptions, path: str) -> None:
     cores = os.cpu_count() or 1
     if engine.threads > cores:
         _log.warning("%s: engine.threads = %d on a machine with %d cores: the engine's threads "
@@ -341,7 +268,10 @@ def load_robot_config(path: str | Path) -> RobotConfig:
                                   path)
             _check_range(path, name, key, value)
             values[key] = value
-        built[name] = cls(**values)
+        try:
+            built[name] = cls(**values)
+        except ConfigError as exc:  # a section's own checks (EngineOptions')
+            raise exc.naming(path, name) from None
     _resolve_paths(built, Path(path).parent)
     built["log"] = _log_out(built["log"], path)
     _warn_threads(built["engine"], path)

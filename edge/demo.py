@@ -94,7 +94,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
                  profile: str = "foxglove") -> int:
     from edge_depth.capture.sim import SimSource
     from edge_depth.daemon import Pipeline, format_latency, summarise
-    from edge_depth.mcap_log import open_logger
+    from edge_depth.loggers import open_logger
     from edge_depth.runner import run
     from edge_depth.runtime.engine import Engine
 

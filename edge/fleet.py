@@ -38,6 +38,7 @@ from pathlib import Path
 
 from edge_depth.calibration.atomic import atomic_write
 from edge_depth.errors import ConfigError
+from edge_depth.runtime.options import EngineOptions
 
 log = logging.getLogger(__name__)
 
@@ -56,15 +57,13 @@ class Recording:
 
 @dataclass(frozen=True)
 class FleetJob:
-    """What every task of one `fleet` invocation does. `engine`: replay_engine's keyword
-    arguments (threads excluded); `replay`: replay_recording's (iters, deadline_ms, calib,
-    topics, profile)."""
+    """What every task of one `fleet` invocation does. `engine`: each worker's engine;
+    `replay`: replay_recording's other arguments (calib, topics, profile)."""
 
     command: str
     out_dir: Path
-    engine: dict = field(default_factory=dict)
+    engine: EngineOptions = field(default_factory=EngineOptions)
     replay: dict = field(default_factory=dict)
-    threads: int = 1
     base_dir: Path | None = None  # compare: the golden replays
     tolerance_px: float = 0.25
     max_share: float = 0.01
@@ -126,8 +125,8 @@ def fingerprint(recording: Recording, job: FleetJob, bundle_digest: str) -> str:
     if replay.get("calib"):
         replay["calib"] = _digest_files(Path(replay["calib"]))
     text = json.dumps(dict(command=job.command, input=_file_identity(recording.path),
-                           bundle=bundle_digest, engine=job.engine, replay=replay,
-                           threads=job.threads, golden=golden, tolerance=job.tolerance_px,
+                           bundle=bundle_digest, engine=asdict(job.engine), replay=replay,
+                           golden=golden, tolerance=job.tolerance_px,
                            max_share=job.max_share), sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
 
@@ -201,13 +200,13 @@ def _actor_class(ray):
     class FleetWorker:
         """One slot: the engine loaded once, then one recording per call."""
 
-        def __init__(self, engine_options: dict, threads: int) -> None:
+        def __init__(self, options: EngineOptions) -> None:
             from threadpoolctl import threadpool_limits
 
-            from edge_depth.commands import replay_engine
+            from edge_depth.runtime.engine import Engine
 
             threadpool_limits(1)  # numpy's BLAS: the engine's threads are the slot's
-            self.engine = replay_engine(threads=threads, **engine_options)
+            self.engine = Engine(options=options)
 
         def run(self, recording: Recording, job: FleetJob) -> dict:
             return run_one(self.engine, recording, job)
@@ -239,13 +238,13 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
     """Every recording on the workers, as they come free; records in completion order."""
     import ray
 
-    _init_ray(ray, address, workers, job.threads)
+    _init_ray(ray, address, workers, job.engine.threads)
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
-        slots = min(len(recordings), workers or max(1, cpus // job.threads))
-        worker = _actor_class(ray).options(num_cpus=job.threads)
-        engine = dict(job.engine)
-        idle = [worker.remote(engine, job.threads) for _ in range(slots)]
+        threads = job.engine.threads
+        slots = min(len(recordings), workers or max(1, cpus // threads))
+        worker = _actor_class(ray).options(num_cpus=threads)
+        idle = [worker.remote(job.engine) for _ in range(slots)]
         todo, pending, records = list(recordings), {}, []
         bar, frames = _progress(len(recordings)), 0
         while todo or pending:
@@ -260,7 +259,7 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
             except ray.exceptions.RayError as exc:  # a worker lost for good: not recorded
                 record = dict(name=recording.name, input=str(recording.path), status="lost",
                               reason=f"worker lost: {type(exc).__name__}", files=[])
-                idle.append(worker.remote(engine, job.threads))
+                idle.append(worker.remote(job.engine))
             records.append(record)
             frames += record.get("frames") or 0
             line = _progress_line(record)
@@ -289,7 +288,7 @@ def _progress_line(record: dict) -> str:
 def _bundle_digest(job: FleetJob) -> str:
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
-    return _digest_files(Path(job.engine.get("bundle") or DEFAULT_BUNDLE))
+    return _digest_files(Path(job.engine.bundle or DEFAULT_BUNDLE))
 
 
 def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None,

@@ -103,7 +103,6 @@ def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
 MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
 
 
-PROFILES = ("foxglove", "ros2")
 # the JSON channels' schemas (JSON Schema), so viewers can type their fields
 JSON_SCHEMAS = {
     "calibration_file": {"title": "edge.Calibration", "type": "object",
@@ -138,18 +137,6 @@ def _late_joiner_listener(logger: McapLogger):
             logger.resend_latched(channel.topic)
 
     return LateJoiners()
-
-
-def open_logger(path, profile: str = "foxglove", **kwargs) -> McapLogger:
-    """McapLogger (foxglove profile: protobuf Foxglove schemas) or, for "ros2", Ros2Logger
-    (ROS 2 messages in CDR, for `ros2 bag play`); the same interface."""
-    if profile == "ros2":
-        from edge_depth.ros2_log import Ros2Logger
-
-        return Ros2Logger(path, **kwargs)
-    if profile != "foxglove":
-        raise ValueError(f"profile: expected one of {PROFILES}, got {profile!r}")
-    return McapLogger(path, **kwargs)
 
 
 class McapLogger:

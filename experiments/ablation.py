@@ -1,6 +1,6 @@
 """The paper's ablation in miniature, at equal training budgets, on the synthetic rig.
 
-    python tools/ablation.py --out runs/ablation --data data/test16 [--steps 500]
+    python experiments/ablation.py --out runs/ablation --data data/test16 [--steps 500]
         [--scenes 10] [--threads 1] [--train-args "--refine 3 --data things:data/things"]
 
 Runs (each `tools/train.py` with the same batch, crop, seed and LiDAR pattern; the supervised

@@ -1,6 +1,6 @@
 """How well `calibrate lidar --refine` recovers a known LiDAR-camera error on the synthetic rig.
 
-    python tools/extrinsics_study.py [--sets 3] [--frames 6,12] [--errors 1:0.02,2:0.05]
+    python experiments/extrinsics_study.py [--sets 3] [--frames 6,12] [--errors 1:0.02,2:0.05]
         [--trials 3] [--lidar beams64] [--json out/extrinsics.json]
 
 For each set of scenes (seeds 1 000 000 k + i, the rig at 640x400), each frame count, each

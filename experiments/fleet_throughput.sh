@@ -30,12 +30,19 @@ serial() {
     "$BIN/edge-depth" replay "$f" --out "$WORK/serial/$(basename "$f")" --threads 1
   done
 }
+if [ -z "${CLUSTER_ONLY:-}" ]; then
 timed serial serial
-rm -rf "$WORK/w1" "$WORK/w2" "$WORK/cluster"
+rm -rf "$WORK/w1" "$WORK/w2"
 timed fleet-1-worker "$BIN/edge-depth" fleet replay "$WORK/recs" --out "$WORK/w1" --workers 1 --threads 1
 timed fleet-2-workers "$BIN/edge-depth" fleet replay "$WORK/recs" --out "$WORK/w2" --workers 2 --threads 1
-"$BIN/ray" start --head --num-cpus 1 --port 6391 --include-dashboard false >/dev/null
-"$BIN/ray" start --address 127.0.0.1:6391 --num-cpus 1 >/dev/null
+fi
+rm -rf "$WORK/cluster"
+# Ray >= 2.59 authenticates a cluster's nodes with a token: every node and the driver need
+# RAY_AUTH_MODE=token and the same token (here ~/.ray/auth_token, one machine)
+export RAY_AUTH_MODE=token
+"$BIN/ray" get-auth-token --generate >/dev/null
+"$BIN/ray" start --head --node-ip-address 127.0.0.1 --num-cpus 1 --port 6391 --include-dashboard false >/dev/null
+"$BIN/ray" start --address 127.0.0.1:6391 --node-ip-address 127.0.0.1 --num-cpus 1 >/dev/null
 timed fleet-two-node-cluster "$BIN/edge-depth" fleet replay "$WORK/recs" --out "$WORK/cluster" --address 127.0.0.1:6391 --workers 2 --threads 1
 "$BIN/ray" stop --force >/dev/null
 tail -1 "$WORK/w2.log" "$WORK/cluster.log"

@@ -1,6 +1,6 @@
 """Interleaved A/B timing of ONNX graphs: which of two versions of a graph is faster.
 
-    python tools/graph_ab.py A.onnx B.onnx [...] [--runtime openvino] [--rounds 40]
+    python experiments/graph_ab.py A.onnx B.onnx [...] [--runtime openvino] [--rounds 40]
         [--threads 2] [--json OUT]
 
 Each round calls every graph once, in turn, on the same random inputs (the shapes the graph

@@ -1,7 +1,7 @@
 """A lighter update block from a trained checkpoint: its channels cut to the ones the next
 layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`).
 
-    python tools/prune.py edge/models/sparse_stereo.pt --out runs/prune/h48.pt \
+    python experiments/prune.py edge/models/sparse_stereo.pt --out runs/prune/h48.pt \
         --hidden 48 --context 32 --motion 48 --head 32 --feature 48
 
 The step graph's cost is mostly the GRU's gates, whose convolutions scale with (hidden +

@@ -4,7 +4,7 @@ zeroed (the frames each runs on in the engine); with `--against OTHER_BUNDLE`, t
 LiDAR selection too, in the same rounds on the same network outputs (two fits of the stage
 compared).
 
-    python tools/selection_cost.py DATA_DIR [--bundle DIR] [--against DIR] [--frames 12]
+    python experiments/selection_cost.py DATA_DIR [--bundle DIR] [--against DIR] [--frames 12]
         [--rounds 8] [--runtime onnxruntime] [--json OUT]
 
 Prints the median and p90 ms per call of each (the network runs once per frame, untimed).

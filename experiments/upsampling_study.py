@@ -1,6 +1,6 @@
 """How much of the 1/8-resolution ceiling the upsampling recovers.
 
-    python tools/upsampling_study.py DATA_DIR [--model CKPT] [--iters 4] [--json OUT]
+    python experiments/upsampling_study.py DATA_DIR [--model CKPT] [--iters 4] [--json OUT]
 
 For each scene folder: the ground truth taken to 1/8 (mean of each 8x8 cell's known values)
 and brought back bilinearly or by nearest neighbour (the ceiling of any 1/8 output upsampled

@@ -12,6 +12,7 @@ from edge_depth.calibration.io import save_calibration
 from edge_depth.calibration.ros import chain_transform
 from edge_depth.capture.replay import McapSource, ReplayError, TopicMap, recording_calibration
 from edge_depth.commands import replay_command
+from edge_depth.runtime.options import EngineOptions
 from edge_depth.sim import RigConfig, make_sample
 from tests.ros2_bag import transform, write_bag
 
@@ -64,7 +65,7 @@ def test_a_bag_with_camera_info_and_tf_static_replays_with_its_lidar(samples, tm
     assert stereo.baseline_m == pytest.approx(samples[0].rig.baseline_m)
     assert "lidar → base_link → camera" in origin
     caplog.set_level(logging.INFO)
-    assert replay_command(bag, tmp_path / "out.mcap", iters=2, topics=TOPICS) == 0
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=2), topics=TOPICS) == 0
     assert "calibration: the recording's CameraInfo" in caplog.text
     assert "frames with LiDAR: 2 of 2" in capsys.readouterr().out
 
@@ -74,9 +75,10 @@ def test_without_a_transform_a_mapped_lidar_is_an_error_and_unmapped_runs_stereo
     bag = tmp_path / "bag.mcap"
     write_bag(bag, samples)
     with pytest.raises(ReplayError, match="no LiDAR extrinsics.*calibrate lidar"):
-        replay_command(bag, tmp_path / "out.mcap", iters=2, topics=TOPICS)
+        replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=2), topics=TOPICS)
     stereo_only = dict(TOPICS, lidar="")
-    assert replay_command(bag, tmp_path / "out.mcap", iters=2, topics=stereo_only) == 0
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=2),
+                          topics=stereo_only) == 0
 
 
 def test_calib_comes_first_and_a_recording_with_nothing_names_the_options(samples, tmp_path,
@@ -86,12 +88,12 @@ def test_calib_comes_first_and_a_recording_with_nothing_names_the_options(sample
     calib = tmp_path / "calib.toml"
     save_calibration(calib, samples[0].calibration(), _lidar(samples[0]))
     caplog.set_level(logging.INFO)
-    assert replay_command(bag, tmp_path / "out.mcap", iters=2, calib=calib,
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=2), calib=calib,
                           topics=TOPICS) == 0
     assert f"calibration: --calib {calib}" in caplog.text
     nothing = dict(TOPICS, left_info="", right_info="")
     with pytest.raises(ValueError, match="neither.*CameraInfo pair"):
-        replay_command(bag, tmp_path / "out.mcap", iters=2, topics=nothing)
+        replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=2), topics=nothing)
 
 
 def _lidar(sample):
@@ -126,12 +128,13 @@ def test_an_unmapped_or_missing_lidar_topic_is_said_and_left_equal_right_refused
     bag = tmp_path / "bag.mcap"
     write_bag(bag, samples)
     stereo_only = dict(TOPICS, lidar="")
-    assert replay_command(bag, tmp_path / "out.mcap", iters=1, topics=stereo_only) == 0
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=1),
+                          topics=stereo_only) == 0
     assert "no LiDAR topic is mapped; LiDAR-like topics there: /points, /scan" in caplog.text
     caplog.clear()
     calib = tmp_path / "calib.toml"
     save_calibration(calib, samples[0].calibration(), _lidar(samples[0]))
-    assert replay_command(bag, tmp_path / "out.mcap", iters=1, calib=calib,
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=1), calib=calib,
                           topics=dict(TOPICS, lidar="/velodyne_points")) == 0
     assert "the mapped LiDAR topic /velodyne_points is not in the recording" in caplog.text
     with pytest.raises(ReplayError, match="left and right are the same topic"):
@@ -162,7 +165,7 @@ def test_header_stamps_that_are_all_zero_fall_back_to_arrival_order(samples, tmp
                                                                     caplog, capsys):
     bag = tmp_path / "zero.mcap"
     write_bag(bag, samples, tf=tf_tree(samples[0].T_cam_lidar), zero_stamps=True)
-    assert replay_command(bag, tmp_path / "out.mcap", iters=1, topics=TOPICS) == 0
+    assert replay_command(bag, tmp_path / "out.mcap", EngineOptions(iters=1), topics=TOPICS) == 0
     assert "pairing by the messages' log times (arrival order)" in caplog.text
     # the second frame on is stamped by its log time and finds its scan
     assert "frames with LiDAR: 1 of 2" in capsys.readouterr().out

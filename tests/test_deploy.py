@@ -43,12 +43,12 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
     # the export's fidelity, on the runtime the export check uses (OpenVINO: test_backends)
-    got = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0).infer(
+    got = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0).infer(
         left, right, sparse, iters=4)
     assert got.iterations == 4
     assert float(np.abs(got.disparity - ref).max()) < 0.01
     # the engine's iteration count is a runtime choice: 1 step differs from 4
-    one = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=1)
+    one = Engine(bundle, precision="fp32", threads=1).infer(left, right, sparse, iters=1)
     assert one.iterations == 1
     assert float(np.abs(one.disparity - ref).mean()) > 0.01
 
@@ -79,7 +79,7 @@ def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_b
     onnx.save(encoder, str(mixed / "encoder.onnx"))
     with pytest.raises(ConfigError, match="step.onnx needs context_zr, context_q, which "
                                           ".*encoder.onnx"):
-        Engine(mixed, "fp32", threads=1)
+        Engine(mixed, precision="fp32", threads=1)
     # the upsampling's inputs are checked the same way (a refinement that reads the encoder's
     # 1/4 features: test_refinement_bundle_returns_confidence_through_engine_and_mcap)
 
@@ -219,7 +219,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
     assert meta["export_check"]["max_abs_px"] < 0.01
     # version 10's head is made for the edge matching: its bundle declares it the default
-    declared = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime")
+    declared = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime")
     if version == 10:
         assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
                                   "edge_median": "9x9/2"}
@@ -234,7 +234,8 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
-    engine = Engine(tmp_path / "bundle", "fp32", threads=1, runtime="onnxruntime", edge_match=0)
+    engine = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
+                    edge_match=0)
     assert engine.has_confidence and engine.describe().endswith("edge matching off")
     if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4; the engine resizes it
         import onnx
@@ -263,7 +264,7 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
             encoder.graph.output.remove(out)
         onnx.save(encoder, str(tmp_path / "bundle" / "encoder.onnx"))
         with pytest.raises(ConfigError, match="upsample.onnx needs quarter_right, which"):
-            Engine(tmp_path / "bundle", "fp32", threads=1)
+            Engine(tmp_path / "bundle", precision="fp32", threads=1)
 
 
 @pytest.mark.parametrize("size", [(640, 480), (1242, 375), (1280, 800), (320, 200)])
@@ -314,9 +315,9 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     meta["lidar_select"] = always.to_meta()
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
-    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", lidar_select=False,
+    plain = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", lidar_select=False,
                    edge_match=0)  # the selection alone: the bundle's matching would follow it
-    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0)
+    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
     assert plain.select is None and chosen.select is not None
     before = plain.infer(left, right, sparse, iters=2)
     after = chosen.infer(left, right, sparse, iters=2)
@@ -359,9 +360,9 @@ def test_engine_runs_the_edge_selection_only_on_frames_without_lidar(small_bundl
     meta["edge_select"] = near.to_meta()
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
-    plain = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_select=False,
+    plain = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_select=False,
                    edge_match=0)  # the selection alone: the bundle's matching would follow it
-    chosen = Engine(bundle, "fp32", threads=1, runtime="onnxruntime", edge_match=0)
+    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
     assert plain.edge_select is None and chosen.edge_select is not None
     stereo = np.zeros_like(sparse)
     before, after = plain.infer(left, right, stereo, iters=2), chosen.infer(left, right, stereo,

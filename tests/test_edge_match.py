@@ -197,7 +197,7 @@ def test_auto_started_before_the_last_step_gives_the_late_starts_output(monkeypa
     sparse = np.zeros((400, 640), np.float32)
     sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0
     late, early = (Engine(precision="int8", threads=1, edge_match_rows=1) for _ in range(2))
-    late.match_early, early.match_early = False, True
+    late.match_schedule.early, early.match_schedule.early = False, True
     for iters in (1, 4):                     # one step: the guess from the encoder's seed
         for points in (sparse, np.zeros_like(sparse)):
             a, b = (e.infer(left, right, points, iters=iters) for e in (late, early))
@@ -205,28 +205,25 @@ def test_auto_started_before_the_last_step_gives_the_late_starts_output(monkeypa
             np.testing.assert_array_equal(a.confidence, b.confidence)
             assert a.matched_px == b.matched_px and a.match_beyond_px == b.match_beyond_px
             assert b.timings_ms["edge_match"] > 0
-    assert late.match_starts == {"early": 0, "again": 0} and early.match_starts["early"] == 4
-    again = early.match_starts["again"]
-    monkeypatch.setattr(early, "_guess_count", lambda disparity: 16)    # a wrong guess
+    assert late.match_schedule.starts == {"early": 0, "again": 0}
+    assert early.match_schedule.starts["early"] == 4
+    again = early.match_schedule.starts["again"]
+    monkeypatch.setattr(early.match_schedule, "guess_count", lambda disparity: 16)  # wrong
     a, b = (e.infer(left, right, sparse) for e in (late, early))
     np.testing.assert_array_equal(a.disparity, b.disparity)
     assert a.matched_px == b.matched_px > 0
-    assert early.match_starts == {"early": 5, "again": again + 1}
+    assert early.match_schedule.starts == {"early": 5, "again": again + 1}
 
 
 def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line():
-    from edge_depth.runtime.engine import (
-        DEFAULT_BUNDLE,
-        Engine,
-        bundle_engine_defaults,
-        load_bundle_meta,
-    )
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
+    from edge_depth.runtime.options import bundle_preset
 
     meta = load_bundle_meta(DEFAULT_BUNDLE)
-    assert bundle_engine_defaults(meta) == {"edge_match": "auto", "edge_match_rows": 2,
+    assert bundle_preset(meta) == {"edge_match": "auto", "edge_match_rows": 2,
                                             "edge_median": "9x9/2"}
     older = {k: v for k, v in meta.items() if k != "engine"}     # stage 16 and before: off
-    assert bundle_engine_defaults(older) == {"edge_match": 0, "edge_match_rows": 1,
+    assert bundle_preset(older) == {"edge_match": 0, "edge_match_rows": 1,
                                              "edge_median": "off"}
     off = Engine(precision="int8", threads=1, meta=older)
     assert off.edge_match is None and off.describe().endswith("edge matching off (the bundle's)")
@@ -243,20 +240,26 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
 
 
 def test_config_and_evaluate_take_it(tmp_path):
-    from edge_depth.config import EngineConfig, load_robot_config
+    from edge_depth.config import load_robot_config
+    from edge_depth.runtime.options import EngineOptions
     from edge_depth.tools import evaluate
 
-    default = EngineConfig()                       # the bundle's own setting, for the engine
+    default = EngineOptions()                      # the bundle's own setting, for the engine
     assert default.edge_match == default.edge_match_rows == "bundle"
-    assert default.edge_match_choice is None and default.edge_match_rows_choice is None
+    resolved = default.resolved({"edge_match": "auto", "edge_match_rows": 2,
+                                 "edge_median": "9x9/2"})
+    assert (resolved.edge_match, resolved.edge_match_rows) == ("auto", 2)
     path = tmp_path / "c.toml"
     path.write_text("[engine]\nedge_match = 64\n")
-    assert load_robot_config(path).engine.edge_match_choice == 64
+    assert load_robot_config(path).engine.edge_match == 64
     path.write_text('[engine]\nedge_match = 0\nedge_match_rows = 1\n')   # off, said so
-    assert load_robot_config(path).engine.edge_match_choice == 0
+    assert load_robot_config(path).engine.edge_match == 0
     path.write_text('[engine]\nedge_match = "auto"\nedge_match_rows = "bundle"\n')
     engine = load_robot_config(path).engine
-    assert engine.edge_match_choice == "auto" and engine.edge_match_rows_choice is None
+    assert engine.edge_match == "auto" and engine.edge_match_rows == "bundle"
+    path.write_text("[engine]\nedge_match = 40\n")    # not a multiple of 16: the file named
+    with pytest.raises(ConfigError, match=r"c.toml: engine.edge_match: expected"):
+        load_robot_config(path)
     path.write_text('[engine]\nedge_match = "sixty"\n')
     with pytest.raises(ConfigError, match='"auto" or "bundle" or int'):
         load_robot_config(path)

@@ -141,9 +141,9 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
     with pytest.raises(ConfigError, match="edge_median"):
         load_robot_config(path)
     path.write_text('[engine]\nedge_median = "off"\n')
-    assert load_robot_config(path).engine.edge_median_choice == "off"
+    assert load_robot_config(path).engine.edge_median == "off"
     path.write_text("[engine]\n")
-    assert load_robot_config(path).engine.edge_median_choice is None    # the bundle's
+    assert load_robot_config(path).engine.edge_median == "bundle"    # the bundle's
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-median", "5x5"])
 
@@ -151,14 +151,15 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
 def test_the_command_line_and_the_config_offer_exactly_the_patterns():
     import argparse
 
-    from edge_depth.cli import add_edge_match_arguments
-    from edge_depth.config import BUNDLE, CHOICES
+    from edge_depth.arguments import add_edge_match_arguments
+    from edge_depth.config import CHOICES
     from edge_depth.runtime.edge_median import OFF
+    from edge_depth.runtime.options import BUNDLE
 
     parser = argparse.ArgumentParser()
     add_edge_match_arguments(parser)
     flag = next(a for a in parser._actions if a.dest == "edge_median")
-    assert tuple(flag.choices) == (OFF, *PATTERNS)
+    assert tuple(flag.choices) == (BUNDLE, OFF, *PATTERNS)
     assert CHOICES[("engine", "edge_median")] == (BUNDLE, OFF, *PATTERNS)
 
 

@@ -83,3 +83,55 @@ def test_the_check_sees_imports_inside_functions(tmp_path):
     module = tmp_path / "m.py"
     module.write_text("import os\n\ndef f():\n    from edge.cli import main\n    import torch\n")
     assert imported_modules(module) == {"os", "edge.cli", "torch"}
+
+
+def module_graph() -> dict[str, set[str]]:
+    """Each module of ours (`edge.cli`, `calibration.io`, `edge.capture` for a package's
+    __init__) and the modules of ours it imports, function-level imports included; `from
+    PACKAGE import NAME` counts NAME when it is a module."""
+    modules = {}
+    for folder in FOLDERS:
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = path.relative_to(ROOT).with_suffix("").parts
+            modules[".".join(parts[:-1] if parts[-1] == "__init__" else parts)] = path
+    graph = {}
+    for name, path in modules.items():
+        targets = set()
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                found = [as_folder(alias.name) for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                base = as_folder(node.module)
+                found = [base] + [f"{base}.{alias.name}" for alias in node.names]
+            else:
+                continue
+            targets.update(m for m in found if m in modules and m != name)
+        graph[name] = targets
+    return graph
+
+
+def test_no_module_imports_one_that_imports_it_back():
+    """No cycle between modules, however long, function-level imports included."""
+    graph, state, cycles = module_graph(), {}, []
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = "open"
+        for nxt in sorted(graph[node]):
+            if state.get(nxt) == "open":
+                cycles.append(path[path.index(nxt):] + [nxt])
+            elif nxt not in state:
+                visit(nxt, path + [nxt])
+        state[node] = "done"
+
+    for module in sorted(graph):
+        if module not in state:
+            visit(module, [module])
+    assert cycles == []
+
+
+def test_the_cycle_check_finds_one(monkeypatch):
+    import tests.test_layers as layers
+
+    monkeypatch.setattr(layers, "module_graph", lambda: {"a": {"b"}, "b": {"c"}, "c": {"a"}})
+    with pytest.raises(AssertionError, match=r"\['a', 'b', 'c', 'a'\]"):
+        layers.test_no_module_imports_one_that_imports_it_back()

@@ -221,5 +221,7 @@ def test_a_corrupt_log_time_past_2_to_the_32_seconds_is_counted_and_replay_goes_
     assert sum(isinstance(e, LidarScan) for e in events) == 2  # 3 scans, one skipped
     assert any("out of range" in k for k in source.stats.errors)
     from edge_depth.commands import replay_command
+    from edge_depth.runtime.options import EngineOptions
 
-    assert replay_command(path, tmp_path / "out.mcap", iters=1) == 0  # no OverflowError
+    # no OverflowError
+    assert replay_command(path, tmp_path / "out.mcap", EngineOptions(iters=1)) == 0

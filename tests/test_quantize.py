@@ -36,8 +36,8 @@ def test_quantize_records_its_choices_and_stays_close_to_fp32(small_bundle, tmp_
         assert name.endswith(".int8.onnx") == g["int8"]
         assert (bundle / name).is_file()
     _, left, right, sparse = scene_inputs(7)
-    fp32 = Engine(bundle, "fp32", threads=1).infer(left, right, sparse, iters=2).disparity
-    int8 = Engine(bundle, "int8", threads=1).infer(left, right, sparse, iters=2).disparity
+    fp32 = Engine(bundle, precision="fp32", threads=1).infer(left, right, sparse, iters=2).disparity
+    int8 = Engine(bundle, precision="int8", threads=1).infer(left, right, sparse, iters=2).disparity
     assert float(np.abs(int8 - fp32).mean()) < 0.5
 
 

@@ -15,6 +15,7 @@ from edge_depth.calibration.ros import transform_matrix
 from edge_depth.capture.replay import Calibration, McapSource
 from edge_depth.cli import main
 from edge_depth.commands import replay_command
+from edge_depth.runtime.options import EngineOptions
 from edge_depth.types import LidarScan, StereoFrame
 
 
@@ -23,7 +24,7 @@ def both(recording, tmp_path_factory):
     out = tmp_path_factory.mktemp("profiles")
     paths = {p: out / f"{p}.mcap" for p in ("foxglove", "ros2")}
     for profile, path in paths.items():
-        assert replay_command(recording, path, iters=1, profile=profile) == 0
+        assert replay_command(recording, path, EngineOptions(iters=1), profile=profile) == 0
     return paths
 
 
@@ -130,7 +131,7 @@ def test_demo_writes_the_ros2_profile(tmp_path, capsys):
 
 @pytest.mark.parametrize("profile", ["ros2", "foxglove"])
 def test_invalid_depth_is_nan_in_both_profiles(tmp_path, profile):
-    from edge_depth.mcap_log import open_logger
+    from edge_depth.loggers import open_logger
     from edge_depth.types import DepthResult
 
     disparity = np.full((8, 16), 10.0, np.float32)
@@ -156,7 +157,7 @@ def test_the_live_view_with_the_ros2_profile_is_one_clear_line(tmp_path, capsys)
 
 
 def test_diagnostics_warn_when_the_opt_in_matching_cannot_reach_the_scene(tmp_path):
-    from edge_depth.mcap_log import open_logger
+    from edge_depth.loggers import open_logger
 
     path = tmp_path / "diag.mcap"
     with open_logger(path, "ros2") as logger:

@@ -262,15 +262,15 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     candidate = work / "bundle"
     quant = build_bundle(checkpoint, candidate, bundle_size(adapt_frames), adapt_frames,
                          node_search=node_search)
-    engines = {"before": Engine(old_bundle, "int8")}
+    engines = {"before": Engine(old_bundle, precision="int8")}
     size = bundle_size(adapt_frames)
     if unadapted and tuple(engines["before"].size) != size:
         # the starting weights at the camera's size: what adaptation gained apart from the
         # resolution the old bundle ran at
         start_bundle = work / "start_bundle"
         build_bundle(init, start_bundle, size, adapt_frames, node_search=node_search)
-        engines["unadapted"] = Engine(start_bundle, "int8")
-    engines["after"] = Engine(candidate, "int8")
+        engines["unadapted"] = Engine(start_bundle, precision="int8")
+    engines["after"] = Engine(candidate, precision="int8")
     means, rows, shown = check(engines, check_frames)
     better, why = is_better(means["before"], means["after"])
     written = better or force
@@ -312,7 +312,7 @@ def main(argv: list[str] | None = None) -> int:
     import torch  # noqa: F401  (the train extra: said in one line before any work)
     import tqdm  # noqa: F401
 
-    from edge_depth.cli import load_topic_map
+    from edge_depth.arguments import load_topic_map
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("recordings", type=Path, nargs="+",

@@ -134,7 +134,8 @@ def compare_runtimes(specs: list[str], scenes: int, rounds: int, threads: int, b
         if spec not in RUNTIME_SPECS:
             raise SystemExit(f"--runtimes: {spec!r} is not one of {', '.join(RUNTIME_SPECS)}")
         runtime, bf16 = RUNTIME_SPECS[spec]
-        engine = Engine(bundle, precision, threads, meta, runtime=runtime, bf16=bf16)
+        engine = Engine(bundle, precision=precision, threads=threads, meta=meta, runtime=runtime,
+                        bf16=bf16)
         contenders[spec] = (lambda e: lambda left, right, sparse:
                             e.infer(left, right, sparse, iters=4))(engine)
     times: dict[str, list[float]] = {k: [] for k in contenders}
@@ -191,7 +192,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     matcher = make_sgbm()
     # as the daemon runs them: with the engine settings the bundle declares (the shipped one:
     # the edge matching "auto" on every other row, inside every engine row)
-    engines = {p: Engine(bundle, p, threads, meta, runtime=runtime, bf16=bf16)
+    engines = {p: Engine(bundle, precision=p, threads=threads, meta=meta, runtime=runtime,
+                         bf16=bf16)
                for p in ("fp32", "int8")}
     default_iters = int(meta.get("default_iters", 4))
 
@@ -199,14 +201,16 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     stage_runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
     if engines["int8"].edge_match is not None:
         stage_runs["edge_match"] = []  # its wall time: StereoBM beside the choice's preparation
+        if engines["int8"].edge_match.median != "off":
+            stage_runs["edge_median"] = []
 
     def engine_run(precision, iters):
         def fn(left, right, sparse):
             r = engines[precision].infer(left, right, sparse, iters=iters)
             if precision == "int8" and iters == default_iters:
-                for name in stage_runs:
-                    stage_runs[name].append(r.timings_ms["step_mean" if name == "step"
-                                                         else name])
+                for name in stage_runs:  # a stage with nothing to do this frame: 0 ms
+                    stage_runs[name].append(r.timings_ms.get("step_mean" if name == "step"
+                                                             else name, 0.0))
         return fn
 
     tmp = tempfile.TemporaryDirectory()
@@ -278,7 +282,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
                                          float(np.percentile(paired, 90))])
     if engines["int8"].edge_match is not None:
-        summary["match_starts"] = dict(engines["int8"].match_starts)
+        summary["match_starts"] = dict(engines["int8"].match_schedule.starts)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
@@ -292,7 +296,7 @@ def markdown(summary: dict) -> str:
              f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}) | median ms | p95 ms |",
              "|---|---|---|"]
     names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm",
-             "edge_match"]
+             "edge_match", "edge_median"]
     names += sorted(k for k in st if k.startswith("engine_"))
     for name in names:
         if name in st:

@@ -36,6 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_depth.arguments import add_edge_match_arguments
 from edge_depth.baselines import (
     fill_row_nearest,
     lidar_linear,
@@ -45,7 +46,6 @@ from edge_depth.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
-from edge_depth.cli import add_edge_match_arguments
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_depth.cli import parse_size
+from edge_depth.arguments import parse_size
 
 ENCODER_INPUTS = ["left", "right", "sparse", "valid"]
 # the context enters the step as the GRU's two fixed terms, computed once per frame by the

@@ -44,10 +44,12 @@ PARTS = ("encoder", "step", "upsample")
 RUNTIME = "onnxruntime"  # the quantizer is ONNX Runtime's: agreement is measured on it
 
 
-def network_engine(*args, **kwargs) -> Engine:
+def network_engine(bundle, precision: str, threads: int, meta: dict | None = None,
+                   **kwargs) -> Engine:
     """The bundle's graphs alone: quantization calibrates, times and compares the network's own
     output, never the matching a bundle may declare as its engine's default."""
-    return Engine(*args, edge_match=0, **kwargs)
+    return Engine(bundle, precision=precision, threads=threads, meta=meta, edge_match=0,
+                  **kwargs)
 
 
 def calibration_frames(spec: str, size: tuple[int, int]):
@@ -208,12 +210,13 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     for part in PARTS:
         dst = bundle / files[part].replace(".onnx", ".int8.onnx")
         quantize_graph(bundle / files[part], dst, record[part])
-        trial = dict(meta, precisions={"trial": dict(files, **{part: dst.name})})
-        trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+        # the trial: int8 so far plus this graph, under the name the engine runs
+        trial = dict(meta, precisions={"int8": dict(files, **{part: dst.name})})
+        trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
         shipped = agreement(trial_engine, fp32, frames, iters)  # the graph as it stands
         alone = shipped["px"]
         timed = trial_engine if timing == RUNTIME else network_engine(
-            bundle, "trial", threads, trial, runtime=timing)
+            bundle, "int8", threads, trial, runtime=timing)
         ms_fp32, ms_trial, ratio = paired_ms([fp32_timed, timed], frames[:4], iters)
         faster = ratio < 1.0 - min_gain
         graphs[part] = dict(int8=alone <= max_graph_px and faster,
@@ -229,7 +232,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
             # (ALWAYS_FLOAT's are float in every trial: trying them would repeat the graph)
             for node in [n for n in conv_nodes(src) if not n.startswith(ALWAYS_FLOAT)]:
                 quantize_graph(src, dst, record[part], [node])
-                trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+                trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
                 shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
             keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
             graphs[part]["shift_with_node_float"] = shifts
@@ -237,7 +240,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
                 graphs[part].update(int8=False, float_nodes=keep_float)  # (version 10's
             elif keep_float:                     # upsampling has one besides its head)
                 quantize_graph(src, dst, record[part], keep_float)
-                trial_engine = network_engine(bundle, "trial", threads, trial, runtime=RUNTIME)
+                trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
                 graphs[part]["float_nodes"] = keep_float
                 shipped = agreement(trial_engine, fp32, frames, iters)
                 with_float = shipped["px"]
@@ -249,7 +252,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
             # the graph as it will ship, checked on both runtimes: ONNX Runtime's agreement
             # said nothing about OpenVINO's confidence (stage 12's int8 head: 0.99 everywhere)
             graphs[part]["alone"] = {RUNTIME: shipped} | {
-                rt: agreement(network_engine(bundle, "trial", threads, trial, runtime=rt), ref,
+                rt: agreement(network_engine(bundle, "int8", threads, trial, runtime=rt), ref,
                               frames, iters) for rt, ref in references.items() if rt != RUNTIME}
             graphs[part]["int8"] = all(over(a, max_graph_px) <= 1
                                        for a in graphs[part]["alone"].values())

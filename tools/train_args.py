@@ -97,7 +97,7 @@ def parse_args(argv, description: str = "") -> argparse.Namespace:
         p.error("--freeze-trunk needs --init (the trunk's weights come from it)")
     if args.dims and args.init is not None:
         p.error("--dims is for a network from scratch: with --init the widths are the "
-                "checkpoint's (tools/prune.py cuts them)")
+                "checkpoint's (experiments/prune.py cuts them)")
     if args.fresh_lr_mult != 1.0 and args.init is None:
         p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
     if args.freeze_trunk and not (args.refine or args.aux_offsets):

@@ -157,8 +157,9 @@ class EdgeMatch:
         the first while StereoBM is still matching."""
         if matched is None:
             matched = self.matched(left, right)
-        return self.finish(self.prepare(left, right, disparity, confidence, sparse),
-                           disparity, matched)
+        prepared = self.prepare(left, right, disparity, confidence, sparse)
+        out, taken = self.finish(prepared, disparity, matched)
+        return self.smooth(out, prepared), taken
 
     def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                 confidence: np.ndarray, sparse: np.ndarray | None = None,
@@ -196,8 +197,8 @@ class EdgeMatch:
 
     def finish(self, prepared: Prepared | None, disparity: np.ndarray,
                matched: np.ndarray) -> tuple[np.ndarray, int]:
-        """`apply`'s answer from `prepare`'s and StereoBM's, then (`median`) the gate's
-        grey-guided weighted median (`edge.runtime.edge_median`)."""
+        """The choice: `prepare`'s gate and costs with StereoBM's answer (the median, a stage
+        of its own, is `smooth`)."""
         if prepared is None:
             return disparity.astype(np.float32, copy=True), 0
         found = matched > 0
@@ -210,9 +211,15 @@ class EdgeMatch:
             hole_take = prepared.point_ok & ~found
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take
-        if self._median is not None:
-            out = self._median.apply(out, prepared.grey[0], prepared.gate)
         return out, int(take.sum())
+
+    def smooth(self, disparity: np.ndarray, prepared: Prepared | None) -> np.ndarray:
+        """The gate's grey-guided weighted median (`median`; `edge.runtime.edge_median`):
+        after the choice, its pixel-by-pixel mix of sources made one surface with the image's
+        edges. As it is when the median is off or nothing was gated."""
+        if self._median is None or prepared is None:
+            return disparity
+        return self._median.apply(disparity, prepared.grey[0], prepared.gate)
 
 
 @dataclass

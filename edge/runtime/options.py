@@ -1,0 +1,202 @@
+"""Every engine setting in one place: `EngineOptions`, its defaults and a line of doc each.
+
+The robot file's `[engine]` table (`edge.config`), the engine flags of `replay` and `fleet`
+(`add_engine_arguments`) and the configuration reference (`reference_table`, in
+docs/configuration.md) are derived from these fields, never written beside them. A bundle's
+own settings (model.json's "engine", `bundle_preset`) are a preset: the fields left at
+"bundle" take them, once, when the engine loads (`EngineOptions.resolved`).
+"""
+
+from __future__ import annotations
+
+import argparse
+from dataclasses import dataclass, field, fields, replace
+from typing import Any
+
+from edge_depth.errors import ConfigError
+
+BUNDLE = "bundle"  # a setting taken from the bundle's model.json
+MATCH_AUTO = "auto"
+MEDIAN_PATTERNS = ("9x9/2", "13x13/3", "9x9/4")
+ROW_STEPS = (1, 2)
+# where a bundle declares nothing
+UNDECLARED = {"edge_match": 0, "edge_match_rows": 1, "edge_median": "off"}
+
+
+def _option(default: Any, doc: str, choices: tuple | None = None,
+            bounds: tuple | None = None) -> Any:
+    return field(default=default, metadata=dict(doc=doc, choices=choices, bounds=bounds))
+
+
+@dataclass(frozen=True)
+class EngineOptions:
+    """The engine's settings (defaults: the shipped bundle as it was made to run)."""
+
+    bundle: str = _option("", 'the model bundle directory; "" = the shipped one')
+    precision: str = _option("int8", "the bundle's graphs to run", choices=("int8", "fp32"))
+    runtime: str = _option("auto", "auto: OpenVINO on x86-64 where installed, else ONNX Runtime",
+                           choices=("auto", "onnxruntime", "openvino"))
+    bf16: str = _option("auto", "OpenVINO: the encoder in bf16; auto = where the CPU has it "
+                        "natively (AVX512-BF16, AMX)", choices=("auto", "on", "off"))
+    threads: int = _option(2, "the engine's threads", bounds=(1, 256))
+    scale: float = _option(0.0, "camera → network scale; 0 = the largest that fits the bundle",
+                           bounds=(0.0, 4.0))
+    iters: int = _option(0, "GRU iterations per frame; 0 = the bundle's (the shipped one: 4)",
+                         bounds=(0, 64))
+    deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
+                                 "this (ms from the frame's start); 0 = no deadline",
+                                 bounds=(0.0, 60_000.0))
+    pipelined: bool = _option(False, "live: rectification, the engine and logging overlap in "
+                              "threads (more frames/s at a higher latency)")
+    lidar_select: bool = _option(True, "the bundle's per-cell choice between the network and "
+                                 "the nearest LiDAR point, if it has one")
+    edge_select: bool = _option(True, "on frames without LiDAR points, the bundle's per-cell "
+                                "choice of an edge's near or far side, if it has one")
+    edge_match: int | str = _option(BUNDLE, 'the full-resolution matching at the network\'s '
+                                    'uncertain edges: "auto" (StereoBM\'s disparity count per '
+                                    'frame from the network\'s own), N (a multiple of 16), 0 = '
+                                    'off, "bundle" = as the bundle declares (the shipped one: '
+                                    'auto)')
+    edge_match_rows: int | str = _option(BUNDLE, '1: the matching on every row; 2: every other '
+                                         'row, half its time; "bundle" (the shipped one: 2)')
+    edge_matcher: str = _option("bm", "the matching's block matcher: bm (StereoBM) or sgbm "
+                                "(fewer holes, about SGBM's time more a frame)",
+                                choices=("bm", "sgbm"))
+    edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the matching's "
+                               'gate (window/step), or off; "bundle" (the shipped one: 9x9/2)',
+                               choices=(BUNDLE, "off", *MEDIAN_PATTERNS))
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value, choices, bounds = (getattr(self, f.name), f.metadata["choices"],
+                                      f.metadata["bounds"])
+            if choices and value not in choices:
+                raise ConfigError(f.name, " | ".join(map(str, choices)), value)
+            if bounds and not (isinstance(value, (int, float)) and not isinstance(value, bool)
+                               and bounds[0] <= value <= bounds[1]):
+                raise ConfigError(f.name, f"{bounds[0]}–{bounds[1]}", value)
+        match = self.edge_match
+        if match not in (BUNDLE, MATCH_AUTO) and not (
+                isinstance(match, int) and not isinstance(match, bool) and match >= 0
+                and match % 16 == 0):
+            raise ConfigError("edge_match", '"bundle", "auto", 0 (off) or a multiple of 16',
+                              match)
+        rows = self.edge_match_rows
+        if isinstance(rows, bool) or rows not in (BUNDLE, *ROW_STEPS):
+            raise ConfigError("edge_match_rows", '"bundle", 1 (every row) or 2 (every other '
+                              "row)", rows)
+
+    @property
+    def bf16_choice(self) -> bool | None:
+        """bf16 for the backends: None = where the CPU has it."""
+        return {"auto": None, "on": True, "off": False}[self.bf16]
+
+    def resolved(self, declared: dict) -> EngineOptions:
+        """These options with every "bundle" field taken from the bundle's preset
+        (`bundle_preset`)."""
+        return replace(self, **{k: declared[k] for k in UNDECLARED
+                                if getattr(self, k) == BUNDLE})
+
+    def from_bundle(self) -> bool:
+        """Whether the matching's settings are the bundle's own (for the engine's log line)."""
+        return self.edge_match == BUNDLE and self.edge_median == BUNDLE
+
+    @classmethod
+    def with_overrides(cls, base: EngineOptions | None = None, **given: Any) -> EngineOptions:
+        """`base` (default: the defaults) with the given fields; None leaves a field as it
+        is, and the Python spellings callers use are accepted: bf16 True/False, scale None."""
+        values = {k: v for k, v in given.items() if v is not None}
+        if isinstance(values.get("bf16"), bool):
+            values["bf16"] = "on" if values["bf16"] else "off"
+        if "bundle" in values:
+            values["bundle"] = str(values["bundle"])
+        return replace(base or cls(), **values)
+
+
+def bundle_preset(meta: dict, bundle: str = "") -> dict:
+    """The settings a bundle was made for (model.json's "engine", written by tools/export.py)
+    over UNDECLARED; ConfigError naming the bundle when a value is not one the engine takes
+    (a hand-edited model.json)."""
+    declared = meta.get("engine") or {}
+    if not isinstance(declared, dict):
+        raise ConfigError("bundle", 'model.json\'s "engine" as a table of settings',
+                          f"{declared!r} in {bundle}")
+    values = {**UNDECLARED, **{k: v for k, v in declared.items() if k in UNDECLARED}}
+    try:
+        if BUNDLE in values.values():
+            raise ConfigError(next(k for k, v in values.items() if v == BUNDLE),
+                              'a setting, not "bundle"', BUNDLE)
+        EngineOptions(**values)
+    except ConfigError as exc:
+        raise ConfigError("bundle", f"model.json's engine.{exc.key} {exc.expected}",
+                          f"{exc.got!r} in {bundle}") from None
+    return values
+
+
+def _flag_type(f) -> Any:
+    default = f.default
+    if f.name == "edge_match":
+        return _edge_match_value
+    if f.name == "edge_match_rows":
+        return _rows_value
+    return type(default)
+
+
+def _edge_match_value(text: str) -> int | str:
+    """--edge-match: "bundle", or what `edge.runtime.edge_match.count_argument` takes."""
+    if text == BUNDLE:
+        return text
+    from edge_depth.runtime.edge_match import count_argument  # OpenCV: only when given
+
+    return count_argument(text)
+
+
+def _rows_value(text: str) -> int | str:
+    if text == BUNDLE:
+        return text
+    if text not in ("1", "2"):
+        raise argparse.ArgumentTypeError(f'expected 1, 2 or "bundle", got {text!r}')
+    return int(text)
+
+
+def flag(name: str) -> str:
+    return "--" + name.replace("_", "-")
+
+
+def add_engine_arguments(parser: argparse.ArgumentParser, only: tuple[str, ...] | None = None,
+                         **defaults: Any) -> None:
+    """One flag per EngineOptions field (or those in `only`), each with the field's doc; a
+    flag not given is None (the field's default, or the config file's value, stands).
+    `defaults` changes what the help says the default is (fleet: threads 1)."""
+    for f in fields(EngineOptions):
+        if only is not None and f.name not in only:
+            continue
+        default = defaults.get(f.name, f.default)
+        help_ = f"{f.metadata['doc']} (default: {default!r})"
+        if isinstance(f.default, bool):
+            parser.add_argument(flag(f.name), action=argparse.BooleanOptionalAction,
+                                default=None, help=help_)
+        else:
+            parser.add_argument(flag(f.name), type=_flag_type(f), default=None,
+                                choices=f.metadata["choices"], help=help_,
+                                metavar=None if f.metadata["choices"] else f.name.upper())
+
+
+def options_from_args(args: argparse.Namespace, base: EngineOptions | None = None,
+                      **defaults: Any) -> EngineOptions:
+    """The EngineOptions the flags of `add_engine_arguments` ask for, over `base` (and
+    `defaults` for flags not given)."""
+    given = {f.name: getattr(args, f.name, None) for f in fields(EngineOptions)}
+    return EngineOptions.with_overrides(
+        EngineOptions.with_overrides(base, **defaults), **given)
+
+
+def reference_table() -> str:
+    """The `[engine]` keys as a markdown table (docs/configuration.md holds it verbatim)."""
+    rows = ["| key | default | what it does |", "|---|---|---|"]
+    for f in fields(EngineOptions):
+        choices = f.metadata["choices"]
+        what = f.metadata["doc"] + (f" (one of: {', '.join(map(str, choices))})" if choices
+                                    else "")
+        rows.append(f"| `{f.name}` | `{f.default!r}` | {what} |")
+    return "\n".join(rows)
