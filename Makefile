@@ -26,6 +26,7 @@ demo: $(BASE)
 
 test: $(STAMP)
 	$(BIN)/ruff check edge calibration tools tests experiments
+	$(BIN)/mypy
 	$(BIN)/python -m pytest
 
 bench: $(STAMP)

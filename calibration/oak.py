@@ -56,7 +56,7 @@ def stereo_from_oak(eeprom_json: Path | None, size: tuple[int, int]) -> StereoCa
         if not Path(eeprom_json).exists():
             raise CalibrationError("file not found", path=str(eeprom_json))
         try:
-            handler = dai.CalibrationHandler(str(eeprom_json))
+            handler = dai.CalibrationHandler(str(eeprom_json))  # type: ignore[call-overload]
         except RuntimeError as exc:
             raise CalibrationError(f"not a depthai calibration: {exc}",
                                    path=str(eeprom_json)) from None

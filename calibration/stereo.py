@@ -61,7 +61,7 @@ class Board:
     def object_points(self) -> np.ndarray:
         """(N, 3) float32 corner positions on the board plane (z = 0), metres."""
         if self.kind == "charuco":
-            return self.charuco().getChessboardCorners().astype(np.float32)
+            return np.asarray(self.charuco().getChessboardCorners(), np.float32)
         grid = np.mgrid[0:self.cols, 0:self.rows].T.reshape(-1, 2)
         return np.hstack([grid * self.square_m, np.zeros((len(grid), 1))]).astype(np.float32)
 
@@ -195,7 +195,8 @@ def load_views(pattern_left: str, pattern_right: str) -> tuple[list, list, list[
         raise CalibrationFailedError(f"no images match {pattern_left!r} and/or {pattern_right!r}")
     if len(paths_l) != len(paths_r):
         raise CalibrationFailedError(f"{len(paths_l)} left images but {len(paths_r)} right")
-    left, right = [], []
+    left: list[np.ndarray] = []
+    right: list[np.ndarray] = []
     for p in paths_l + paths_r:
         img = cv2.imread(p, cv2.IMREAD_GRAYSCALE)
         if img is None:

@@ -13,7 +13,7 @@ import numpy as np
 
 def make_sgbm(num_disparities: int = 64, block_size: int = 5) -> cv2.StereoSGBM:
     """The SGBM matcher used as the classical baseline (3-way, grey, P1/P2 per OpenCV's docs)."""
-    return cv2.StereoSGBM_create(
+    return cv2.StereoSGBM.create(
         minDisparity=0, numDisparities=num_disparities, blockSize=block_size,
         P1=8 * block_size**2, P2=32 * block_size**2, disp12MaxDiff=1, uniquenessRatio=10,
         speckleWindowSize=100, speckleRange=2, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)

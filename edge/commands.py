@@ -13,6 +13,7 @@ import os
 import sys
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -20,6 +21,7 @@ from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig
 from edge_depth.daemon import (
     Pipeline,
+    PipelineStats,
     format_latency,
     lidar_summary,
     selection_summary,
@@ -32,6 +34,9 @@ from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.options import EngineOptions
 from edge_depth.types import LidarScan
 
+if TYPE_CHECKING:
+    from edge_depth.capture.replay import McapSource
+
 log = logging.getLogger(__name__)
 SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
 
@@ -40,9 +45,9 @@ SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
 class ReplayRun:
     """One recording replayed: what the closing summary and a fleet's result record say."""
 
-    stats: object  # PipelineStats
+    stats: PipelineStats
     pipeline: Pipeline
-    source: object  # McapSource
+    source: McapSource
     files: list[Path]
 
     @property

@@ -71,7 +71,8 @@ def read_replay_output(path: Path | str) -> ReplayOutput:
     out = ReplayOutput(Path(path))
     if not out.path.is_file():
         raise CompareError(f"{path}: no such file")
-    factories, decoders = message_decoders(), {}
+    factories = message_decoders()
+    decoders: dict = {}
     try:
         for schema, channel, message in iter_messages(out.path, ReadReport()):
             role = _role(channel.topic)
@@ -133,7 +134,7 @@ def compare(base_path, new_path, tolerance_px: float = 0.25, max_share: float = 
         raise CompareError(f"{base_path} and {new_path} share no frame stamps: are they "
                            "replays of the same recording?")
     frames, beyond, pixels = [], 0, 0
-    acc = {"base": [0.0, 0, 0], "new": [0.0, 0, 0]}
+    acc: dict[str, list[float]] = {"base": [0.0, 0.0, 0.0], "new": [0.0, 0.0, 0.0]}
     for stamp in common:
         diff = frame_difference(base.disparity[stamp], new.disparity[stamp], tolerance_px)
         row = dict(stamp_ns=stamp, mean_abs_px=diff["mean_abs_px"],
@@ -161,8 +162,8 @@ def compare(base_path, new_path, tolerance_px: float = 0.25, max_share: float = 
             frame=float(np.median(out.frame_ms)) if out.frame_ms else None)
     if acc["base"][2]:
         for name in ("base", "new"):
-            total, bad, n = acc[name]
-            result[f"{name}_accuracy"] = dict(epe=total / n, bad3=100.0 * bad / n)
+            total, bad, count = acc[name]
+            result[f"{name}_accuracy"] = dict(epe=total / count, bad3=100.0 * bad / count)
     result["regressions"] = regressions(result)
     return result
 

@@ -45,6 +45,7 @@ import math
 import os
 from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
@@ -252,7 +253,7 @@ def load_robot_config(path: str | Path) -> RobotConfig:
                           "unknown section", path)
     built = {}
     for name, section_field in sections.items():
-        cls = section_field.default_factory
+        cls: Any = section_field.default_factory  # each section's dataclass
         table = data.get(name, {})
         if not isinstance(table, dict):
             raise ConfigError(name, "a table", table, path)

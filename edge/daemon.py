@@ -104,7 +104,7 @@ class Pipeline:
                  iters: int | None = None, deadline_ms: float | None = None,
                  sync: SyncConfig | None = None, log_raw: bool = True) -> None:
         plan = engine.plan_for(tuple(stereo.image_size)) if engine else None  # ConfigError
-        if plan is not None and not plan.identity:                          # if it cannot run
+        if engine is not None and plan is not None and not plan.identity:  # if it cannot run
             w, h = plan.scaled
             log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
                      *stereo.image_size, *engine.size, plan.scale, w, h)
@@ -224,6 +224,7 @@ class Pipeline:
 
     def infer(self, p: Prepared) -> DepthResult:
         """Stage 2: the engine (its deadline counts from the start of `prepare`)."""
+        assert self.engine is not None, "the recorder infers nothing"
         p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
             - p.timings["project"]
         return self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,

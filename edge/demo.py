@@ -106,7 +106,8 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
           f"{engine.describe()}, {iters or engine.default_iters} iterations"
           + (f", deadline {deadline_ms:g} ms" if deadline_ms else ""))
     matcher = make_sgbm()
-    sgbm_rows, picture = [], []
+    sgbm_rows: list[dict] = []
+    picture: list[np.ndarray] = []
     with open_logger(out / "demo.mcap", profile) as logger:
         pipeline = Pipeline(engine, stereo, lidar, logger, iters, deadline_ms)
 

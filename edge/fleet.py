@@ -35,6 +35,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 from edge_depth.calibration.atomic import atomic_write
 from edge_depth.errors import ConfigError
@@ -155,8 +156,8 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
     raises: a recording that fails is a record with its reason."""
     from edge_depth.commands import replay_recording
 
-    record = dict(name=recording.name, input=str(recording.path), command=job.command,
-                  status="ok", reason="")
+    record: dict[str, Any] = dict(name=recording.name, input=str(recording.path),
+                                  command=job.command, status="ok", reason="")
     out = None if job.command == "evaluate" else job.out_dir / f"{recording.name}.mcap"
     partial = None if out is None else out.with_name(f".{out.stem}.partial.mcap")
     started = time.monotonic()
@@ -168,10 +169,10 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
         if done.stats.frames == 0:
             why = dict(done.stats.errors) or "no frames on the mapped camera topics"
             raise ValueError(f"no frame was processed ({why})")
-        if out is not None:
+        if out is not None and partial is not None:
             os.replace(partial, out)
             record["files"] = [str(out)]
-        if job.command == "compare":
+        if job.command == "compare" and out is not None:
             record.update(_compare(out, job, recording))
     except Exception as exc:  # noqa: BLE001 - one recording's failure never stops the rest
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
@@ -186,6 +187,8 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
 def _compare(out: Path, job: FleetJob, recording: Recording) -> dict:
     from edge_depth.compare import compare
 
+    if job.base_dir is None:
+        raise ValueError("compare needs --base, the folder of golden replays")
     base = job.base_dir / f"{recording.name}.mcap"
     if not base.exists():
         raise ValueError(f"no golden replay {base} to compare with")
@@ -245,7 +248,8 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
         slots = min(len(recordings), workers or max(1, cpus // threads))
         worker = _actor_class(ray).options(num_cpus=threads)
         idle = [worker.remote(job.engine) for _ in range(slots)]
-        todo, pending, records = list(recordings), {}, []
+        todo, records = list(recordings), []
+        pending: dict[Any, tuple[Any, Recording]] = {}
         bar, frames = _progress(len(recordings)), 0
         while todo or pending:
             while idle and todo:
@@ -319,7 +323,7 @@ def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None
                                                           record["name"]))) as tmp:
                 tmp.write_text(json.dumps(record, indent=2, default=str))
     by_name = {r["name"]: dict(r, ran=True) for r in fresh}
-    rows = [by_name.get(r.name) or dict(earlier[r.name], ran=False) for r in recordings]
+    rows = [by_name.get(r.name) or dict(earlier[r.name] or {}, ran=False) for r in recordings]
     summary = summarise_fleet(job, rows, wall_s, sum(r.get("frames") or 0 for r in fresh))
     print(summary["markdown"])
     (job.out_dir / "summary.md").write_text(summary["markdown"] + "\n")

@@ -21,6 +21,7 @@ import logging
 import shutil
 import threading
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -295,6 +296,7 @@ class McapLogger:
             )
 
             topic = TOPICS[key]
+            channel: Any
             if key in ("diagnostics", "calibration_file"):
                 channel = Channel(topic, message_encoding="json", context=self.context,
                                   schema=JSON_SCHEMAS[key])
@@ -348,6 +350,7 @@ class McapLogger:
     def frame_tree(self) -> list[tuple[str, str, np.ndarray]]:
         """(parent, child, T_parent_child): camera_left → camera_right (B along x,
         rectified), camera_left → lidar (T_cam_lidar), parent_frame → camera_left."""
+        assert self.camera is not None, "the transforms follow the camera's calibration"
         right = np.eye(4)
         right[0, 3] = self.camera[3]
         tree = [(CAMERA_FRAME, RIGHT_FRAME, right)]

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -90,7 +91,7 @@ class Ros2Logger(McapLogger):
             raise ConfigError("--live", "the foxglove profile (the live view speaks only that)",
                               "ros2")
         self.prefix = prefix
-        self._file = None
+        self._file: IO[bytes] | None = None
         super().__init__(path, *args, **kwargs)
 
     # -- files -------------------------------------------------------------------------------
@@ -108,7 +109,8 @@ class Ros2Logger(McapLogger):
         try:
             writer.finish()
         finally:
-            self._file.close()
+            if self._file is not None:
+                self._file.close()
 
     def _write(self, key: str, message: dict, stamp_ns: int) -> None:
         datatype = TYPES.get(key, "sensor_msgs/msg/Image")

@@ -101,9 +101,9 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"point data of {len(data)} bytes is not a multiple of {stride}")
     n = len(data) // stride
     raw = np.frombuffer(data, np.uint8).reshape(n, stride)
-    columns = {}
+    columns: dict[str, np.ndarray] = {}
     for f in msg.fields:
-        code = int(getattr(f, "datatype", None) or getattr(f, "type", 0))
+        code = int(getattr(f, "datatype", None) or getattr(f, "type", 0) or 0)
         if f.name in ("x", "y", "z", "intensity") and code in _FLOAT_TYPES:
             t = np.dtype(_FLOAT_TYPES[code]).newbyteorder(">" if big else "<")
             off = int(f.offset)
@@ -113,12 +113,14 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError("point cloud lacks float x, y, z fields")
     pts = np.stack([columns["x"], columns["y"], columns["z"]], 1)
     keep = np.isfinite(pts).all(1)
-    inten = columns.get("intensity")
-    return pts[keep], (inten[keep] if inten is not None else None)
+    intensity = columns.get("intensity")
+    return pts[keep], (intensity[keep] if intensity is not None else None)
 
 
 def camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:
-    P = [float(v) for v in (getattr(msg, "p", None) or getattr(msg, "P", None))]
+    P = [float(v) for v in (getattr(msg, "p", None) or getattr(msg, "P", None) or ())]
+    if len(P) < 7:
+        raise ValueError(f"a CameraInfo needs its 3x4 projection P, got {P}")
     return P[0], P[2], P[6], P[3], (int(msg.width), int(msg.height))
 
 

@@ -73,7 +73,7 @@ def encode_packet(speed_deg_s: int, start_deg: float, end_deg: float, timestamp_
         body += int(d).to_bytes(2, "little") + bytes([int(i)])
     body += int(round(end_deg * 100) % 36000).to_bytes(2, "little")
     body += int(timestamp_ms % 30000).to_bytes(2, "little")
-    return bytes(body + bytes([crc8(body)]))
+    return bytes(body + bytes([crc8(bytes(body))]))
 
 
 @dataclass

@@ -23,6 +23,7 @@ import struct
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from io import BytesIO
+from typing import Any
 
 MAGIC = b"\x89MCAP0\r\n"
 HEADER_OP, FOOTER, SCHEMA, CHANNEL, MESSAGE, CHUNK, MESSAGE_INDEX = 1, 2, 3, 4, 5, 6, 7
@@ -114,7 +115,8 @@ def _record(opcode: int, body):
     stream = ReadDataStream(BytesIO(body))
     if opcode == MESSAGE:
         return Message.read(stream, len(body))
-    return {SCHEMA: Schema, CHANNEL: Channel, MESSAGE_INDEX: MessageIndex}[opcode].read(stream)
+    kinds: dict[int, Any] = {SCHEMA: Schema, CHANNEL: Channel, MESSAGE_INDEX: MessageIndex}
+    return kinds[opcode].read(stream)
 
 
 def iter_messages(path, report: ReadReport) -> Iterator[tuple]:
@@ -175,7 +177,7 @@ def _walk(buf, size: int, report: ReadReport, schemas: dict, channels: dict):
                 pos = next_chunk(buf, pos + 1, size) or size
                 continue
             records = [record]
-            if opcode == MESSAGE_INDEX:
+            if opcode == MESSAGE_INDEX and lost is not None:
                 lost.messages_lost = (lost.messages_lost or 0) + len(record.records)
                 records = []
         elif opcode in (DATA_END, FOOTER):

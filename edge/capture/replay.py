@@ -147,6 +147,7 @@ class McapSource(Source):
         self._info: dict[str, tuple] = {}
         self._last_stamp: dict[str, int] = {}  # frame / scan: the previous one's stamp
         self.arrival_order = False  # stamps proved useless: log times instead
+        self._pace_origin: tuple[int, float] | None = None  # (log time, monotonic s)
 
     def counters(self) -> dict:
         s = self.stats
@@ -202,7 +203,8 @@ class McapSource(Source):
 
         t, found = self.topics, RecordingCalibration()
         wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
-        factories, decoders = message_decoders(), {}
+        factories = message_decoders()
+        decoders: dict = {}
         try:
             messages = iter_messages(self.path, ReadReport())
             for count, (schema, channel, message) in enumerate(messages):

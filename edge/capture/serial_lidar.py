@@ -56,10 +56,11 @@ class SerialLidarSource(Source):
         self.assembler: ld06.RevolutionAssembler | None = None
 
     def counters(self) -> dict:
-        out = dict(model=self.model, scans=self.scans, reconnects=self.reconnects,
-                   errors=dict(self.errors))
+        errors = dict(self.errors)
+        out: dict[str, object] = dict(model=self.model, scans=self.scans,
+                                      reconnects=self.reconnects, errors=errors)
         if self.assembler is not None and self.assembler.cut:
-            out["errors"]["revolution cut (the angle never wrapped)"] = self.assembler.cut
+            errors["revolution cut (the angle never wrapped)"] = self.assembler.cut
         decoder = self.decoder
         if decoder is not None and hasattr(decoder, "stats"):  # LD06 / LD19
             s = decoder.stats

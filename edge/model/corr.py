@@ -8,6 +8,8 @@ outside the row, using gathers (GatherElements in ONNX) rather than grid_sample.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch.nn import functional as F
 
@@ -45,7 +47,7 @@ def lookup(pyramid: list[torch.Tensor], disparity: torch.Tensor, radius: int) ->
         i0 = torch.floor(pos)
         frac = pos - i0
         i0 = i0.long()
-        sampled = 0
+        sampled: Any = 0  # a tensor after the first term
         for idx, weight in ((i0, 1 - frac), (i0 + 1, frac)):
             valid = (idx >= 0) & (idx < width)
             values = torch.gather(corr, 3, idx.clamp(0, width - 1))

@@ -39,11 +39,12 @@ def cspn(d: torch.Tensor, weights: torch.Tensor, centre: torch.Tensor, steps: in
          sparse: torch.Tensor | None = None, valid: torch.Tensor | None = None) -> torch.Tensor:
     """Propagate `d` (B, 1, H, W) for `steps` steps, re-injecting sparse values each step."""
     d0 = d
-    if sparse is not None:
-        d = (1 - valid) * d + valid * sparse
+    anchored = sparse is not None and valid is not None
+    if anchored:
+        d = (1 - valid) * d + valid * sparse  # type: ignore[operator]  # both given
         d0 = d
     for _ in range(steps):
         d = centre * d0 + (weights * neighbours(d)).sum(1, keepdim=True)
-        if sparse is not None:
-            d = (1 - valid) * d + valid * sparse
+        if anchored:
+            d = (1 - valid) * d + valid * sparse  # type: ignore[operator]
     return d

@@ -44,7 +44,7 @@ class Backbone(nn.Module):
         self.layer2 = ResidualBlock(w1, w2, stride=2)
         self.layer3 = ResidualBlock(w2, w3, stride=2 if downsample == 8 else 1)
 
-    def forward(self, image: torch.Tensor) -> torch.Tensor:
+    def forward(self, image: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         x = image / 127.5 - 1.0
         quarter = self.layer2(self.layer1(self.stem(x)))
         return quarter, self.layer3(quarter)

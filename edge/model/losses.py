@@ -5,6 +5,8 @@ Images are (B, 1, H, W) grey 0-255 (scaled to 0-1 inside); disparities (B, 1, H,
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch.nn import functional as F
 
@@ -85,7 +87,7 @@ def view_loss(image: torch.Tensor, other: torch.Tensor, disparity: torch.Tensor,
 
 def self_supervised_loss(terms_left: dict, terms_right: dict) -> tuple[torch.Tensor, dict]:
     """(L^l + L^r) / 2 with the paper's weights; also returns the averaged terms."""
-    total = 0.0
+    total: Any = 0.0  # a tensor after the first term
     averaged = {}
     for key, weight in WEIGHTS.items():
         averaged[key] = (terms_left[key] + terms_right[key]) / 2
@@ -99,7 +101,7 @@ def sequence_loss(predictions: list[torch.Tensor], gt: torch.Tensor, valid: torc
     per-pixel `weight`, the weighted mean (the loss keeps its scale, the weights its balance)."""
     mask = valid if weight is None else valid * weight
     n = len(predictions)
-    total = 0.0
+    total: Any = 0.0  # a tensor after the first term
     for i, pred in enumerate(predictions):
         total = total + gamma ** (n - 1 - i) * _masked_mean((pred - gt).abs(), mask)
     return total

@@ -8,6 +8,8 @@ convex upsampling to full resolution. `forward` chains them for training.
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 from torch import nn
 from torch.nn import functional as F
@@ -73,7 +75,7 @@ class SparseStereoNet(nn.Module):
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels, cfg.motion_dim, cfg.head_dim)
-        self.refine = None
+        self.refine: Any = None  # the refinement stage of `cfg.refine`'s version
         if cfg.refine == 4:
             if cfg.downsample != 8:
                 raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
@@ -91,10 +93,10 @@ class SparseStereoNet(nn.Module):
         elif cfg.refine:
             self.refine = Refinement(cfg.refine)
         # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
-        self.aux_offsets = QuarterStage(cfg.widths[1]) if cfg.aux_offsets else None
+        self.aux_offsets: Any = QuarterStage(cfg.widths[1]) if cfg.aux_offsets else None
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
-               valid: torch.Tensor) -> dict[str, torch.Tensor | list[torch.Tensor]]:
+               valid: torch.Tensor) -> dict[str, Any]:
         """Images (B, 1, H, W) grey 0-255; sparse (B, 1, H, W) px, valid (B, 1, H, W) 0/1."""
         cfg = self.config
         f_l, f_r, hidden, context, affinity, quarter = self.encoders(left, right)
@@ -159,6 +161,7 @@ class SparseStereoNet(nn.Module):
             sparse = valid = None
         if self.config.refine == 4:  # gated towards an estimate found by matching at 1/4
             full = convex_upsample(disparity, mask, self.config.downsample)
+            assert quarter is not None, "version 4 matches on the encoder's 1/4 features"
             refined, logit, extras = self.refine(*quarter, full, sparse, valid, left)
             if aux is not None:
                 aux.update(extras, convex=full)

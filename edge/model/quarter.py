@@ -29,6 +29,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from edge_depth.model.params import param
 from edge_depth.model.refine import (
     CONFIDENCE_TRUNK_GRAD,
     RESIDUAL_INIT_STD,
@@ -109,12 +110,12 @@ class QuarterStage(nn.Module):
         self.gate = nn.Conv2d(channels + 3 + 2 * SCALE * SCALE, SCALE * SCALE, 3, 1, 1)
         # starts as the 8× convex estimate: small rather than zero residual weights so the
         # trunk gets a gradient at once (refinement version 1); the confidence says 0.5
-        nn.init.normal_(self.residual.weight, std=RESIDUAL_INIT_STD)
-        nn.init.zeros_(self.residual.bias)
-        nn.init.zeros_(self.confidence.weight)
-        nn.init.zeros_(self.confidence.bias)
-        nn.init.normal_(self.gate.weight, std=RESIDUAL_INIT_STD)
-        nn.init.constant_(self.gate.bias, GATE_START)
+        nn.init.normal_(param(self.residual), std=RESIDUAL_INIT_STD)
+        nn.init.zeros_(param(self.residual, "bias"))
+        nn.init.zeros_(param(self.confidence))
+        nn.init.zeros_(param(self.confidence, "bias"))
+        nn.init.normal_(param(self.gate), std=RESIDUAL_INIT_STD)
+        nn.init.constant_(param(self.gate, "bias"), GATE_START)
 
     def forward(self, f_left, f_right, full, sparse=None, valid=None, image=None):
         d4 = full[..., SAMPLE::SCALE, SAMPLE::SCALE] / SCALE

@@ -23,6 +23,7 @@ from torch.nn import functional as F
 
 from edge_depth.model.cspn import patches_3x3
 from edge_depth.model.losses import warp_horizontal
+from edge_depth.model.params import param
 
 GUIDED_VERSIONS = (3, 5, 6, 7, 8, 9)  # the refinement versions that are a `GuidedSelection`
 RESIDUAL_INIT_STD = 1e-2  # version 2: ~the identity at the start (residuals of ~0.1 px), not zero
@@ -89,14 +90,14 @@ class Refinement(nn.Module):
         if version >= 2:
             self.residual = nn.Conv2d(channels, 1, 3, 1, 1)
             self.confidence = nn.Conv2d(channels, 1, 3, 1, 1)
-            nn.init.normal_(self.residual.weight, std=RESIDUAL_INIT_STD)
-            nn.init.zeros_(self.residual.bias)
-            nn.init.zeros_(self.confidence.weight)  # says 0.5 until trained
-            nn.init.zeros_(self.confidence.bias)
+            nn.init.normal_(param(self.residual), std=RESIDUAL_INIT_STD)
+            nn.init.zeros_(param(self.residual, "bias"))
+            nn.init.zeros_(param(self.confidence))  # says 0.5 until trained
+            nn.init.zeros_(param(self.confidence, "bias"))
         else:
             self.out = nn.Conv2d(channels, 2, 3, 1, 1)
-            nn.init.zeros_(self.out.weight)  # starts as the identity: no residual, logit 0
-            nn.init.zeros_(self.out.bias)
+            nn.init.zeros_(param(self.out))  # starts as the identity: no residual, logit 0
+            nn.init.zeros_(param(self.out, "bias"))
 
     def forward(self, left, right, disparity, sparse=None, valid=None):
         left2 = F.avg_pool2d(left, 2) / 255.0
@@ -263,21 +264,21 @@ class GuidedSelection(nn.Module):
                                         nn.Conv2d(hidden, 1, 3, 1, 1))
         # ~the convex upsampling at the start; small rather than zero so that the first
         # layer gets a gradient at once (version 1's zero output layer never started)
-        nn.init.normal_(self.score[-1].weight, std=RESIDUAL_INIT_STD)
-        nn.init.zeros_(self.score[-1].bias)
-        nn.init.zeros_(self.confidence[-1].weight)  # says 0.5 until trained
-        nn.init.zeros_(self.confidence[-1].bias)
+        nn.init.normal_(param(self.score[-1]), std=RESIDUAL_INIT_STD)
+        nn.init.zeros_(param(self.score[-1], "bias"))
+        nn.init.zeros_(param(self.confidence[-1]))  # says 0.5 until trained
+        nn.init.zeros_(param(self.confidence[-1], "bias"))
         if quarter:
             with torch.no_grad():
-                self.score[0].weight[:, 6:] = 0.0
+                param(self.score[0])[:, 6:] = 0.0
         self.context = None
         if context:  # per candidate: cost, 1/4 cost, LiDAR distance, offset, correction
             per = 5 if quarter else 4
             self.context = nn.Sequential(nn.Conv2d(9 * per + 1, context, 3, 1, 1), nn.ReLU(),
                                          nn.Conv2d(context, context, 3, 1, 2, dilation=2),
                                          nn.ReLU(), nn.Conv2d(context, 9, 1))
-            nn.init.zeros_(self.context[-1].weight)  # starts as the version it extends
-            nn.init.zeros_(self.context[-1].bias)
+            nn.init.zeros_(param(self.context[-1]))  # starts as the version it extends
+            nn.init.zeros_(param(self.context[-1], "bias"))
         self.pixel = None
         if pixel:
             self.pixel = nn.Sequential(nn.Conv2d(1, pixel, 3, 1, 1), nn.ReLU(),
@@ -285,8 +286,8 @@ class GuidedSelection(nn.Module):
         self.query = None
         if pixel and query:  # version 8: the pixel side's projection starts at zero
             self.query = nn.Conv2d(pixel, pixel, 1)
-            nn.init.zeros_(self.query.weight)
-            nn.init.zeros_(self.query.bias)
+            nn.init.zeros_(param(self.query))
+            nn.init.zeros_(param(self.query, "bias"))
         elif pixel:  # version 7: a gain at zero (never started: see above)
             self.pixel_gain = nn.Parameter(torch.zeros(()))
         self.wide_pixel = self.wide_query = None
@@ -295,8 +296,8 @@ class GuidedSelection(nn.Module):
                                             nn.Conv2d(16, 16, 3, 1, 2, dilation=2), nn.ReLU(),
                                             nn.Conv2d(16, wide_pixel, 1))
             self.wide_query = nn.Conv2d(wide_pixel, wide_pixel, 1)
-            nn.init.zeros_(self.wide_query.weight)
-            nn.init.zeros_(self.wide_query.bias)
+            nn.init.zeros_(param(self.wide_query))
+            nn.init.zeros_(param(self.wide_query, "bias"))
         # False: the confidence logit stays at 1/scale (the export: the engine resizes the
         # confidence to full resolution, cheaper than in OpenVINO's graph)
         self.confidence_full_resolution = True
@@ -388,6 +389,7 @@ class GuidedSelection(nn.Module):
         per = f // s
         if pixel is None:
             pixel, query = self.pixel, self.query
+        assert pixel is not None, "the pixel side of versions 7-9"
         feats = pixel(F.avg_pool2d(left, s) / 127.5 - 1.0)  # (B, C, H/s, W/s)
         b, c = feats.shape[:2]
         cells = F.avg_pool2d(feats, per)
@@ -408,7 +410,7 @@ def widen_from_version3(weights: dict, module: GuidedSelection, prefix: str = "r
     layer gets zero weights for the new inputs; `project` is left for a fresh start."""
     key = prefix + "score.0.weight"
     old = weights.get(key)
-    new = module.score[0].weight
+    new = param(module.score[0])
     if old is None or old.shape == new.shape:
         return weights
     wide = torch.zeros_like(new)

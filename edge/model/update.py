@@ -6,6 +6,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
+from edge_depth.model.params import param
+
 
 class ConvGRU(nn.Module):
     def __init__(self, hidden_dim: int, input_dim: int) -> None:
@@ -103,5 +105,5 @@ class UpdateBlock(nn.Module):
         x = self.mask[1](self.mask[0](hidden))
         last = self.mask[2]
         b, c, h, w = x.shape
-        logits = torch.matmul(last.weight.view(-1, c), x.reshape(b, c, h * w))
-        return 0.25 * (logits + last.bias.view(-1, 1)).view(b, -1, h, w)
+        logits = torch.matmul(param(last).view(-1, c), x.reshape(b, c, h * w))
+        return 0.25 * (logits + param(last, "bias").view(-1, 1)).view(b, -1, h, w)

@@ -107,7 +107,7 @@ class EdgeMatch:
             matcher.setSpeckleWindowSize(100 // self.row_step)   # its speckle window per row
             self._matchers[num_disparities] = matcher
         if num_disparities not in self._matchers:  # a few counts per scene: kept
-            matcher = cv2.StereoBM_create(numDisparities=num_disparities,
+            matcher = cv2.StereoBM.create(numDisparities=num_disparities,
                                           blockSize=self.block_px)
             matcher.setTextureThreshold(10)
             matcher.setUniquenessRatio(15)
@@ -176,9 +176,10 @@ class EdgeMatch:
             terms = self.pair_terms(left, right, sparse)
         network_cost = warped_cost(*terms.grey, disparity, (self.photo_window_px,))[0]
         point_ok = None
-        if terms.point is not None:
-            point_ok = gate & (terms.texture > self.min_texture) & \
-                (terms.point_cost < self.point_margin * network_cost)
+        if terms.point is not None and terms.texture is not None \
+                and terms.point_cost is not None:
+            point_ok = gate & (terms.texture > float(self.min_texture or 0.0)) & \
+                (terms.point_cost < float(self.point_margin or 0.0) * network_cost)
         return Prepared(gate, terms.grey, network_cost, terms.point, point_ok)
 
     def pair_terms(self, left: np.ndarray, right: np.ndarray,
@@ -207,7 +208,8 @@ class EdgeMatch:
             (warped_cost(*prepared.grey, matched, (self.photo_window_px,))[0] <
              prepared.network_cost)
         out = np.where(take, matched, disparity).astype(np.float32)
-        if prepared.point is not None:  # StereoBM's holes: the nearest point, where it does
+        if prepared.point is not None and prepared.point_ok is not None:  # StereoBM's holes:
+            # the nearest point, where it does
             hole_take = prepared.point_ok & ~found
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take

@@ -15,6 +15,7 @@ import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -87,7 +88,7 @@ class Engine:
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
-        self.sessions = {}
+        self.sessions: dict[str, Any] = {}  # graph name -> a backend's session
         # the encoder last: it computes only what the step and the upsampling read (OpenVINO;
         # version 10's upsampling reads no 1/4 features: 1.4 ms of a frame at one thread)
         for part in sorted(files, key=lambda p: p == "encoder"):

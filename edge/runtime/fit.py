@@ -37,7 +37,8 @@ class FitPlan:
         elif scale > fit + 1e-9:
             raise ConfigError("engine.scale", f"at most {fit:.3f} for a {w}x{h} camera on a "
                               f"{bundle[0]}x{bundle[1]} bundle (0 = fit)", scale)
-        return cls(tuple(camera), tuple(bundle), float(scale))
+        return cls((int(camera[0]), int(camera[1])), (int(bundle[0]), int(bundle[1])),
+                   float(scale))
 
     @property
     def scaled(self) -> tuple[int, int]:

@@ -241,7 +241,8 @@ class LidarSelect:
                     or not np.all(out.std > 0) \
                     or not out.max_disagreement_px > MIN_DISAGREEMENT_PX \
                     or not out.max_confidence > 0 or not (side_cells == 0 or side_cells >= 3) \
-                    or (scale is not None and not (np.isfinite(scale) and np.isfinite(bias))):
+                    or (scale is not None and not (bias is not None and np.isfinite(scale)
+                                                   and np.isfinite(bias))):
                 raise ValueError("shapes or scales do not match")
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError("bundle", "model.json's lidar_select as tools/fit_select.py "
@@ -259,7 +260,7 @@ class LidarSelect:
                    else float(self.max_confidence),
                    confidence=None if self.confidence_scale is None
                    else dict(scale=float(self.confidence_scale),
-                             bias=float(self.confidence_bias)))
+                             bias=float(self.confidence_bias or 0.0)))
         if self.side_cells:
             out.update(side_cells=int(self.side_cells), candidates=list(CANDIDATES))
         return out
@@ -304,7 +305,7 @@ class LidarSelect:
         without a fitted calibration)."""
         if self.confidence_scale is None:
             return None
-        z = self.confidence_scale * np.asarray(logits, np.float32) + self.confidence_bias
+        z = self.confidence_scale * np.asarray(logits, np.float32) + (self.confidence_bias or 0.0)
         return (1.0 / (1.0 + np.exp(-z))).astype(np.float32)
 
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,

@@ -108,8 +108,8 @@ class FrameMatch:
                 schedule.starts["again"] += 1
                 found = None
         # late (no guess, or a missed one): StereoBM matches while the choice prepares
-        job = None if found is not None else schedule.submit(match.matched, *self.pair, count)
+        late = None if found is not None else schedule.submit(match.matched, *self.pair, count)
         prepared = match.prepare(*self.pair, disparity, confidence, self.sparse, terms)
-        found = found if job is None else job.result()
+        found = found if late is None else late.result()
         out, taken = match.finish(prepared, disparity, found)
         return out, taken, beyond, prepared

@@ -73,7 +73,8 @@ def random_stereo_views(board: Board, K_l, D_l, K_r, D_r, R, T, size, count: int
     rng = np.random.default_rng(seed)
     obj = board.object_points().astype(np.float64)
     centre = obj.mean(axis=0)
-    lefts, rights = [], []
+    lefts: list[np.ndarray] = []
+    rights: list[np.ndarray] = []
     w, h = size
     while len(lefts) < count:
         rvec = rng.uniform(-0.45, 0.45, 3)

@@ -61,7 +61,7 @@ class PlanePatch(Primitive):
     vertices: np.ndarray | None = None
 
     @property
-    def radius(self) -> float:
+    def radius(self) -> float:  # type: ignore[override]  # a field in Sphere, derived here
         return float(np.hypot(*self.half)) if self.outline != "infinite" else np.inf
 
     def inside(self, s: np.ndarray, t: np.ndarray) -> np.ndarray:
@@ -73,6 +73,7 @@ class PlanePatch(Primitive):
             return (s / self.half[0]) ** 2 + (t / self.half[1]) ** 2 <= 1.0
         ok = np.ones(s.shape, bool)
         verts = self.vertices
+        assert verts is not None, 'a "polygon" outline has its vertices'
         for i in range(len(verts)):
             (x0, y0), (x1, y1) = verts[i], verts[(i + 1) % len(verts)]
             ok &= (x1 - x0) * (t - y0) - (y1 - y0) * (s - x0) >= 0
@@ -124,11 +125,11 @@ class Cylinder(Primitive):
     material: int
 
     @property
-    def centre(self) -> np.ndarray:
+    def centre(self) -> np.ndarray:  # type: ignore[override]  # derived from the segment
         return self.base + 0.5 * self.length * self.axis
 
     @property
-    def radius(self) -> float:
+    def radius(self) -> float:  # type: ignore[override]  # the bounding sphere's
         return float(np.hypot(0.5 * self.length, self.tube_radius))
 
     def intersect(self, origin, dirs):

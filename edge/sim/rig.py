@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -115,7 +116,7 @@ def random_scene(rig: RigConfig, rng: np.random.Generator) -> Scene:
         if rng.random() < 0.6:
             verts = _convex_polygon(rng, centre, radius)
             box = (verts[:, 0].min(), verts[:, 0].max(), verts[:, 1].min(), verts[:, 1].max())
-            shape = dict(kind="polygon", vertices=verts)
+            shape: dict[str, Any] = dict(kind="polygon", vertices=verts)
         else:
             axes = (radius, radius * float(rng.uniform(0.4, 1.0)))
             box = (centre[0] - radius, centre[0] + radius, centre[1] - radius, centre[1] + radius)

@@ -114,6 +114,7 @@ class Layer:
             q = (-s * du + c * dv) / self.axes[1]
             return p * p + q * q <= 1.0
         verts = self.vertices
+        assert verts is not None, 'a "polygon" layer has its vertices'
         inside = np.ones(np.broadcast(u_left, v).shape, bool)
         for i in range(len(verts)):
             x0, y0 = verts[i]
@@ -128,8 +129,10 @@ class Layer:
         if self.kind == "ellipse":
             r = max(self.axes)
             return (self.centre[0] - r, self.centre[0] + r, self.centre[1] - r, self.centre[1] + r)
-        return (float(self.vertices[:, 0].min()), float(self.vertices[:, 0].max()),
-                float(self.vertices[:, 1].min()), float(self.vertices[:, 1].max()))
+        verts = self.vertices
+        assert verts is not None, 'a "polygon" layer has its vertices'
+        return (float(verts[:, 0].min()), float(verts[:, 0].max()),
+                float(verts[:, 1].min()), float(verts[:, 1].max()))
 
     def plane_normal(self, focal_px: float) -> np.ndarray:
         """n with n . P = f B for points P (metres, left camera frame) on this plane."""
@@ -219,6 +222,7 @@ class Scene:
             u_left = xs.astype(np.float64)
             if view == RIGHT:
                 u_left = u_left + disparity[ys, xs]
+            assert layer.tex_affine is not None, "a textured layer has its affine map"
             coords = layer.tex_affine @ np.stack([u_left, ys.astype(np.float64),
                                                   np.ones_like(u_left)])
             sample = sample_bilinear(self.textures[layer.texture], coords[0], coords[1],

@@ -67,10 +67,10 @@ class StreetScene(ThingsScene):
                 self.prims.append(Cylinder(np.array([x, height, zc]), up, tall, radius,
                                            self._material(rng, zc)))
                 if rng.random() < 0.5:
-                    half = (rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6))
+                    sign = (rng.uniform(0.3, 0.6), rng.uniform(0.3, 0.6))  # its half-extents
                     self.prims.append(PlanePatch(
-                        np.array([x, height - tall + half[1], zc - radius - 0.02]), right, up,
-                        half, str(rng.choice(["rect", "ellipse"])), self._material(rng, zc)))
+                        np.array([x, height - tall + sign[1], zc - radius - 0.02]), right, up,
+                        sign, str(rng.choice(["rect", "ellipse"])), self._material(rng, zc)))
         for _ in range(int(rng.integers(0, 3))):  # traffic ahead in the lane
             zc = rng.uniform(8.0, 45.0)
             half = np.array([0.9, 0.75, 2.2])
