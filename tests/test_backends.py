@@ -25,28 +25,32 @@ def test_auto_takes_openvino_on_x86_when_installed_and_onnxruntime_elsewhere(
 
 
 def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monkeypatch):
-    from edge_depth.tools.bench import machine_line
+    from edge_depth.tools.bench import host_line, machine_line
 
     entry = "processor\t: {n}\nmodel name\t: {model}\nflags\t\t: fpu sse2 avx2 {extra}\n\n"
     epyc = entry.format(n=0, model="AMD EPYC 7B13", extra="fma") * 2
     xeon = entry.format(n=0, model="Intel Xeon", extra="avx512f avx512_vnni amx_bf16")
-    assert backends.cpu_description(epyc) == dict(model="AMD EPYC 7B13", int8_dot_product=False)
-    assert backends.cpu_description(xeon) == dict(model="Intel Xeon", int8_dot_product=True)
+    assert backends.cpu_description(epyc) == dict(model="AMD EPYC 7B13", int8_dot_product=False,
+                                                  isa=["AVX2"])
+    assert backends.cpu_description(xeon) == dict(
+        model="Intel Xeon", int8_dot_product=True, isa=["AVX2", "AVX-512", "AVX512-VNNI"])
     assert backends.cpu_description(entry.format(n=0, model="x", extra="avx_vnni"))[
         "int8_dot_product"] is True
     # ARM robots (a Raspberry Pi 5's Cortex-A76, a Jetson's A78AE): "Features", no model name
     arm = "processor\t: 0\nBogoMIPS\t: 108.00\nFeatures\t: fp asimd {}\n"
     monkeypatch.setattr(backends.platform, "processor", lambda: "")
-    assert backends.cpu_description(arm.format("asimddp")) == dict(model="unknown",
-                                                                  int8_dot_product=True)
+    assert backends.cpu_description(arm.format("asimddp")) == dict(
+        model="unknown", int8_dot_product=True, isa=["NEON", "dotprod"])
     assert backends.cpu_description(arm.format("crc32"))["int8_dot_product"] is False
     # no /proc/cpuinfo (macOS, Windows): the platform's name, the instructions unknown
     monkeypatch.setattr(backends.platform, "processor", lambda: "arm")
-    assert backends.cpu_description("") == dict(model="arm", int8_dot_product=None)
+    assert backends.cpu_description("") == dict(model="arm", int8_dot_product=None, isa=[])
     machine = dict(others_cpu_share=0.0, load_avg_1min=0.1, sgbm_p90_over_p10=1.2, busy=False)
     assert "int8 dot product" not in machine_line(machine)  # benches saved before the field
     line = machine_line(dict(machine, cpu=backends.cpu_description(epyc)))
-    assert line.endswith("; CPU AMD EPYC 7B13, int8 dot product (VNNI/AMX): no")
+    assert line.endswith("; CPU AMD EPYC 7B13 (AVX2), int8 dot product (VNNI/AMX): no")
+    assert host_line(backends.cpu_description(xeon)).startswith(
+        "host: Intel Xeon; ISA AVX2, AVX-512, AVX512-VNNI; int8 dot product: yes")
 
 
 def test_an_unknown_or_missing_runtime_is_one_clear_error(monkeypatch):

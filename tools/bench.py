@@ -352,6 +352,14 @@ def markdown(summary: dict) -> str:
     return "\n".join(lines)
 
 
+def host_line(cpu: dict) -> str:
+    """'host: AMD EPYC 7B13; ISA AVX2, AVX-512, AVX512-VNNI; int8 dot product: yes': the
+    benchmark's first line."""
+    dot = {True: "yes", False: "no", None: "unknown"}[cpu["int8_dot_product"]]
+    return (f"host: {cpu['model']}; ISA {', '.join(cpu['isa']) or 'unknown'}; int8 dot "
+            f"product: {dot}; {os.cpu_count()} cores")
+
+
 def machine_line(m: dict) -> str:
     others = "n/a" if m["others_cpu_share"] is None else f"{m['others_cpu_share']:.0%}"
     load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.2f}"
@@ -360,7 +368,8 @@ def machine_line(m: dict) -> str:
             f"{load} before it, SGBM p90/p10 {m['sgbm_p90_over_p10']:.2f}{flag}")
     if "cpu" in m:  # ratios from CPUs with and without int8 dot products differ ~2x
         dot = {True: "yes", False: "no", None: "unknown"}[m["cpu"]["int8_dot_product"]]
-        line += f"; CPU {m['cpu']['model']}, int8 dot product (VNNI/AMX): {dot}"
+        isa = ", ".join(m["cpu"].get("isa") or []) or "unknown"
+        line += f"; CPU {m['cpu']['model']} ({isa}), int8 dot product (VNNI/AMX): {dot}"
     return line
 
 
@@ -408,6 +417,7 @@ def main(argv: list[str] | None = None) -> int:
             args.json.write_text(json.dumps(result, indent=2))
         return 0
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
+    print(host_line(cpu_description()), flush=True)  # ratios are only comparable per ISA
     runs = []
     for i in range(args.runs):
         summary = bench(args.scenes, args.repeat, iters_list, args.threads, args.bundle,

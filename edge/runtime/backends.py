@@ -36,15 +36,19 @@ def openvino_available() -> bool:
 
 # /proc/cpuinfo's names: x86 "flags" (VNNI, AMX), ARM "Features" (SDOT/UDOT: asimddp)
 INT8_DOT_FLAGS = {"avx512_vnni", "avx_vnni", "amx_int8", "asimddp"}
+# the instruction sets that decide the engine's speed, as benchmarks name them
+ISA_FLAGS = (("avx2", "AVX2"), ("avx512f", "AVX-512"), ("avx512_vnni", "AVX512-VNNI"),
+             ("avx_vnni", "AVX-VNNI"), ("avx512_bf16", "AVX512-BF16"), ("amx_tile", "AMX"),
+             ("asimd", "NEON"), ("asimddp", "dotprod"))
 
 
 def cpu_description(cpuinfo: str | None = None) -> dict:
-    """The CPU the graphs run on, for what benchmarks and quantization record: its model name
-    and whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
-    SDOT/UDOT; None where unknown). Without them int8 graphs run no faster than float (ONNX
-    Runtime ×1.00 on an AVX2 host, docs/experiments.md), so ratios and quantization
-    choices from the two kinds of CPU differ. `cpuinfo`: /proc/cpuinfo's text (read here on
-    Linux)."""
+    """The CPU the graphs run on, for what benchmarks and quantization record: its model name,
+    whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
+    SDOT/UDOT; None where unknown) and `isa`, which of ISA_FLAGS' instruction sets it has.
+    Without dot products int8 graphs run no faster than float (ONNX Runtime ×1.00 on an AVX2
+    host, docs/experiments.md), so ratios and quantization choices from the two kinds of CPU
+    differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux)."""
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text()
@@ -59,7 +63,8 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
             flags = set(value.split())
             break
     return dict(model=model, int8_dot_product=None if flags is None
-                else bool(flags & INT8_DOT_FLAGS))
+                else bool(flags & INT8_DOT_FLAGS),
+                isa=[] if flags is None else [name for flag, name in ISA_FLAGS if flag in flags])
 
 
 def cpu_has_bf16() -> bool:
