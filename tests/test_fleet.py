@@ -70,6 +70,13 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
         assert verdicts[f"rec{i}"] == ("REGRESSION" if single["regressions"] else "OK")
     assert verdicts["damaged"] is None
 
+    scores = tmp_path / "scores"      # evaluate: the same numbers, no output files
+    assert main(["fleet", "evaluate", str(recordings), "--out", str(scores), *THREADS]) == 1
+    evaluated = {r["name"]: r for r in _summary(scores)["recordings"]}
+    for i in range(5):
+        assert evaluated[f"rec{i}"]["epe"] == pytest.approx(by_name[f"rec{i}"]["epe"])
+    assert not list(scores.glob("*.mcap"))
+
 
 def test_a_regression_exits_1_and_is_named(recordings, tmp_path, capsys):
     golden, new = tmp_path / "golden", tmp_path / "new"
