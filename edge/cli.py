@@ -137,110 +137,227 @@ def add_fleet_parser(sub) -> None:
     add_replay_arguments(fleet, threads=FLEET_THREADS)
 
 
-def build_parser() -> argparse.ArgumentParser:
+def _add_synth_parser(sub) -> None:
+    """`synth`: the synthetic worlds as scene folders or recordings."""
     from edge_depth.sim.lidar import PATTERNS
 
+    p = sub.add_parser("synth", help="write synthetic scene folders with exact ground truth")
+    p.add_argument("--out", type=Path, help="output directory of scene folders")
+    p.add_argument("--mcap", type=Path, default=None,
+                   help="write one MCAP recording here instead (robot topics, the "
+                        "calibration, GT disparity on /sim/gt_disparity)")
+    p.add_argument("--count", "--frames", type=positive_int, default=1,
+                   help="number of scenes (frames)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the first scene")
+    p.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
+    p.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
+    p.add_argument("--world", choices=("rig", "things", "street"), default="rig",
+                   help="rig: the planar rig as scene folders; things: the 3-D training "
+                        "world as OUT/NNNNNNN.npz (LiDAR sampled at training time); "
+                        "street: a recording (--mcap) of a road at 1242x375 with a "
+                        "64-beam LiDAR, a world no shipped model trained on")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="rendering processes (--world things)")
+    p.add_argument("--view-spread", type=_view_spread, default=1.0,
+                   help="--world things: how much the two cameras' responses differ "
+                        "(gain ±12 %%, gamma ±6 %%, blur ±0.3 px, vignetting ±0.05, times "
+                        "this; 1 = the world the shipped model trained on)")
+    p.add_argument("--clean-cameras", action="store_true",
+                   help="--world things: one response for both views, gamma 1, no "
+                        "vignetting, blur or JPEG, read noise 0.5 (the same scenes): "
+                        "SGBM's matches about as reliable as on a real pair")
+    p.add_argument("--scene-folders", action="store_true",
+                   help="--world things: write scene folders for evaluation (16 GT rows "
+                        "as the LiDAR) instead of training pairs")
+
+
+def _add_demo_parser(sub) -> None:
+    """`demo`: the embedded default."""
+    p = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
+    p.add_argument("--out", type=Path, default=Path("out"))
+    p.add_argument("--frames", type=positive_int, default=3)
+    p.add_argument("--seed", type=int, default=1_000_000,
+                   help="first scene (default: the test split's first)")
+    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--iters", type=positive_int, default=None,
+                   help="GRU iterations (default: the bundle's)")
+    p.add_argument("--deadline-ms", type=float, default=None)
+    p.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
+                   help=PROFILE_HELP)
+
+
+def _add_replay_parser(sub) -> None:
+    """`replay`: the pipeline over one recording."""
+    p = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
+    p.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
+    p.add_argument("--out", type=Path, required=True, help="output MCAP")
+    add_replay_arguments(p)
+    p.add_argument("--realtime", action="store_true",
+                   help="pace by the recording's clock (drops frames when behind)")
+
+
+def _add_daemon_parsers(sub) -> None:
+    """`run` and `record`: the live sensors."""
+    p = sub.add_parser("run", help="the on-robot depth daemon")
+    p.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
+    p.add_argument("--out", type=Path, default=None, help="override log.out")
+    p.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
+                   type=parse_host_port, metavar="[HOST:]PORT",
+                   help="also serve a Foxglove WebSocket (default 127.0.0.1:8765; "
+                        "0.0.0.0:8765 to reach it from another machine)")
+    p.add_argument("--max-frames", type=positive_int, default=None,
+                   help="stop after this many frames (dry runs)")
+    p.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
+                   help="override log.profile (foxglove or ros2)")
+    p = sub.add_parser("record", help="record the live sensors to MCAP")
+    p.add_argument("--config", type=Path, required=True)
+    p.add_argument("--out", type=Path, required=True)
+    p.add_argument("--max-frames", type=positive_int, default=None)
+    p.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
+                   help="override log.profile (foxglove or ros2)")
+
+
+def _add_compare_parser(sub) -> None:
+    """`compare`: two replay outputs of one recording."""
+    p = sub.add_parser("compare", help="compare two replay outputs of one recording "
+                                       "(exit 1 when NEW regresses: golden replays in CI)")
+    p.add_argument("base", type=Path, help="the reference replay output (MCAP)")
+    p.add_argument("new", type=Path, help="the replay output under test (MCAP)")
+    p.add_argument("--tolerance-px", type=float, default=0.25,
+                   help="a pixel differs when |Δ disparity| exceeds this (default 0.25)")
+    p.add_argument("--max-share", type=share, default=0.01,
+                   help="the share of differing pixels allowed, e.g. 1%% or 0.01")
+    p.add_argument("--json", type=Path, default=None, help="also write the report")
+
+
+def build_parser() -> argparse.ArgumentParser:
     parser = _Parser(prog="edge-depth", description=__doc__)
     parser.add_argument("--version", action="version", version=f"edge-depth {_version()}")
     parser.add_argument("-v", "--verbose", action="store_true", help="debug messages too")
     parser.add_argument("-q", "--quiet", action="store_true", help="warnings and errors only")
     sub = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
-
-    synth = sub.add_parser("synth", help="write synthetic scene folders with exact ground truth")
-    synth.add_argument("--out", type=Path, help="output directory of scene folders")
-    synth.add_argument("--mcap", type=Path, default=None,
-                       help="write one MCAP recording here instead (robot topics, the "
-                            "calibration, GT disparity on /sim/gt_disparity)")
-    synth.add_argument("--count", "--frames", type=positive_int, default=1,
-                       help="number of scenes (frames)")
-    synth.add_argument("--seed", type=int, default=0, help="seed of the first scene")
-    synth.add_argument("--size", type=parse_size, default=(640, 400), help="WxH (640x400)")
-    synth.add_argument("--lidar", choices=sorted(PATTERNS), default="beams16")
-    synth.add_argument("--world", choices=("rig", "things", "street"), default="rig",
-                       help="rig: the planar rig as scene folders; things: the 3-D training "
-                            "world as OUT/NNNNNNN.npz (LiDAR sampled at training time); "
-                            "street: a recording (--mcap) of a road at 1242x375 with a "
-                            "64-beam LiDAR, a world no shipped model trained on")
-    synth.add_argument("--workers", type=positive_int, default=1,
-                       help="rendering processes (--world things)")
-    synth.add_argument("--view-spread", type=_view_spread, default=1.0,
-                       help="--world things: how much the two cameras' responses differ "
-                            "(gain ±12 %%, gamma ±6 %%, blur ±0.3 px, vignetting ±0.05, times "
-                            "this; 1 = the world the shipped model trained on)")
-    synth.add_argument("--clean-cameras", action="store_true",
-                       help="--world things: one response for both views, gamma 1, no "
-                            "vignetting, blur or JPEG, read noise 0.5 (the same scenes): "
-                            "SGBM's matches about as reliable as on a real pair")
-    synth.add_argument("--scene-folders", action="store_true",
-                       help="--world things: write scene folders for evaluation (16 GT rows "
-                            "as the LiDAR) instead of training pairs")
-
-    demo = sub.add_parser("demo", help="the embedded default: the synthetic rig, end to end")
-    demo.add_argument("--out", type=Path, default=Path("out"))
-    demo.add_argument("--frames", type=positive_int, default=3)
-    demo.add_argument("--seed", type=int, default=1_000_000,
-                      help="first scene (default: the test split's first)")
-    demo.add_argument("--precision", choices=("int8", "fp32"), default="int8")
-    demo.add_argument("--iters", type=positive_int, default=None,
-                      help="GRU iterations (default: the bundle's)")
-    demo.add_argument("--deadline-ms", type=float, default=None)
-    demo.add_argument("--profile", choices=("foxglove", "ros2"), default="foxglove",
-                      help=PROFILE_HELP)
-    replay = sub.add_parser("replay", help="run the pipeline over an MCAP recording")
-    replay.add_argument("input", type=Path, help="recording (ours or a ROS 2 bag)")
-    replay.add_argument("--out", type=Path, required=True, help="output MCAP")
-    add_replay_arguments(replay)
-    replay.add_argument("--realtime", action="store_true",
-                        help="pace by the recording's clock (drops frames when behind)")
+    _add_synth_parser(sub)
+    _add_demo_parser(sub)
+    _add_replay_parser(sub)
     add_fleet_parser(sub)
-    run = sub.add_parser("run", help="the on-robot depth daemon")
-    run.add_argument("--config", type=Path, required=True, help="robot TOML (README)")
-    run.add_argument("--out", type=Path, default=None, help="override log.out")
-    run.add_argument("--live", nargs="?", const="127.0.0.1:8765", default=None,
-                     type=parse_host_port, metavar="[HOST:]PORT",
-                     help="also serve a Foxglove WebSocket (default 127.0.0.1:8765; "
-                          "0.0.0.0:8765 to reach it from another machine)")
-    run.add_argument("--max-frames", type=positive_int, default=None,
-                     help="stop after this many frames (dry runs)")
-    run.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
-                     help="override log.profile (foxglove or ros2)")
-    record = sub.add_parser("record", help="record the live sensors to MCAP")
-    record.add_argument("--config", type=Path, required=True)
-    record.add_argument("--out", type=Path, required=True)
-    record.add_argument("--max-frames", type=positive_int, default=None)
-    record.add_argument("--profile", choices=("foxglove", "ros2"), default=None,
-                        help="override log.profile (foxglove or ros2)")
+    _add_daemon_parsers(sub)
     for name, (_, description) in TOOL_COMMANDS.items():
         tool = sub.add_parser(name, help=description, add_help=False,
                               description=f"{description}; `edge-depth {name} --help` for its "
                                           "options")
         tool.add_argument("tool_args", nargs=argparse.REMAINDER)
-    compare = sub.add_parser("compare", help="compare two replay outputs of one recording "
-                                             "(exit 1 when NEW regresses: golden replays in CI)")
-    compare.add_argument("base", type=Path, help="the reference replay output (MCAP)")
-    compare.add_argument("new", type=Path, help="the replay output under test (MCAP)")
-    compare.add_argument("--tolerance-px", type=float, default=0.25,
-                         help="a pixel differs when |Δ disparity| exceeds this (default 0.25)")
-    compare.add_argument("--max-share", type=share, default=0.01,
-                         help="the share of differing pixels allowed, e.g. 1%% or 0.01")
-    compare.add_argument("--json", type=Path, default=None, help="also write the report")
+    _add_compare_parser(sub)
     from edge_depth.calibrate import add_parsers
 
     add_parsers(sub)
     return parser
 
 
-def fleet(args: argparse.Namespace, parser: argparse.ArgumentParser) -> int:
+def fleet(args: argparse.Namespace) -> int:
     from edge_depth.fleet import FleetJob, fleet_command
 
-    if (args.fleet_command == "compare") != (args.base is not None):
-        parser.error("fleet: --base DIR (the golden replays) goes with compare, and only there")
     topics = load_topic_map(args.topics) if args.topics else None
     job = FleetJob(args.fleet_command, args.out,
                    options_from_args(args, threads=FLEET_THREADS),
                    dict(calib=args.calib, topics=topics, profile=args.profile),
                    args.base, args.tolerance_px, args.max_share)
     return fleet_command(job, args.sources, args.address, args.workers)
+
+
+def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
+    """The combinations of `synth` flags that mean nothing: a usage error each."""
+    if (args.out is None) == (args.mcap is None):
+        parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
+    if args.world == "things" and args.mcap:
+        parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
+    if args.world == "street" and not args.mcap:
+        parser.error("synth: --world street writes a recording: give --mcap FILE")
+    if args.clean_cameras or args.view_spread != 1.0:
+        if args.world != "things":
+            parser.error("synth: --view-spread and --clean-cameras apply to --world things")
+        if args.clean_cameras and args.view_spread != 1.0:
+            parser.error("synth: --clean-cameras gives both views one response: "
+                         "--view-spread does not apply")
+
+
+def synth(args: argparse.Namespace) -> int:
+    if args.mcap and args.world == "street":
+        from edge_depth.sim_recording import write_street_recording
+
+        n = write_street_recording(args.mcap, args.count, args.seed)
+        print(f"wrote {args.mcap} ({args.count} street frames, 1242x375, {n} messages)")
+        return 0
+    if args.mcap:
+        from edge_depth.sim import RigConfig
+        from edge_depth.sim_recording import write_sim_recording
+
+        w, h = args.size
+        n = write_sim_recording(args.mcap, args.count, args.seed, RigConfig(width=w, height=h),
+                                args.lidar)
+        print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
+        return 0
+    if args.world == "things" and args.scene_folders:
+        from edge_depth.sim.export import things_folders_command
+
+        return things_folders_command(args.out, args.count, args.seed, args.size,
+                                      args.view_spread, args.clean_cameras)
+    if args.world == "things":
+        from edge_depth.sim.export import things_command
+
+        return things_command(args.out, args.count, args.seed, args.size, args.workers,
+                              args.view_spread, args.clean_cameras)
+    from edge_depth.sim.export import synth_command
+
+    return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
+
+
+def calibrate(args: argparse.Namespace) -> int:
+    from edge_depth.calibrate import run
+
+    return run(args)
+
+
+def demo(args: argparse.Namespace) -> int:
+    from edge_depth.demo import demo_command
+
+    return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
+                        args.deadline_ms, args.profile)
+
+
+def replay(args: argparse.Namespace) -> int:
+    from edge_depth.commands import replay_command
+
+    topics = load_topic_map(args.topics) if args.topics else None
+    return replay_command(args.input, args.out, options_from_args(args), args.calib, topics,
+                          realtime=args.realtime, profile=args.profile)
+
+
+def run(args: argparse.Namespace) -> int:
+    from edge_depth.commands import run_command
+
+    return run_command(args.config, args.out, args.live, args.max_frames, args.profile)
+
+
+def record(args: argparse.Namespace) -> int:
+    from edge_depth.commands import record_command
+
+    return record_command(args.config, args.out, args.max_frames, args.profile)
+
+
+def compare(args: argparse.Namespace) -> int:
+    from edge_depth.compare import CompareError, compare_command
+
+    try:
+        return compare_command(args.base, args.new, args.tolerance_px, args.max_share,
+                               args.json)
+    except CompareError as exc:  # not a verdict: 2, as for a usage error
+        print(f"edge-depth compare: error: {exc}", file=sys.stderr)
+        return 2
+
+
+# each subcommand's function (the tools are run_tool's)
+COMMANDS = dict(synth=synth, calibrate=calibrate, demo=demo, replay=replay, fleet=fleet,
+                run=run, record=record, compare=compare)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -255,86 +372,14 @@ def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     configure_logging(args.verbose, args.quiet)
-    if args.command == "synth" and (args.out is None) == (args.mcap is None):
-        parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
-    if args.command == "synth" and args.world == "things" and args.mcap:
-        parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
-    if args.command == "synth" and args.world == "street" and not args.mcap:
-        parser.error("synth: --world street writes a recording: give --mcap FILE")
-    if args.command == "synth" and (args.clean_cameras or args.view_spread != 1.0):
-        if args.world != "things":
-            parser.error("synth: --view-spread and --clean-cameras apply to --world things")
-        if args.clean_cameras and args.view_spread != 1.0:
-            parser.error("synth: --clean-cameras gives both views one response: "
-                         "--view-spread does not apply")
+    if args.command == "synth":
+        check_synth(args, parser)
+    if args.command == "fleet" and (args.fleet_command == "compare") != (args.base is not None):
+        parser.error("fleet: --base DIR (the golden replays) goes with compare, and only there")
     try:
-        if args.command == "synth":
-            from edge_depth.sim.export import synth_command
-
-            if args.mcap and args.world == "street":
-                from edge_depth.sim_recording import write_street_recording
-
-                n = write_street_recording(args.mcap, args.count, args.seed)
-                print(f"wrote {args.mcap} ({args.count} street frames, 1242x375, {n} "
-                      "messages)")
-                return 0
-            if args.mcap:
-                from edge_depth.sim import RigConfig
-                from edge_depth.sim_recording import write_sim_recording
-
-                w, h = args.size
-                n = write_sim_recording(args.mcap, args.count, args.seed,
-                                        RigConfig(width=w, height=h), args.lidar)
-                print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
-                return 0
-            if args.world == "things" and args.scene_folders:
-                from edge_depth.sim.export import things_folders_command
-
-                return things_folders_command(args.out, args.count, args.seed, args.size,
-                                              args.view_spread, args.clean_cameras)
-            if args.world == "things":
-                from edge_depth.sim.export import things_command
-
-                return things_command(args.out, args.count, args.seed, args.size,
-                                      args.workers, args.view_spread, args.clean_cameras)
-            return synth_command(args.out, args.count, args.seed, args.size, args.lidar)
-        if args.command == "calibrate":
-            from edge_depth.calibrate import run
-
-            return run(args)
-        if args.command == "demo":
-            from edge_depth.demo import demo_command
-
-            return demo_command(args.out, args.frames, args.seed, args.precision, args.iters,
-                                args.deadline_ms, args.profile)
-        if args.command == "replay":
-            from edge_depth.commands import replay_command
-
-            topics = load_topic_map(args.topics) if args.topics else None
-            return replay_command(args.input, args.out, options_from_args(args), args.calib,
-                                  topics, realtime=args.realtime, profile=args.profile)
-        if args.command == "fleet":
-            return fleet(args, parser)
-        if args.command == "run":
-            from edge_depth.commands import run_command
-
-            return run_command(args.config, args.out, args.live, args.max_frames,
-                               args.profile)
         if args.command in TOOL_COMMANDS:
             return run_tool(args.command, args.tool_args)
-        if args.command == "compare":
-            from edge_depth.compare import CompareError, compare_command
-
-            try:
-                return compare_command(args.base, args.new, args.tolerance_px,
-                                       args.max_share, args.json)
-            except CompareError as exc:  # not a verdict: 2, as for a usage error
-                print(f"edge-depth compare: error: {exc}", file=sys.stderr)
-                return 2
-        if args.command == "record":
-            from edge_depth.commands import record_command
-
-            return record_command(args.config, args.out, args.max_frames, args.profile)
+        return COMMANDS[args.command](args)
     except (EdgeError, CalibrationError, OSError) as exc:
         print(f"edge-depth {args.command}: error: {exc}", file=sys.stderr)
         return 1
@@ -347,8 +392,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:  # Ctrl-C before a command's own handlers were installed
         print(f"edge-depth {args.command}: interrupted", file=sys.stderr)
         return 130
-    parser.error(f"unknown command {args.command}")
-    return 2
 
 
 if __name__ == "__main__":
