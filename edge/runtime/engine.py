@@ -71,45 +71,70 @@ class Engine:
                  meta: dict | None = None, **overrides) -> None:
         options = EngineOptions.with_overrides(options, bundle=bundle, **overrides)
         self.options = options
-        threads, runtime = options.threads, options.runtime
-        self.runtime = resolve_runtime(runtime)
+        self.runtime = resolve_runtime(options.runtime)
         bf16 = options.bf16_choice
         if bf16 is None:
             bf16 = self.runtime == "openvino" and cpu_has_bf16()
         self.bf16 = bool(bf16) and self.runtime == "openvino"
         self.bundle = Path(options.bundle or DEFAULT_BUNDLE)
         self.meta = meta or load_bundle_meta(self.bundle)
-        precision = options.precision
-        files = self.meta["precisions"].get(precision)
-        if files is None:
-            raise ConfigError("precision", f"one of {sorted(self.meta['precisions'])}",
-                              precision)
-        self.precision = precision
+        self.precision = options.precision
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
-        self.sessions: dict[str, Any] = {}  # graph name -> a backend's session
-        # the encoder last: it computes only what the step and the upsampling read (OpenVINO;
-        # version 10's upsampling reads no 1/4 features: 1.4 ms of a frame at one thread)
+        self.sessions = self._open_graphs(options.threads)
+        self._wire_graphs()
+        shape = (1, 1, self.height, self.width)
+        self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
+                                                                 "valid")}
+        self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
+            if options.lidar_select and "lidar_select" in self.meta else None
+        self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
+            if options.edge_select and "edge_select" in self.meta else None
+        self.edge_match_source = "bundle" if options.from_bundle() else "given"
+        resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
+        self.edge_match = make_edge_match(resolved, self.width)
+        # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
+        # "auto" starts early only where the graphs leave a core idle
+        self.match_schedule = None if self.edge_match is None else MatchSchedule(
+            self.edge_match, self.width, self.downsample, options.threads < usable_cores())
+        self._upsample_ms = 0.0  # running estimate for the deadline
+        self.scale = options.scale or None
+        self._plans: dict[tuple[int, int], FitPlan] = {}
+
+    def _open_graphs(self, threads: int) -> dict[str, Any]:
+        """The precision's graphs as the runtime's sessions, the encoder last: it computes
+        only what the step and the upsampling read (OpenVINO; version 10's upsampling reads
+        no 1/4 features: 1.4 ms of a frame at one thread). ConfigError naming a graph that
+        does not load."""
+        files = self.meta["precisions"].get(self.precision)
+        if files is None:
+            raise ConfigError("precision", f"one of {sorted(self.meta['precisions'])}",
+                              self.precision)
+        sessions: dict[str, Any] = {}
         for part in sorted(files, key=lambda p: p == "encoder"):
             name = files[part]
             read = None if part != "encoder" else {"disparity", "hidden"}.union(
-                *(self.sessions[p].input_names for p in self.sessions))
+                *(sessions[p].input_names for p in sessions))
             try:
-                self.sessions[part] = open_session(self.bundle / name, self.runtime, threads,
-                                                   self.bf16 and part in BF16_GRAPHS, read)
+                sessions[part] = open_session(self.bundle / name, self.runtime, threads,
+                                              self.bf16 and part in BF16_GRAPHS, read)
             except Exception as exc:  # noqa: BLE001 - the runtimes' errors have no base
                 first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else ""
                 raise ConfigError("bundle", f"a loadable ONNX graph at {self.bundle / name} "
                                   "(re-export with tools/export.py)",
                                   f"{type(exc).__name__}: {first}") from None
+        return sessions
+
+    def _wire_graphs(self) -> None:
+        """Which of the encoder's outputs the step and the upsampling read, by name; graphs
+        from two exports (newer bundles pass the context as two precomputed terms, older
+        ones as itself; a refinement's version decides what the upsampling reads) are a
+        ConfigError here rather than a failure on frame 1."""
         self._enc_outputs = self.sessions["encoder"].output_names
         self._step_state = [n for n in self.sessions["step"].input_names
                             if n not in ("disparity", "hidden")]
         upsample = self.sessions["upsample"]
-        # the step and the upsampling read what the encoder wrote, by name: graphs from two
-        # exports (newer bundles pass the context as two precomputed terms, older ones as itself; a
-        # refinement's version decides what the upsampling reads) would fail on frame 1
         fed = {"disparity", "hidden", *self._enc_outputs}
         for part, extra in (("step", set()), ("upsample", {"left", "right", "sparse", "valid"})):
             missing = [n for n in self.sessions[part].input_names if n not in fed | extra]
@@ -125,23 +150,6 @@ class Engine:
         self._upsample_state = [n for n in upsample.input_names if n in self._enc_outputs
                                 and n not in ("disparity", "hidden")]
         self.has_confidence = len(upsample.output_names) > 1
-        shape = (1, 1, self.height, self.width)
-        self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
-                                                                 "valid")}
-        self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
-            if options.lidar_select and "lidar_select" in self.meta else None
-        self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
-            if options.edge_select and "edge_select" in self.meta else None
-        self.edge_match_source = "bundle" if options.from_bundle() else "given"
-        resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
-        self.edge_match = make_edge_match(resolved, self.width)
-        # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
-        # "auto" starts early only where the graphs leave a core idle
-        self.match_schedule = None if self.edge_match is None else MatchSchedule(
-            self.edge_match, self.width, self.downsample, int(threads) < usable_cores())
-        self._upsample_ms = 0.0  # running estimate for the deadline
-        self.scale = options.scale or None
-        self._plans: dict[tuple[int, int], FitPlan] = {}
 
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
         """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale)."""
