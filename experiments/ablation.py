@@ -1,7 +1,7 @@
 """The paper's ablation in miniature, at equal training budgets, on the synthetic rig.
 
     python experiments/ablation.py --out runs/ablation --data data/test16 [--steps 500]
-        [--scenes 10] [--threads 1] [--train-args "--refine 3 --data things:data/things"]
+        [--scenes 10] [--threads 1] [--train-args "--refine 10 --data things:data/things"]
 
 Runs (each `tools/train.py` with the same batch, crop, seed and LiDAR pattern; the supervised
 runs share --steps, the self-supervised ones --self-steps):
@@ -51,7 +51,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", default=None, help="comma-separated run folder names")
     p.add_argument("--train-args", default="",
                    help="more tools/train.py arguments for every run (the shipped model's "
-                        "architecture, its training data), e.g. \"--refine 3 "
+                        "architecture, its training data), e.g. \"--refine 10 "
                         "--no-half-res-block --data things:data/things\"")
     args = p.parse_args(argv)
     from edge_depth.sim.folder import list_scene_folders

@@ -57,17 +57,7 @@ def network_variants(net, scene, iters: int) -> dict[str, np.ndarray]:
         size = (scene.left.shape[1], scene.left.shape[0])
         out = {"net 1/8, bilinear": up(d[0, 0].numpy(), size, cv2.INTER_LINEAR),
                "net 1/8, convex": convex_upsample(d, mask, FACTOR)[0, 0].numpy()}
-        if net.refine is not None:
-            aux: dict = {}
-            refined, _ = net.upsample(left, right, d, mask, sparse, valid,
-                                      net.quarter_features(state), aux, hidden=h)
-            out["net 1/8, convex + refinement"] = refined[0, 0].numpy()
-            if "quarter" in aux:  # version 4: its 1/4 estimate, and what a perfect gate would do
-                quarter, convex = aux["quarter"][0, 0].numpy(), aux["convex"][0, 0].numpy()
-                out["net 1/4 stage's estimate alone"] = quarter
-                gt = np.nan_to_num(scene.disp)
-                out["oracle gate: the closer of convex and 1/4"] = np.where(
-                    np.abs(quarter - gt) < np.abs(convex - gt), quarter, convex)
+        # the confidence head (the kept version) does not move the disparity: no row of its own
     return out
 
 

@@ -80,8 +80,6 @@ def test_new_bundles_feed_the_context_terms_and_mixed_graphs_are_refused(small_b
     with pytest.raises(ConfigError, match="step.onnx needs context_zr, context_q, which "
                                           ".*encoder.onnx"):
         Engine(mixed, precision="fp32", threads=1)
-    # the upsampling's inputs are checked the same way (a refinement that reads the encoder's
-    # 1/4 features: test_refinement_bundle_returns_confidence_through_engine_and_mcap)
 
 
 def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
@@ -197,8 +195,10 @@ def test_evaluate_runs_the_shipped_bundle_by_default(tmp_path, capsys):
     assert json.loads(out.read_text())["net"]["density"] > 99
 
 
-@pytest.mark.parametrize("version", [2, 3, 4, 5, 6, 7, 8, 9, 10])
-def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, version):
+def test_confidence_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
+    """The confidence head (refine 10) re-initialised, exported, run: the engine's disparity
+    and confidence match torch's, the bundle declares the matching it was made for, and the
+    confidence reaches the MCAP output."""
     from mcap.reader import make_reader
 
     from edge_depth.mcap_log import McapLogger
@@ -208,27 +208,21 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
 
     torch.manual_seed(0)
     ckpt = torch.load(CHECKPOINT, weights_only=False)
-    config = ModelConfig.from_dict({**ckpt["config"], "refine": version})
+    config = ModelConfig.from_dict({**ckpt["config"], "refine": 10})
     net = SparseStereoNet(config)
-    net.load_state_dict({k: v for k, v in ckpt["model"].items()
-                         if not k.startswith("refine.")}, strict=False)
-    for p in net.refine.parameters():  # a refinement that does something
+    net.load_state_dict(ckpt["model"])
+    for p in net.refine.parameters():  # a head that says something else than the shipped
         torch.nn.init.normal_(p, std=0.05)
-    path = tmp_path / "refine.pt"
+    path = tmp_path / "confidence.pt"
     torch.save(dict(model=net.state_dict(), config=config.to_dict(), step=1), path)
     meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
     assert meta["export_check"]["max_abs_px"] < 0.01
-    # version 10's head is made for the edge matching: its bundle declares it the default
     declared = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime")
-    if version == 10:
-        assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
-                                  "edge_median": "9x9/2"}
-        assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
-        assert declared.describe().endswith("edge matching auto on every 2nd row, weighted "
-                                            "median 9x9/2 (the bundle's)")
-    else:
-        assert "engine" not in meta and declared.edge_match is None
-        assert declared.describe().endswith("edge matching off (the bundle's)")
+    assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
+                              "edge_median": "9x9/2"}
+    assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
+    assert declared.describe().endswith("edge matching auto on every 2nd row, weighted "
+                                        "median 9x9/2 (the bundle's)")
     _, left, right, sparse = scene_inputs(77)
     t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
          (left, right, sparse, (sparse > 0).astype(np.float32))]
@@ -237,12 +231,6 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     engine = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
                     edge_match=0)
     assert engine.has_confidence and engine.describe().endswith("edge matching off")
-    if version in (3, 5, 6, 7, 8, 9):  # the graph returns it at 1/4; the engine resizes it
-        import onnx
-
-        dims = onnx.load(tmp_path / "bundle" / "upsample.onnx").graph.output[1].type
-        assert [d.dim_value for d in dims.tensor_type.shape.dim][-2:] == \
-            [SMALL[1] // 4, SMALL[0] // 4]
     result = engine.infer(left, right, sparse, iters=2)
     np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)
     np.testing.assert_allclose(result.confidence, torch.sigmoid(logit)[0, 0].numpy(),
@@ -253,18 +241,17 @@ def test_refinement_bundle_returns_confidence_through_engine_and_mcap(tmp_path, 
     with open(tmp_path / "out.mcap", "rb") as f:
         topics = [c.topic for _, c, _ in make_reader(f).iter_messages()]
     assert "/depth/confidence" in topics
-    if version in (5, 6, 7, 8, 9):
-        # an encoder that no longer writes the 1/4 features its refinement reads: refused
-        import onnx
 
-        from edge_depth.errors import ConfigError
 
-        encoder = onnx.load(str(tmp_path / "bundle" / "encoder.onnx"))
-        for out in [o for o in encoder.graph.output if o.name == "quarter_right"]:
-            encoder.graph.output.remove(out)
-        onnx.save(encoder, str(tmp_path / "bundle" / "encoder.onnx"))
-        with pytest.raises(ConfigError, match="upsample.onnx needs quarter_right, which"):
-            Engine(tmp_path / "bundle", precision="fp32", threads=1)
+def test_a_checkpoint_of_a_removed_stage_is_refused_naming_it():
+    from edge_depth.errors import ConfigError
+    from edge_depth.model.config import ModelConfig
+
+    for config in ({"refine": 3}, {"aux_offsets": True}, {"refine_scale": 2}):
+        with pytest.raises(ConfigError, match="model-versions-archive"):
+            ModelConfig.from_dict(config)
+    old = ModelConfig.from_dict({"refine": 10, "aux_offsets": False, "refine_scale": 4})
+    assert old.refine == 10   # an older checkpoint of a kept version still loads
 
 
 @pytest.mark.parametrize("size", [(640, 480), (1242, 375), (1280, 800), (320, 200)])

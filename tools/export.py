@@ -6,11 +6,10 @@ Three graphs (opset 17, static shapes) so the iteration count stays a runtime ch
 encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
-the refinement stage it also takes the images (versions 2-3: and the LiDAR; version 4, the
-1/4 stage: the encoder's 1/4 features and the LiDAR; version 5: the LiDAR and the encoder's
-1/4 features) and returns the confidence 0-1 as well),
+the confidence head it returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
-summary, and for version 10 the engine's default matching, "engine"). The export is checked:
+summary, and with the confidence head the engine's default matching, "engine"). The export
+is checked:
 ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
 """
 
@@ -32,22 +31,12 @@ STATE = ["corr", "context_zr", "context_q", "weights", "centre", "sparse_low", "
 STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
-QUARTER = ["quarter_left", "quarter_right"]  # encoder outputs the 1/4 stage alone reads
-REFINE_INPUTS = {1: ["left", "right"], 2: ["left", "right", "sparse", "valid"],
-                 3: ["left", "right", "sparse", "valid"],
-                 4: ["left", *QUARTER, "sparse", "valid"],
-                 **{v: ["left", "right", "sparse", "valid", *QUARTER] for v in (5, 6, 7, 8, 9)},
-                 10: []}
 OPSET = 17
-# versions whose upsample graph returns the confidence at its own 1/4 resolution; the engine
-# resizes it (bilinear resizing in OpenVINO's graph cost ~2.8 ms of the graph's ~14)
-LOW_RES_CONFIDENCE = (3, 5, 6, 7, 8, 9)
-# version 10 has no image-guided refinement: its head (convex upsampling, a 1/8 confidence)
-# is trained to hand its unsure edges to the full-resolution matching, so its bundles declare
-# the matching as the engine's default in model.json's "engine" (config and command line
-# still override it; without it stage 17's bad-3 on motorcycle is 9.3 %, with it 7.8 %, with
-# the weighted median over its gate as well 7.0 %: docs/experiments.md)
-MATCHED_HEADS = (10,)
+# the confidence head (convex upsampling, a 1/8 confidence) is trained to hand its unsure
+# edges to the full-resolution matching, so its bundles declare the matching as the engine's
+# default in model.json's "engine" (config and command line still override it; without it
+# stage 17's bad-3 on motorcycle is 9.3 %, with it 7.8 %, with the weighted median over its
+# gate as well 7.0 %: docs/experiments.md)
 MATCHED_ENGINE = {"edge_match": "auto", "edge_match_rows": 2, "edge_median": "9x9/2"}
 
 
@@ -69,8 +58,7 @@ def build_graphs(net):
             s = self.net.encode(left, right, sparse, valid)
             context_zr, context_q = self.net.update.context_terms(s["context"])
             return (s["disparity"], s["hidden"], s["corr"], context_zr, context_q, s["weights"],
-                    s["centre"], s["sparse"], s["valid"],
-                    *[s[k] for k in QUARTER if k in s])
+                    s["centre"], s["sparse"], s["valid"])
 
     class Step(torch.nn.Module):
         def __init__(self):
@@ -96,38 +84,19 @@ def build_graphs(net):
             mask = self.net.update.upsampling_mask(hidden)
             return convex_upsample(disparity, mask, self.net.config.downsample)
 
-    class UpsampleRefine(torch.nn.Module):
-        """Convex upsampling, then the image-guided refinement; (disparity, confidence)."""
+    class UpsampleConfidence(torch.nn.Module):
+        """Convex upsampling with the confidence head: (disparity, confidence 0-1)."""
 
         def __init__(self):
             super().__init__()
             self.net = net
 
-        def forward(self, disparity, hidden, left=None, right=None, sparse=None, valid=None,
-                    quarter_left=None, quarter_right=None):
+        def forward(self, disparity, hidden):
             mask = self.net.update.upsampling_mask(hidden)
-            quarter = None if quarter_left is None else (quarter_left, quarter_right)
-            full, logit = self.net.upsample(left, right, disparity, mask, sparse, valid,
-                                            quarter, hidden=hidden)
+            full, logit = self.net.upsample(disparity, mask, hidden)
             return full, torch.sigmoid(logit)
 
-    class UpsampleQuarter(torch.nn.Module):
-        """The 1/4 stage (refinement version 4) on the encoder's 1/4 features."""
-
-        def __init__(self):
-            super().__init__()
-            self.net = net
-
-        def forward(self, disparity, hidden, left, quarter_left, quarter_right, sparse, valid):
-            mask = self.net.update.upsampling_mask(hidden)
-            full, logit = self.net.upsample(left, None, disparity, mask, sparse, valid,
-                                            (quarter_left, quarter_right))
-            return full, torch.sigmoid(logit)
-
-    refine = net.config.refine
-    if refine in LOW_RES_CONFIDENCE:  # the engine resizes it: cheaper than in the graph
-        net.refine.confidence_full_resolution = False
-    upsample = UpsampleQuarter() if refine == 4 else UpsampleRefine() if refine else Upsample()
+    upsample = UpsampleConfidence() if net.config.refine else Upsample()
     return Encoder().eval(), Step().eval(), upsample.eval()
 
 
@@ -147,11 +116,8 @@ def load_checkpoint(path: Path):
     from edge_depth.model.network import SparseStereoNet
 
     ckpt = torch.load(path, map_location="cpu", weights_only=False)
-    # the training-only auxiliary head is left out: what is loaded is what deploys
-    config = ModelConfig.from_dict({**ckpt["config"], "aux_offsets": False})
-    net = SparseStereoNet(config)
-    net.load_state_dict({k: v for k, v in ckpt["model"].items()
-                         if not k.startswith("aux_offsets.")})
+    net = SparseStereoNet(ModelConfig.from_dict(ckpt["config"]))
+    net.load_state_dict(ckpt["model"])
     return net.eval(), ckpt
 
 
@@ -180,25 +146,16 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
     encoder, step, upsample = build_graphs(net)
     x = torch.zeros(1, 1, h, w)
     with torch.no_grad():
-        enc_out = encoder(x, x, x, x)
-        d, hidden, *state = enc_out[:2 + len(STATE)]
-        quarter = enc_out[2 + len(STATE):]
+        d, hidden, *state = encoder(x, x, x, x)
         step_args = (d, hidden, *state)
+        up_args = (d, hidden)
         graphs = [
             ("encoder.onnx", encoder, (x, x, x, x), ENCODER_INPUTS,
-             ["disparity", "hidden", *STATE, *QUARTER[:len(quarter)]]),
+             ["disparity", "hidden", *STATE]),
             ("step.onnx", step, step_args, STEP_INPUTS, STEP_OUTPUTS),
+            ("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS,
+             ["disparity_full", "confidence"] if cfg.refine else ["disparity_full"]),
         ]
-        if cfg.refine:
-            refine_inputs = REFINE_INPUTS[cfg.refine]
-            known = dict(zip(QUARTER, quarter, strict=False))
-            up_args = (d, hidden, *[known.get(k, x) for k in refine_inputs])
-            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS + refine_inputs,
-                           ["disparity_full", "confidence"]))
-        else:
-            up_args = (d, hidden)
-            graphs.append(("upsample.onnx", upsample, up_args, UPSAMPLE_INPUTS,
-                           ["disparity_full"]))
         for name, module, args, inputs, outputs in graphs:
             torch.onnx.export(module, args, str(out / name), input_names=inputs,
                               output_names=outputs, opset_version=OPSET, dynamo=False)
@@ -218,7 +175,7 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
         precisions={"fp32": {"encoder": "encoder.onnx", "step": "step.onnx",
                              "upsample": "upsample.onnx"}},
     )
-    if cfg.refine in MATCHED_HEADS:  # the engine's default for this bundle (Engine reads it)
+    if cfg.refine:  # the engine's default for this bundle (Engine reads it)
         meta["engine"] = dict(MATCHED_ENGINE)
     if check:
         meta["export_check"] = check_export(net, out, meta, size)

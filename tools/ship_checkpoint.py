@@ -5,9 +5,8 @@ optimizer state), with the training summary of every stage so far.
         [--previous edge/models/sparse_stereo.pt] [--out edge/models/sparse_stereo.pt]
 
 The new stage is read from the run's own arguments (mode, steps, batch, crop, iterations,
-data, learning rate, seed, init); `--previous` supplies the stages before it. Training-only
-heads (`--aux-offsets`) are left out: the shipped model is what inference runs. Then
-`make bundle` exports and quantizes it.
+data, learning rate, seed, init); `--previous` supplies the stages before it. Then `make
+bundle` exports and quantizes it.
 """
 
 from __future__ import annotations
@@ -19,9 +18,8 @@ from pathlib import Path
 from edge_depth.calibration.atomic import atomic_write
 
 STAGE_KEYS = ("mode", "steps", "batch", "crop", "iters", "patterns", "lr", "seed", "data",
-              "refine", "no_half_res_block", "split", "stereo_only_share", "aux_offsets",
-              "freeze_trunk", "fresh_lr_mult", "edge_weight")
-TRAINING_ONLY = ("aux_offsets.",)  # heads that only shape training: not shipped
+              "refine", "no_half_res_block", "split", "stereo_only_share", "freeze_trunk",
+              "fresh_lr_mult", "edge_weight")
 
 
 def stage_from_args(args: dict, note: str) -> dict:
@@ -44,9 +42,7 @@ def ship(checkpoint: Path, previous: Path | None, note: str, out: Path) -> dict:
     stages.append(stage)
     training = dict(mode=stage.get("mode", "supervised"), stages=stages,
                     total_steps=int(sum(s.get("steps", 0) for s in stages)))
-    weights = {k: v for k, v in ckpt["model"].items() if not k.startswith(TRAINING_ONLY)}
-    config = {**ckpt["config"], "aux_offsets": False}
-    shipped = dict(model=weights, config=config, step=int(ckpt.get("step", 0)),
+    shipped = dict(model=ckpt["model"], config=ckpt["config"], step=int(ckpt.get("step", 0)),
                    training=training)
     with atomic_write(out) as tmp:
         torch.save(shipped, tmp)

@@ -39,20 +39,14 @@ from edge_depth.model.data import (
 from edge_depth.model.device import on_cpu, to_device
 from edge_depth.model.losses import (
     CONFIDENCE_WEIGHT,
-    GATE_WEIGHT,
-    OFFSET_WEIGHT,
     confidence_loss,
     depth_edges,
-    gate_loss,
-    offset_loss,
     self_supervised_loss,
     sequence_loss,
     split_sparse,
     view_loss,
 )
 from edge_depth.model.network import SparseStereoNet
-from edge_depth.model.quarter import SAMPLE as QUARTER_SAMPLE
-from edge_depth.model.quarter import SCALE as QUARTER_SCALE
 from edge_depth.tools.train_args import parse_args
 from edge_depth.workers import one_thread_each
 
@@ -137,18 +131,12 @@ def plot_metrics(csv_path: Path, png_path: Path) -> None:
     plt.close(fig)
 
 
-def init_weights(init: dict, refine: int, net) -> dict:
-    """The --init checkpoint's weights in the form `net` loads: a version 3 scorer widened
-    for the versions that extend it (each starts as exactly the one it extends), another
-    version's refinement dropped (its tensors do not fit: it starts fresh)."""
+def init_weights(init: dict, refine: int) -> dict:
+    """The --init checkpoint's weights in the form the net loads: without its confidence
+    head when the run asks for one the checkpoint lacks (it starts fresh)."""
     weights = init["model"]
     before = ModelConfig.from_dict(init["config"]).refine
-    extends = {5: (3,), 6: (3, 5), 7: (3, 5), 8: (3, 5)}.get(refine, ())
-    if before in extends:
-        from edge_depth.model.refine import widen_from_version3
-
-        return widen_from_version3(weights, net.refine)
-    if refine and before != refine and (before, refine) != (8, 9):  # 9 extends 8 as it is
+    if refine and before != refine:
         return {k: v for k, v in weights.items() if not k.startswith("refine.")}
     return weights
 
@@ -186,8 +174,7 @@ def _train(argv: list[str] | None) -> int:
     config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
                          use_sparse=not args.no_sparse,
                          half_res_block=not args.no_half_res_block, refine=args.refine,
-                         aux_offsets=args.aux_offsets,
-                         refine_scale=args.refine_scale or 4, **args.dims)
+                         **args.dims)
     init = None
     if args.init is not None:
         # the architecture is the checkpoint's, except what the flags change
@@ -197,10 +184,6 @@ def _train(argv: list[str] | None) -> int:
             changes["half_res_block"] = False
         if args.refine:
             changes["refine"] = args.refine
-        if args.aux_offsets:
-            changes["aux_offsets"] = True
-        if args.refine_scale:
-            changes["refine_scale"] = args.refine_scale
         config = ModelConfig.from_dict({**init["config"], **changes})
     device = args.device
     if device.type == "cuda" and device.index is None:
@@ -209,8 +192,8 @@ def _train(argv: list[str] | None) -> int:
     if device.type == "cuda":
         torch.cuda.set_device(device)
     net = SparseStereoNet(config).to(device)
-    heads = ("refine.", "aux_offsets.")  # the stages that may start fresh, at their own LR
-    weights = init_weights(init, args.refine, net) if init is not None else None
+    heads = ("refine.",)  # the confidence head: may start fresh, at its own LR
+    weights = init_weights(init, args.refine) if init is not None else None
     # the tensors the checkpoint lacks start fresh; kept apart in the optimizer (even on
     # --resume) so that --fresh-lr-mult can move them faster than the weights carried over
     fresh = {n for n, _ in net.named_parameters()
@@ -241,7 +224,7 @@ def _train(argv: list[str] | None) -> int:
     elif init is not None:
         result = net.load_state_dict(weights, strict=False)
         new = [k for k in result.missing_keys if k.startswith(heads)]
-        if new and (args.refine or args.aux_offsets):  # a stage the checkpoint lacks: fresh
+        if new and args.refine:  # a head the checkpoint lacks: fresh
             print(f"--init {args.init}: {len(new)} tensors of the refinement stages start "
                   f"fresh ({', '.join(sorted(new)[:4])}{', ...' if len(new) > 4 else ''})")
             result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
@@ -302,9 +285,8 @@ def _train(argv: list[str] | None) -> int:
     while step < args.steps:
         batch = to_device(next(loader), device)
         if args.mode == "supervised":
-            aux: dict = {}
             preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
-                               args.iters, with_confidence=True, aux=aux)
+                               args.iters, with_confidence=True)
             has_gt = (batch["gt"] > 0).float()
             weight = (1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
                       if args.edge_weight else None)  # the plain mean: no edge map to make
@@ -314,15 +296,6 @@ def _train(argv: list[str] | None) -> int:
                 conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
                 loss = loss + CONFIDENCE_WEIGHT * conf
                 terms = dict(confidence=float(conf.detach()))
-            if "offsets" in aux:  # the 1/4 stage's matching, supervised directly
-                off = offset_loss(aux["offsets"], aux["centre"], batch["gt"], has_gt,
-                                  QUARTER_SCALE, QUARTER_SAMPLE)
-                loss = loss + OFFSET_WEIGHT * off
-                terms["offsets"] = float(off.detach())
-            if "gate" in aux:  # and its choice between the convex and the 1/4 estimate
-                gate = gate_loss(aux["gate"], aux["convex"], aux["quarter"], batch["gt"], has_gt)
-                loss = loss + GATE_WEIGHT * gate
-                terms["gate"] = float(gate.detach())
         else:
             loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)

@@ -40,30 +40,22 @@ def parse_args(argv, description: str = "") -> argparse.Namespace:
     p.add_argument("--no-sparse", action="store_true")
     p.add_argument("--no-half-res-block", action="store_true",
                    help="drop the backbone's 1/2-resolution residual block (faster encoder)")
-    p.add_argument("--refine", type=int, nargs="?", const=2, default=0,
-                   choices=range(11), metavar="{0-10}",
-                   help="the refinement + confidence stage, versions 1-10 as in "
-                        "edge.model.config.ModelConfig (a bare --refine: 2); a version that "
-                        "extends the --init checkpoint's starts as exactly that one")
+    p.add_argument("--refine", type=int, nargs="?", const=10, default=0, choices=(0, 10),
+                   help="10: the confidence head (edge.model.refine; a bare --refine: 10), "
+                        "0: none")
     p.add_argument("--dims", type=parse_dims, default={}, metavar="NAME=N,...",
                    help="from scratch: the network's widths (feature, context, hidden, motion, "
                         "head; ModelConfig's *_dim), e.g. stage 17's "
                         "feature=48,context=32,hidden=48,motion=48,head=32 (default: "
                         "ModelConfig's 64 / 48 / 64 / 64 / 64)")
-    p.add_argument("--aux-offsets", action="store_true",
-                   help="train the 1/4 stage's matching as an auxiliary loss on the backbone "
-                        "(training only: not exported; any refine but 4)")
-    p.add_argument("--refine-scale", type=int, choices=(2, 4), default=None,
-                   help="versions 3 and 5-9: score the candidates at 1/2 or 1/4 (default: "
-                        "the --init checkpoint's, else 1/4); the weights carry over either way")
     p.add_argument("--refine-lr-mult", type=float, default=1.0,
-                   help="the refinement stage's learning rate as a multiple of --lr")
+                   help="the confidence head's learning rate as a multiple of --lr")
     p.add_argument("--fresh-lr-mult", type=float, default=1.0,
                    help="with --init: the learning rate of the tensors the checkpoint lacks "
                         "(a new stage's, which start at or near zero) as a multiple of the "
-                        "refinement stage's")
+                        "confidence head's")
     p.add_argument("--freeze-trunk", action="store_true",
-                   help="with --init: train only the refinement stages; the encoders and the "
+                   help="with --init: train only the confidence head; the encoders and the "
                         "update block keep the checkpoint's weights and run as deployed "
                         "(batch norm on its running statistics)")
     p.add_argument("--patterns", default="beams16")
@@ -100,8 +92,8 @@ def parse_args(argv, description: str = "") -> argparse.Namespace:
                 "checkpoint's (experiments/prune.py cuts them)")
     if args.fresh_lr_mult != 1.0 and args.init is None:
         p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
-    if args.freeze_trunk and not (args.refine or args.aux_offsets):
-        p.error("--freeze-trunk trains the refinement stages only: give --refine N")
+    if args.freeze_trunk and not args.refine:
+        p.error("--freeze-trunk trains the confidence head only: give --refine 10")
     for name in ("stereo_only_share", "rig_stereo_only_share", "asymmetric_share"):
         share, flag = getattr(args, name), "--" + name.replace("_", "-")
         if share is None:  # not given: the things stream's default

@@ -131,51 +131,6 @@ def confidence_loss(logit: torch.Tensor, disparity: torch.Tensor, gt: torch.Tens
     return _masked_mean(bce, valid)
 
 
-OFFSET_WEIGHT = 1.0
-
-
-def offset_loss(logits: torch.Tensor, centre: torch.Tensor, gt: torch.Tensor,
-                valid: torch.Tensor, scale: int, sample: int) -> torch.Tensor:
-    """Cross-entropy of the 1/4 stage's offset logits (B, 2r + 1, h, w) against the GT's
-    offset from `centre` (B, 1, h, w), 1/scale px: the GT (B, 1, H, W) px read at the pixel
-    the stage reads its estimate at. The target is two-hot — the offset's two neighbouring
-    integers, weighted so that their mean is the offset itself — so the distribution's
-    expected value learns the sub-pixel offset. (A one-hot target at the rounded offset, the
-    first form, taught a distribution whose mean moved in steps of one 1/4 pixel, 4 px at
-    full resolution: the 1/4 estimate was then worse than the convex one almost everywhere.)
-    Pixels without GT or whose GT lies beyond ±r are left out."""
-    k = logits.shape[1]
-    radius = (k - 1) // 2
-    offset = gt[..., sample::scale, sample::scale] / scale - centre
-    use = (valid[..., sample::scale, sample::scale] > 0) & (offset.abs() <= radius)
-    offset = offset.clamp(-radius, radius)
-    below = torch.floor(offset).clamp(max=radius - 1)
-    above_share = offset - below  # 0..1: the weight of the integer above
-    index = (below + radius).long()
-    log_p = F.log_softmax(logits, 1)
-    ce = -((1 - above_share) * log_p.gather(1, index) + above_share * log_p.gather(1, index + 1))
-    return _masked_mean(ce, use.to(logits.dtype))
-
-
-GATE_WEIGHT = 1.0
-GATE_CAP = 4.0  # px: beyond this the choice matters no more to the weight
-
-
-def gate_loss(logit: torch.Tensor, convex: torch.Tensor, quarter: torch.Tensor,
-              gt: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
-    """Binary cross-entropy of the 1/4 stage's gate logits (B, 1, H, W) against "the 1/4
-    estimate is closer to the GT than the convex one", each pixel weighted by how much the
-    choice matters there (the two errors' difference, capped at GATE_CAP px), averaged over
-    the pixels with GT. Both estimates are detached: the gate learns to choose, its own
-    target, a signal that does not cancel across an edge as the disparity's L1 does."""
-    convex_error = (convex.detach() - gt).abs()
-    quarter_error = (quarter.detach() - gt).abs()
-    target = (quarter_error < convex_error).to(logit.dtype)
-    weight = (convex_error - quarter_error).abs().clamp(max=GATE_CAP) * valid
-    bce = F.binary_cross_entropy_with_logits(logit, target, reduction="none")
-    return (bce * weight).sum() / valid.sum().clamp(min=1.0)
-
-
 def split_sparse(valid: torch.Tensor, strategy: str, generator: torch.Generator | None = None
                  ) -> tuple[torch.Tensor, torch.Tensor]:
     """(input mask, supervision mask) for the split strategies: "all" (every point in, every

@@ -14,7 +14,6 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from edge_depth.errors import ConfigError
 from edge_depth.model.config import ModelConfig
 from edge_depth.model.corr import (
     correlation_pyramid,
@@ -24,13 +23,7 @@ from edge_depth.model.corr import (
 )
 from edge_depth.model.cspn import cspn, normalise_affinity, patches_3x3
 from edge_depth.model.extractor import Encoders
-from edge_depth.model.quarter import QuarterStage
-from edge_depth.model.refine import (
-    GUIDED_VERSIONS,
-    ConvexConfidence,
-    GuidedSelection,
-    Refinement,
-)
+from edge_depth.model.refine import ConvexConfidence
 from edge_depth.model.update import UpdateBlock
 
 
@@ -75,31 +68,14 @@ class SparseStereoNet(nn.Module):
         corr_channels = cfg.corr_levels * (2 * cfg.corr_radius + 1)
         self.update = UpdateBlock(cfg.hidden_dim, cfg.context_dim, corr_channels,
                                   cfg.downsample, cfg.gru_levels, cfg.motion_dim, cfg.head_dim)
-        self.refine: Any = None  # the refinement stage of `cfg.refine`'s version
-        if cfg.refine == 4:
-            if cfg.downsample != 8:
-                raise ConfigError("refine", "4 only with downsample 8", cfg.refine)
-            self.refine = QuarterStage(cfg.widths[1])
-        elif cfg.refine in GUIDED_VERSIONS:
-            self.refine = GuidedSelection(cfg.downsample,
-                                          quarter=cfg.widths[1] if cfg.refine >= 5 else 0,
-                                          context=16 if cfg.refine == 6 else 0,
-                                          pixel=8 if cfg.refine in (7, 8, 9) else 0,
-                                          query=cfg.refine in (8, 9),
-                                          wide_pixel=8 if cfg.refine == 9 else 0,
-                                          scale=cfg.refine_scale)
-        elif cfg.refine == 10:
-            self.refine = ConvexConfidence(cfg.hidden_dim)
-        elif cfg.refine:
-            self.refine = Refinement(cfg.refine)
-        # training only: the 1/4 stage's matching as an auxiliary loss on the backbone
-        self.aux_offsets: Any = QuarterStage(cfg.widths[1]) if cfg.aux_offsets else None
+        # the confidence head (`refine` 10), for the engine's selections and matching
+        self.refine = ConvexConfidence(cfg.hidden_dim) if cfg.refine == 10 else None
 
     def encode(self, left: torch.Tensor, right: torch.Tensor, sparse: torch.Tensor,
                valid: torch.Tensor) -> dict[str, Any]:
         """Images (B, 1, H, W) grey 0-255; sparse (B, 1, H, W) px, valid (B, 1, H, W) 0/1."""
         cfg = self.config
-        f_l, f_r, hidden, context, affinity, quarter = self.encoders(left, right)
+        f_l, f_r, hidden, context, affinity, _ = self.encoders(left, right)
         corr = flatten_pyramid(correlation_pyramid(correlation_volume(f_l, f_r),
                                                    cfg.corr_levels))
         weights, centre = normalise_affinity(affinity)
@@ -110,13 +86,6 @@ class SparseStereoNet(nn.Module):
         state = dict(corr=corr, hidden=hidden, hidden_low=hidden_low, context=context,
                      weights=weights, centre=centre, sparse=sparse_low, valid=valid_low,
                      disparity=disparity)
-        if cfg.refine == 4:
-            state["quarter_left"], state["quarter_right"] = \
-                self.refine.head(quarter).chunk(2, 0)
-        elif cfg.refine >= 5:  # the guided selection also matches on the backbone's 1/4
-            state["quarter_left"], state["quarter_right"] = quarter.chunk(2, 0)
-        if self.aux_offsets is not None and self.training:
-            state["aux_left"], state["aux_right"] = self.aux_offsets.head(quarter).chunk(2, 0)
         return state
 
     def _propagate(self, d, weights, centre, sparse, valid):
@@ -141,50 +110,24 @@ class SparseStereoNet(nn.Module):
                                     state["sparse"], state["valid"])
         return disparity, hidden, hidden_low, mask
 
-    def quarter_features(self, state: dict) -> tuple[torch.Tensor, torch.Tensor] | None:
-        """The encoder's 1/4 features (left, right) for `upsample`; None but for versions 4
-        (its own head's), 5 to 8 (the backbone's)."""
-        if self.config.refine < 4:
-            return None
-        return state["quarter_left"], state["quarter_right"]
-
-    def upsample(self, left, right, disparity, mask, sparse=None, valid=None,
-                 quarter: tuple[torch.Tensor, torch.Tensor] | None = None,
-                 aux: dict | None = None, hidden: torch.Tensor | None = None):
-        """Convex upsampling, then (if configured) the refinement: full-resolution disparity
-        (B, 1, H, W) px and confidence logits (None without the refinement). `sparse` and
-        `valid` (full resolution) reach the refinement only if the model uses the LiDAR;
-        `quarter` is the encoder's (quarter_left, quarter_right), for version 4, which also
-        puts what its losses need into `aux` if given (`offset_loss`, `gate_loss`); `hidden`
-        is the last step's state, for version 10's confidence head."""
-        if not self.config.use_sparse:
-            sparse = valid = None
-        if self.config.refine == 4:  # gated towards an estimate found by matching at 1/4
-            full = convex_upsample(disparity, mask, self.config.downsample)
-            assert quarter is not None, "version 4 matches on the encoder's 1/4 features"
-            refined, logit, extras = self.refine(*quarter, full, sparse, valid, left)
-            if aux is not None:
-                aux.update(extras, convex=full)
-            logit = F.interpolate(logit, size=full.shape[-2:], mode="bilinear",
-                                  align_corners=False)
-            return refined, logit
-        if self.config.refine in GUIDED_VERSIONS:  # chooses among the convex candidates
-            return self.refine(left, right, disparity, mask, sparse, valid, quarter)
-        if self.config.refine == 10:  # the confidence only, upsampled as the disparity is
-            return convex_upsample(disparity, mask, self.config.downsample,
-                                   self.refine(hidden, disparity))
-        full = convex_upsample(disparity, mask, self.config.downsample)
+    def upsample(self, disparity: torch.Tensor, mask: torch.Tensor,
+                 hidden: torch.Tensor | None = None
+                 ) -> tuple[torch.Tensor, torch.Tensor | None]:
+        """Convex upsampling to full resolution: (disparity (B, 1, H, W) px, confidence logits
+        or None without the head). The head reads the last step's `hidden` and its logit is
+        upsampled by the same convex weights as the disparity."""
+        factor = self.config.downsample
         if self.refine is None:
-            return full, None
-        return self.refine(left, right, full, sparse, valid)
+            return convex_upsample(disparity, mask, factor), None
+        assert hidden is not None, "the confidence head reads the last step's hidden state"
+        return convex_upsample(disparity, mask, factor, self.refine(hidden, disparity))
 
     def forward(self, left, right, sparse, valid, iters: int | None = None,
-                with_confidence: bool = False, aux: dict | None = None):
+                with_confidence: bool = False):
         """Full-resolution disparity (B, 1, H, W) px after each of `iters` GRU steps; with
         `with_confidence`, also the confidence logits of the last one (None without the
-        refinement stage). Only the last step goes through the refinement (as the engine
-        runs it, once, after its last step); the earlier ones are convex-upsampled only,
-        which keeps training ~35 % cheaper at 6 steps."""
+        head). Only the last step's are computed, as the engine runs it once, after its last
+        step."""
         iters = self.config.gru_iters if iters is None else iters
         state = self.encode(left, right, sparse, valid)
         d, h, hl = state["disparity"], state["hidden"], state["hidden_low"]
@@ -194,12 +137,6 @@ class SparseStereoNet(nn.Module):
             if i < iters - 1:
                 outputs.append(convex_upsample(d, mask, self.config.downsample))
             else:
-                full, logit = self.upsample(left, right, d, mask, sparse, valid,
-                                            self.quarter_features(state), aux, h)
+                full, logit = self.upsample(d, mask, h)
                 outputs.append(full)
-                if aux is not None and "aux_left" in state:  # the auxiliary matching's loss
-                    convex = convex_upsample(d, mask, self.config.downsample).detach()
-                    extras = self.aux_offsets(state["aux_left"], state["aux_right"], convex,
-                                              sparse, valid, left)[2]
-                    aux.update(offsets=extras["offsets"], centre=extras["centre"])
         return (outputs, logit) if with_confidence else outputs
