@@ -161,6 +161,152 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_flush_denormal(False)
 
 
+LOG_FIELDS = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "epe",
+              "val_epe", "val_bad3", "lr_now", "seconds"]
+HEADS = ("refine.",)  # the confidence head: may start fresh, at its own learning rate
+
+
+def model_config(args, init: dict | None) -> ModelConfig:
+    """The flags' architecture, or with --init the checkpoint's except what the flags change."""
+    if init is None:
+        return ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
+                           use_sparse=not args.no_sparse,
+                           half_res_block=not args.no_half_res_block, refine=args.refine,
+                           **args.dims)
+    changes = {"gru_iters": args.iters}
+    if args.no_half_res_block:
+        changes["half_res_block"] = False
+    if args.refine:
+        changes["refine"] = args.refine
+    return ModelConfig.from_dict({**init["config"], **changes})
+
+
+def training_device(args) -> torch.device:
+    device = args.device
+    if device.type == "cuda" and device.index is None:
+        # under torchrun each process takes its own GPU (one process per GPU)
+        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
+    if device.type == "cuda":
+        torch.cuda.set_device(device)
+    return device
+
+
+def optimizer(net, args, weights: dict | None):
+    """AdamW over three groups — the trunk, the head carried over, the head's tensors the
+    checkpoint lacks (kept apart even on --resume so --fresh-lr-mult can move them faster) —
+    and its one-cycle schedule."""
+    fresh = {n for n, _ in net.named_parameters()
+             if weights is not None and n.startswith(HEADS) and n not in weights}
+    if args.freeze_trunk:
+        for n, p in net.named_parameters():
+            p.requires_grad_(n.startswith(HEADS))
+    named = list(net.named_parameters())
+    groups = [([p for n, p in named if not n.startswith(HEADS)], args.lr),
+              ([p for n, p in named if n.startswith(HEADS) and n not in fresh],
+               args.lr * args.refine_lr_mult),
+              ([p for n, p in named if n in fresh],
+               args.lr * args.refine_lr_mult * args.fresh_lr_mult)]
+    groups = [(ps, lr) for ps, lr in groups if ps and ps[0].requires_grad]
+    opt = torch.optim.AdamW([dict(params=ps) for ps, _ in groups], lr=args.lr,
+                            weight_decay=1e-5)
+    sched = torch.optim.lr_scheduler.OneCycleLR(opt, [lr for _, lr in groups],
+                                                total_steps=args.steps + 100,
+                                                pct_start=0.05, anneal_strategy="linear")
+    return opt, sched
+
+
+def load_start(net, opt, sched, args, weights: dict | None) -> int:
+    """The step to start from: --resume's last.pt (weights, optimizer, schedule), else the
+    --init weights (a head the checkpoint lacks starts fresh, said so), else 0."""
+    last = args.out / "last.pt"
+    if args.resume and last.exists():
+        ckpt = torch.load(last, weights_only=False, map_location="cpu")
+        net.load_state_dict(ckpt["model"])
+        opt.load_state_dict(ckpt["optimizer"])
+        sched.load_state_dict(ckpt["scheduler"])
+        print(f"resumed from {last} at step {ckpt['step']}")
+        return int(ckpt["step"])
+    if weights is None:
+        return 0
+    result = net.load_state_dict(weights, strict=False)
+    new = [k for k in result.missing_keys if k.startswith(HEADS)]
+    if new and args.refine:  # a head the checkpoint lacks: fresh
+        print(f"--init {args.init}: {len(new)} tensors of the refinement stages start "
+              f"fresh ({', '.join(sorted(new)[:4])}{', ...' if len(new) > 4 else ''})")
+        result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
+    if result.missing_keys:
+        raise SystemExit(f"--init {args.init}: the model needs weights the checkpoint "
+                         f"lacks: {result.missing_keys[:5]}")
+    print(f"initialised from {args.init}"
+          + (f" (dropped {len(result.unexpected_keys)} tensors the model no longer has)"
+             if result.unexpected_keys else ""))
+    return 0
+
+
+def training_data(args, crop: tuple[int, int], step: int, rank: int, world: int):
+    """The --data stream (things world, recordings, or the rig), seeded per rank and step."""
+    if args.data is not None and args.data.startswith("things:"):
+        from edge_depth.model.things_data import ThingsTrainSet
+
+        return ThingsTrainSet(args.data[len("things:"):], crop,
+                              seed=(args.seed * 1000 + step) * world + rank,
+                              stereo_only_share=args.stereo_only_share,
+                              rig_stereo_only_share=args.rig_stereo_only_share or 0.0,
+                              **({} if args.asymmetric_share is None
+                                 else dict(asymmetric_share=args.asymmetric_share)))
+    if args.data is None:
+        return SyntheticTrainSet(seed=(args.seed * 1000 + step) * world + rank, crop=crop,
+                                 patterns=tuple(args.patterns.split(",")))
+    return RecordedTrainSet(args.data, crop, seed=args.seed * 1000 + step, shard=rank,
+                            shards=world)
+
+
+def open_log(path: Path, step: int, main_rank: bool):
+    """metrics.csv (appended in its own columns when a run resumes) and its writer."""
+    fields = list(LOG_FIELDS)
+    new_log = not path.exists() or step == 0
+    if not new_log and main_rank:  # resumed: append in the columns the file already has
+        with open(path, newline="") as f:
+            fields = next(csv.reader(f), None) or fields
+    log = open(path if main_rank else os.devnull, "w" if new_log else "a", newline="")  # noqa: SIM115
+    writer = csv.DictWriter(log, fieldnames=fields, extrasaction="ignore")
+    if new_log:
+        writer.writeheader()
+    return log, writer
+
+
+def batch_loss(net, batch: dict, args):
+    """(loss, its logged terms, the final disparity) of one batch, supervised or not."""
+    if args.mode != "supervised":
+        return self_supervised_step(net, batch, args.split, args.iters)
+    preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
+                       args.iters, with_confidence=True)
+    has_gt = (batch["gt"] > 0).float()
+    weight = (1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
+              if args.edge_weight else None)  # the plain mean: no edge map to make
+    loss = sequence_loss(preds, batch["gt"], has_gt, weight=weight)
+    terms, final = {}, preds[-1]
+    if logit is not None:
+        conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
+        loss = loss + CONFIDENCE_WEIGHT * conf
+        terms = dict(confidence=float(conf.detach()))
+    return loss, terms, final
+
+
+def finish_distributed(model, args, main_rank: bool, world: int) -> None:
+    """Every rank's weights checksummed (they must be identical), then the group closed."""
+    sums = [None] * world
+    torch.distributed.all_gather_object(sums, weights_checksum(model))
+    if main_rank:
+        (args.out / "replicas.json").write_text(json.dumps(sums))
+        print(f"replica weight checksums: {sums} "
+              f"({'identical' if len(set(sums)) == 1 else 'DIFFERENT'})")
+    # every rank leaves the group together: a rank tearing it down while another still
+    # wrote its files aborted at exit now and then under load (docs/experiments.md)
+    torch.distributed.barrier()
+    torch.distributed.destroy_process_group()
+
+
 def _train(argv: list[str] | None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from tqdm import tqdm
@@ -171,102 +317,24 @@ def _train(argv: list[str] | None) -> int:
     if args.threads:
         torch.set_num_threads(args.threads)
     cw, ch = (int(v) for v in args.crop.split("x"))
-    config = ModelConfig(gru_iters=args.iters, use_cspn=not args.no_cspn,
-                         use_sparse=not args.no_sparse,
-                         half_res_block=not args.no_half_res_block, refine=args.refine,
-                         **args.dims)
-    init = None
-    if args.init is not None:
-        # the architecture is the checkpoint's, except what the flags change
-        init = torch.load(args.init, weights_only=False, map_location="cpu")
-        changes = {"gru_iters": args.iters}
-        if args.no_half_res_block:
-            changes["half_res_block"] = False
-        if args.refine:
-            changes["refine"] = args.refine
-        config = ModelConfig.from_dict({**init["config"], **changes})
-    device = args.device
-    if device.type == "cuda" and device.index is None:
-        # under torchrun each process takes its own GPU (one process per GPU)
-        device = torch.device("cuda", int(os.environ.get("LOCAL_RANK", "0")))
-    if device.type == "cuda":
-        torch.cuda.set_device(device)
+    init = None if args.init is None else \
+        torch.load(args.init, weights_only=False, map_location="cpu")
+    config = model_config(args, init)
+    device = training_device(args)
     net = SparseStereoNet(config).to(device)
-    heads = ("refine.",)  # the confidence head: may start fresh, at its own LR
     weights = init_weights(init, args.refine) if init is not None else None
-    # the tensors the checkpoint lacks start fresh; kept apart in the optimizer (even on
-    # --resume) so that --fresh-lr-mult can move them faster than the weights carried over
-    fresh = {n for n, _ in net.named_parameters()
-             if weights is not None and n.startswith(heads) and n not in weights}
-    if args.freeze_trunk:
-        for n, p in net.named_parameters():
-            p.requires_grad_(n.startswith(heads))
-    groups = [([p for n, p in net.named_parameters() if not n.startswith(heads)], args.lr),
-              ([p for n, p in net.named_parameters() if n.startswith(heads) and n not in fresh],
-               args.lr * args.refine_lr_mult),
-              ([p for n, p in net.named_parameters() if n in fresh],
-               args.lr * args.refine_lr_mult * args.fresh_lr_mult)]
-    groups = [(ps, lr) for ps, lr in groups if ps and ps[0].requires_grad]
-    opt = torch.optim.AdamW([dict(params=ps) for ps, _ in groups], lr=args.lr,
-                            weight_decay=1e-5)
-    sched = torch.optim.lr_scheduler.OneCycleLR(opt, [lr for _, lr in groups],
-                                                total_steps=args.steps + 100,
-                                                pct_start=0.05, anneal_strategy="linear")
-    step = 0
-    last = args.out / "last.pt"
-    if args.resume and last.exists():
-        ckpt = torch.load(last, weights_only=False, map_location="cpu")
-        net.load_state_dict(ckpt["model"])
-        opt.load_state_dict(ckpt["optimizer"])
-        sched.load_state_dict(ckpt["scheduler"])
-        step = ckpt["step"]
-        print(f"resumed from {last} at step {step}")
-    elif init is not None:
-        result = net.load_state_dict(weights, strict=False)
-        new = [k for k in result.missing_keys if k.startswith(heads)]
-        if new and args.refine:  # a head the checkpoint lacks: fresh
-            print(f"--init {args.init}: {len(new)} tensors of the refinement stages start "
-                  f"fresh ({', '.join(sorted(new)[:4])}{', ...' if len(new) > 4 else ''})")
-            result.missing_keys[:] = [k for k in result.missing_keys if k not in new]
-        if result.missing_keys:
-            raise SystemExit(f"--init {args.init}: the model needs weights the checkpoint "
-                             f"lacks: {result.missing_keys[:5]}")
-        print(f"initialised from {args.init}"
-              + (f" (dropped {len(result.unexpected_keys)} tensors the model no longer has)"
-                 if result.unexpected_keys else ""))
+    opt, sched = optimizer(net, args, weights)
+    step = load_start(net, opt, sched, args, weights)
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(
             net, device_ids=[device.index] if device.type == "cuda" else None)
     model = net.module if world > 1 else net
-    if args.data is not None and args.data.startswith("things:"):
-        from edge_depth.model.things_data import ThingsTrainSet
-
-        data = ThingsTrainSet(args.data[len("things:"):], (cw, ch),
-                              seed=(args.seed * 1000 + step) * world + rank,
-                              stereo_only_share=args.stereo_only_share,
-                              rig_stereo_only_share=args.rig_stereo_only_share or 0.0,
-                              **({} if args.asymmetric_share is None
-                                 else dict(asymmetric_share=args.asymmetric_share)))
-    elif args.data is None:
-        data = SyntheticTrainSet(seed=(args.seed * 1000 + step) * world + rank, crop=(cw, ch),
-                                 patterns=tuple(args.patterns.split(",")))
-    else:
-        data = RecordedTrainSet(args.data, (cw, ch), seed=args.seed * 1000 + step,
-                                shard=rank, shards=world)
     with one_thread_each():  # the workers start here, each with one BLAS / OpenCV thread
-        loader = iter(DataLoader(data, batch_size=args.batch, num_workers=args.workers,
+        loader = iter(DataLoader(training_data(args, (cw, ch), step, rank, world),
+                                 batch_size=args.batch, num_workers=args.workers,
                                  pin_memory=device.type == "cuda"))
     log_path = args.out / "metrics.csv"
-    fields = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "offsets",
-              "gate", "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
-    new_log = not log_path.exists() or step == 0
-    if not new_log and main_rank:  # resumed: append in the columns the file already has
-        with open(log_path, newline="") as f:
-            fields = next(csv.reader(f), None) or fields
-    log = open(log_path if main_rank else os.devnull, "w" if new_log else "a", newline="")
-    writer = csv.DictWriter(log, fieldnames=fields, extrasaction="ignore")
-    if new_log:
-        writer.writeheader()
+    log, writer = open_log(log_path, step, main_rank)
 
     def save(path: Path) -> None:
         if not main_rank:
@@ -284,20 +352,7 @@ def _train(argv: list[str] | None) -> int:
     start = time.time()
     while step < args.steps:
         batch = to_device(next(loader), device)
-        if args.mode == "supervised":
-            preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
-                               args.iters, with_confidence=True)
-            has_gt = (batch["gt"] > 0).float()
-            weight = (1 + args.edge_weight * depth_edges(batch["gt"], has_gt)
-                      if args.edge_weight else None)  # the plain mean: no edge map to make
-            loss = sequence_loss(preds, batch["gt"], has_gt, weight=weight)
-            terms, final = {}, preds[-1]
-            if logit is not None:
-                conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
-                loss = loss + CONFIDENCE_WEIGHT * conf
-                terms = dict(confidence=float(conf.detach()))
-        else:
-            loss, terms, final = self_supervised_step(net, batch, args.split, args.iters)
+        loss, terms, final = batch_loss(net, batch, args)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)
         if world > 1:  # every rank skips, or none: a lone skip would hang the all-reduce
             torch.distributed.all_reduce(bad)
@@ -324,21 +379,12 @@ def _train(argv: list[str] | None) -> int:
         bar.set_postfix(loss=f"{float(loss.detach()):.3f}", epe=f"{epe:.2f}",
                         **{k: f"{v:.3f}" for k, v in terms.items()})
         if step % args.ckpt_every == 0 or step == args.steps:
-            save(last)
+            save(args.out / "last.pt")
     bar.close()
     log.close()
     save(args.out / "final.pt")
     if world > 1:
-        sums = [None] * world
-        torch.distributed.all_gather_object(sums, weights_checksum(model))
-        if main_rank:
-            (args.out / "replicas.json").write_text(json.dumps(sums))
-            print(f"replica weight checksums: {sums} "
-                  f"({'identical' if len(set(sums)) == 1 else 'DIFFERENT'})")
-        # every rank leaves the group together: a rank tearing it down while another still
-        # wrote its files aborted at exit now and then under load (docs/experiments.md)
-        torch.distributed.barrier()
-        torch.distributed.destroy_process_group()
+        finish_distributed(model, args, main_rank, world)
     if main_rank:
         plot_metrics(log_path, args.out / "loss.png")
         print(f"done: {step} steps, checkpoint {args.out / 'final.pt'}")
