@@ -30,6 +30,7 @@ import argparse
 import json
 import tempfile
 import time
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -175,6 +176,131 @@ def evaluate(engine: Engine, folders: list[Path], iters: int) -> dict[str, float
     return out
 
 
+@dataclass
+class GraphChoices:
+    """One bundle's quantization: each graph tried in int8 against fp32 (its agreement on ONNX
+    Runtime and on the runtime that will time it, its speed on that runtime), then the
+    choices capped together. `over` says how far past its limits a shift is (> 1: over)."""
+
+    bundle: Path
+    meta: dict
+    frames: list
+    iters: int
+    threads: int
+    timing: str
+    max_graph_px: float
+    max_total_px: float
+    max_confidence: float
+    min_gain: float
+    node_search: bool
+    record: dict = field(default_factory=dict)
+    graphs: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.files = dict(self.meta["precisions"]["fp32"])
+        self.fp32 = network_engine(self.bundle, "fp32", self.threads, self.meta,
+                                   runtime=RUNTIME)
+        # speed is measured on the runtime the engine will use (`auto`: OpenVINO on x86-64),
+        # agreement on ONNX Runtime's; where they are the same, the same engines
+        self.fp32_timed = self.fp32 if self.timing == RUNTIME else network_engine(
+            self.bundle, "fp32", self.threads, self.meta, runtime=self.timing)
+        self.references = {RUNTIME: self.fp32, self.timing: self.fp32_timed}
+
+    def over(self, shift: dict[str, float], px_limit: float) -> float:
+        return max(shift["px"] / max(px_limit, 1e-9),
+                   shift["confidence"] / max(self.max_confidence, 1e-9))
+
+    def engine(self, meta: dict, runtime: str = RUNTIME) -> Engine:
+        return network_engine(self.bundle, "int8", self.threads, meta, runtime=runtime)
+
+    def calibrate(self) -> None:
+        """Each graph's inputs on the calibration frames (fp32)."""
+        for frame in self.frames:
+            self.fp32.infer(*frame, iters=self.iters, record=self.record)
+
+    def choose(self, part: str) -> None:
+        """`part` in int8 if it moves the disparity (and confidence) little enough on both
+        runtimes and is faster by `min_gain`; its costliest convolutions stay float where
+        that brings it under the limit."""
+        src = self.bundle / self.files[part]
+        dst = self.bundle / self.files[part].replace(".onnx", ".int8.onnx")
+        quantize_graph(src, dst, self.record[part])
+        # the trial: int8 so far plus this graph, under the name the engine runs
+        trial = dict(self.meta, precisions={"int8": dict(self.files, **{part: dst.name})})
+        shipped = agreement(self.engine(trial), self.fp32, self.frames, self.iters)
+        alone = shipped["px"]
+        timed = self.engine(trial, self.timing)
+        ms_fp32, ms_trial, ratio = paired_ms([self.fp32_timed, timed], self.frames[:4],
+                                             self.iters)
+        faster = ratio < 1.0 - self.min_gain
+        graph = self.graphs[part] = dict(
+            int8=alone <= self.max_graph_px and faster, mean_abs_px_alone=alone,
+            engine_ms_fp32=ms_fp32, engine_ms_with_this_int8=ms_trial,
+            int8_to_fp32_ratio=ratio, float_nodes=[])
+        if faster and self.node_search:
+            shipped = self.search_nodes(part, trial, alone) or shipped
+        if graph["int8"]:
+            # the graph as it will ship, checked on both runtimes: ONNX Runtime's agreement
+            # said nothing about OpenVINO's confidence (stage 12's int8 head: 0.99 everywhere)
+            graph["alone"] = {RUNTIME: shipped} | {
+                rt: agreement(self.engine(trial, rt), ref, self.frames, self.iters)
+                for rt, ref in self.references.items() if rt != RUNTIME}
+            graph["int8"] = all(self.over(a, self.max_graph_px) <= 1
+                                for a in graph["alone"].values())
+        if not graph["int8"]:
+            dst.unlink()
+
+    def search_nodes(self, part: str, trial: dict, alone: float) -> dict | None:
+        """Convolutions that cost most of the graph's agreement stay float; a graph whose
+        all-int8 shift is over the limit goes int8 if that brings it under (stage 6's step:
+        0.20 px all-int8). The agreement with them float, where some stay float."""
+        src = self.bundle / self.files[part]
+        dst = self.bundle / self.files[part].replace(".onnx", ".int8.onnx")
+        graph, shifts = self.graphs[part], {}
+        # (ALWAYS_FLOAT's are float in every trial: trying them would repeat the graph)
+        for node in [n for n in conv_nodes(src) if not n.startswith(ALWAYS_FLOAT)]:
+            quantize_graph(src, dst, self.record[part], [node])
+            shifts[node] = mean_abs_difference(self.engine(trial), self.fp32, self.frames,
+                                               self.iters)
+        keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
+        graph["shift_with_node_float"] = shifts
+        if len(keep_float) == len(shifts):  # every convolution float is no int8 graph
+            graph.update(int8=False, float_nodes=keep_float)
+            return None
+        if not keep_float:
+            quantize_graph(src, dst, self.record[part])  # all int8 again, as measured
+            return None
+        quantize_graph(src, dst, self.record[part], keep_float)
+        shipped = agreement(self.engine(trial), self.fp32, self.frames, self.iters)
+        graph.update(float_nodes=keep_float, mean_abs_px_with_float_nodes=shipped["px"],
+                     int8=shipped["px"] <= self.max_graph_px)
+        return shipped
+
+    def totals(self) -> dict[str, dict[str, float]]:
+        """The int8 precision as chosen so far, against fp32, on both runtimes."""
+        self.meta["precisions"]["int8"] = {
+            part: self.files[part].replace(".onnx", ".int8.onnx") if self.graphs[part]["int8"]
+            else self.files[part] for part in PARTS}
+        return {rt: agreement(self.engine(self.meta, rt), ref, self.frames, self.iters)
+                for rt, ref in self.references.items()}
+
+    def cap_total(self) -> dict[str, dict[str, float]]:
+        """The graphs' shifts add up: while together they move the disparity (or the
+        confidence) too much on either runtime, the one that moves it most alone goes back
+        to float (a speed test on a busy machine once passed the encoder, 0.07 px alone, and
+        the bundle lost 4 % EPE on the rig). The totals as finally chosen."""
+        total = self.totals()
+        while (max(self.over(t, self.max_total_px) for t in total.values()) > 1
+               and any(g["int8"] for g in self.graphs.values())):
+            worst = max((p for p in PARTS if self.graphs[p]["int8"]),
+                        key=lambda p: max(self.over(a, self.max_total_px)
+                                          for a in self.graphs[p]["alone"].values()))
+            self.graphs[worst].update(int8=False, float_for_the_total=True)
+            (self.bundle / self.files[worst].replace(".onnx", ".int8.onnx")).unlink()
+            total = self.totals()
+        return total
+
+
 def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, iters: int = 4,
                     eval_dir: Path | None = None, threads: int = 2,
                     node_search: bool = True, calib_label: str | None = None,
@@ -183,125 +309,48 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     """calib: a `calibration_frames` spec, or the frames themselves ((left, right, sparse)
     tuples of (H, W) arrays, e.g. a robot's recordings), then named by `calib_label`."""
     meta = load_bundle_meta(bundle)
-    fp32 = network_engine(bundle, "fp32", threads, meta, runtime=RUNTIME)
-    # speed is measured on the runtime the engine will use (`auto`: OpenVINO on x86-64),
-    # agreement on ONNX Runtime's; where they are the same, the same engines
     timing = resolve_runtime(timing_runtime)
-    fp32_timed = fp32 if timing == RUNTIME else network_engine(bundle, "fp32", threads, meta,
-                                                               runtime=timing)
-    references = {RUNTIME: fp32, timing: fp32_timed}  # int8 vs fp32 on the same runtime
-
-    def over(shift: dict[str, float], px_limit: float) -> float:
-        """How far past its limits a shift is (> 1: over one of them)."""
-        return max(shift["px"] / max(px_limit, 1e-9),
-                   shift["confidence"] / max(max_confidence, 1e-9))
-
+    run = GraphChoices(bundle, meta, [], iters, threads, timing, max_graph_px, max_total_px,
+                       max_confidence, min_gain, node_search)
     if isinstance(calib, str):
-        frames = list(calibration_frames(calib, fp32.size))
+        run.frames = list(calibration_frames(calib, run.fp32.size))
     else:
-        frames, calib = list(calib), calib_label or f"{len(calib)} frames"
-    if not frames:
+        run.frames, calib = list(calib), calib_label or f"{len(calib)} frames"
+    if not run.frames:
         raise SystemExit(f"--calib {calib}: no frames")
-    record: dict[str, list] = {}
-    for frame in frames:
-        fp32.infer(*frame, iters=iters, record=record)
-    files = dict(meta["precisions"]["fp32"])
-    graphs = {}
+    run.calibrate()
     for part in PARTS:
-        dst = bundle / files[part].replace(".onnx", ".int8.onnx")
-        quantize_graph(bundle / files[part], dst, record[part])
-        # the trial: int8 so far plus this graph, under the name the engine runs
-        trial = dict(meta, precisions={"int8": dict(files, **{part: dst.name})})
-        trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
-        shipped = agreement(trial_engine, fp32, frames, iters)  # the graph as it stands
-        alone = shipped["px"]
-        timed = trial_engine if timing == RUNTIME else network_engine(
-            bundle, "int8", threads, trial, runtime=timing)
-        ms_fp32, ms_trial, ratio = paired_ms([fp32_timed, timed], frames[:4], iters)
-        faster = ratio < 1.0 - min_gain
-        graphs[part] = dict(int8=alone <= max_graph_px and faster,
-                            mean_abs_px_alone=alone, engine_ms_fp32=ms_fp32,
-                            engine_ms_with_this_int8=ms_trial, int8_to_fp32_ratio=ratio,
-                            float_nodes=[])
-        if faster and node_search:
-            # convolutions that cost most of the graph's agreement stay float; a graph whose
-            # all-int8 shift is over the limit goes int8 if that brings it under (stage 6's
-            # step: 0.20 px all-int8)
-            src = bundle / files[part]
-            shifts = {}
-            # (ALWAYS_FLOAT's are float in every trial: trying them would repeat the graph)
-            for node in [n for n in conv_nodes(src) if not n.startswith(ALWAYS_FLOAT)]:
-                quantize_graph(src, dst, record[part], [node])
-                trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
-                shifts[node] = mean_abs_difference(trial_engine, fp32, frames, iters)
-            keep_float = [n for n, v in shifts.items() if v < 0.75 * alone]
-            graphs[part]["shift_with_node_float"] = shifts
-            if len(keep_float) == len(shifts):  # every convolution float is no int8 graph
-                graphs[part].update(int8=False, float_nodes=keep_float)  # (version 10's
-            elif keep_float:                     # upsampling has one besides its head)
-                quantize_graph(src, dst, record[part], keep_float)
-                trial_engine = network_engine(bundle, "int8", threads, trial, runtime=RUNTIME)
-                graphs[part]["float_nodes"] = keep_float
-                shipped = agreement(trial_engine, fp32, frames, iters)
-                with_float = shipped["px"]
-                graphs[part]["mean_abs_px_with_float_nodes"] = with_float
-                graphs[part]["int8"] = with_float <= max_graph_px
-            else:
-                quantize_graph(src, dst, record[part])  # all int8 again: `shipped` holds
-        if graphs[part]["int8"]:
-            # the graph as it will ship, checked on both runtimes: ONNX Runtime's agreement
-            # said nothing about OpenVINO's confidence (stage 12's int8 head: 0.99 everywhere)
-            graphs[part]["alone"] = {RUNTIME: shipped} | {
-                rt: agreement(network_engine(bundle, "int8", threads, trial, runtime=rt), ref,
-                              frames, iters) for rt, ref in references.items() if rt != RUNTIME}
-            graphs[part]["int8"] = all(over(a, max_graph_px) <= 1
-                                       for a in graphs[part]["alone"].values())
-        if not graphs[part]["int8"]:
-            dst.unlink()
-
-    def totals() -> dict[str, dict[str, float]]:
-        """The int8 precision as chosen so far, against fp32, on both runtimes."""
-        meta["precisions"]["int8"] = {
-            part: files[part].replace(".onnx", ".int8.onnx") if graphs[part]["int8"]
-            else files[part] for part in PARTS}
-        return {rt: agreement(network_engine(bundle, "int8", threads, meta, runtime=rt), ref,
-                              frames, iters) for rt, ref in references.items()}
-
-    total = totals()
-    # the graphs' shifts add up: while together they move the disparity (or the confidence)
-    # too much on either runtime, the one that moves it most alone goes back to float (a
-    # speed test on a busy machine once passed the encoder, 0.07 px alone, and the bundle
-    # lost 4 % EPE on the rig)
-    while (max(over(t, max_total_px) for t in total.values()) > 1
-           and any(g["int8"] for g in graphs.values())):
-        worst = max((p for p in PARTS if graphs[p]["int8"]),
-                    key=lambda p: max(over(a, max_total_px) for a in graphs[p]["alone"].values()))
-        graphs[worst].update(int8=False, float_for_the_total=True)
-        (bundle / files[worst].replace(".onnx", ".int8.onnx")).unlink()
-        total = totals()
-    int8 = network_engine(bundle, "int8", threads, meta, runtime=RUNTIME)
+        run.choose(part)
+    total = run.cap_total()
     meta["quantization"] = dict(
         format="QDQ", activations="QUInt8", weights="QInt8 per-channel",
         op_types=["Conv"],
         float_ops="correlation (MatMul), lookup (GatherElements), CSPN, convex upsampling "
                   "softmax: kept float (quantizing them cost agreement, gained no speed)",
-        calibration=calib, calibration_frames=len(frames), iters=iters,
-        max_graph_px=max_graph_px, max_total_px=max_total_px, graphs=graphs,
+        calibration=calib, calibration_frames=len(run.frames), iters=iters,
+        max_graph_px=max_graph_px, max_total_px=max_total_px, graphs=run.graphs,
         timing_runtime=timing, min_gain=min_gain, max_confidence=max_confidence,
         mean_abs_px_vs_fp32=total[RUNTIME]["px"], vs_fp32=total,
         cpu=cpu_description(),  # the speed half of each choice was measured on it
     )
     if eval_dir is not None:
-        folders = list_scene_folders(eval_dir)
-        if not folders:
-            raise SystemExit(f"--eval {eval_dir}: no scene folders")
-        res = {"fp32": evaluate(fp32, folders, iters), "int8": evaluate(int8, folders, iters)}
-        res["epe_change_pct"] = 100 * (res["int8"]["epe"] / res["fp32"]["epe"] - 1)
-        res["speedup"] = res["fp32"]["ms_median"] / res["int8"]["ms_median"]
-        res["data"] = str(eval_dir)
-        meta["quantization"]["eval"] = res
+        meta["quantization"]["eval"] = evaluate_precisions(
+            run.fp32, network_engine(bundle, "int8", threads, meta, runtime=RUNTIME),
+            eval_dir, iters)
     (bundle / "model.json").write_text(json.dumps(meta, indent=2))
     return meta["quantization"]
+
+
+def evaluate_precisions(fp32: Engine, int8: Engine, eval_dir: Path, iters: int) -> dict:
+    """Both precisions on the --eval scene folders: EPE, its change and the speed-up."""
+    folders = list_scene_folders(eval_dir)
+    if not folders:
+        raise SystemExit(f"--eval {eval_dir}: no scene folders")
+    res = {"fp32": evaluate(fp32, folders, iters), "int8": evaluate(int8, folders, iters)}
+    res["epe_change_pct"] = 100 * (res["int8"]["epe"] / res["fp32"]["epe"] - 1)
+    res["speedup"] = res["fp32"]["ms_median"] / res["int8"]["ms_median"]
+    res["data"] = str(eval_dir)
+    return res
 
 
 def main(argv: list[str] | None = None) -> int:
