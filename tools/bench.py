@@ -170,6 +170,60 @@ def paired_ratios(engine, sgbm, inputs: list[tuple], repeat: int) -> list[float]
     return ratios
 
 
+def distorted_rig(rig: RigConfig) -> StereoCalibration:
+    """The rig's cameras with a little lens distortion: what rectification has to undo."""
+    K = np.array([[rig.focal_px, 0, rig.cx], [0, rig.focal_px, rig.cy], [0, 0, 1]])
+    return StereoCalibration(K, [-0.08, 0.02, 0, 0, 0], K, [-0.07, 0.015, 0, 0, 0],
+                             np.eye(3), [-rig.baseline_m, 0, 0], (rig.width, rig.height))
+
+
+class StageClock:
+    """The engine's own per-stage timings of the int8 runs at the default iterations (a
+    stage with nothing to do in a frame counts 0 ms): the encoder, a step, the upsampling
+    and, where the bundle runs them, the matching (StereoBM beside the choice's preparation,
+    its wall time) and its median."""
+
+    def __init__(self, engines: dict, default_iters: int) -> None:
+        self.engines, self.default_iters = engines, default_iters
+        self.runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
+        match = engines["int8"].edge_match
+        if match is not None:
+            self.runs["edge_match"] = []
+            if match.median != "off":
+                self.runs["edge_median"] = []
+
+    def run(self, precision: str, iters: int):
+        """The timed call for `engine_{precision}_{iters}`."""
+        def fn(left, right, sparse):
+            r = self.engines[precision].infer(left, right, sparse, iters=iters)
+            if precision == "int8" and iters == self.default_iters:
+                for name in self.runs:
+                    self.runs[name].append(r.timings_ms.get(
+                        "step_mean" if name == "step" else name, 0.0))
+        return fn
+
+
+def stat(t: list[float]) -> dict:
+    return dict(median_ms=float(np.median(t)), p95_ms=float(np.percentile(t, 95)),
+                runs=len(t))
+
+
+def ratios(out: dict, engine_ms: dict, key: str, paired: list[float]) -> dict:
+    """The engine against SGBM (blocks and frame by frame), fp32 against int8, the daemon's
+    frame against the engine, the matching against SGBM."""
+    sgbm_ms = out["sgbm"]["median_ms"]
+    return dict(
+        int8_vs_sgbm=engine_ms["int8"][key] / sgbm_ms,
+        fp32_vs_sgbm=engine_ms["fp32"][key] / sgbm_ms,
+        int8_speedup=engine_ms["fp32"][key] / engine_ms["int8"][key],
+        frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key],
+        **({"edge_match_vs_sgbm": out["edge_match"]["median_ms"] / sgbm_ms}
+           if "edge_match" in out else {}),
+        int8_vs_sgbm_paired=float(np.median(paired)),
+        int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
+                                     float(np.percentile(paired, 90))])
+
+
 def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle: Path,
           rss_frames: int = 5, runtime: str = "auto", bf16: bool | None = None) -> dict:
     from edge_depth.capture.sim import SimSource
@@ -182,10 +236,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
     samples = [make_sample(TEST_SEED0 + i, rig, "beams16") for i in range(scenes)]
     dense = [make_sample(TEST_SEED0 + i, rig, "beams64") for i in range(scenes)]
-    K = np.array([[rig.focal_px, 0, rig.cx], [0, rig.focal_px, rig.cy], [0, 0, 1]])
-    distorted = StereoCalibration(K, [-0.08, 0.02, 0, 0, 0], K, [-0.07, 0.015, 0, 0, 0],
-                                  np.eye(3), [-rig.baseline_m, 0, 0], (w, h))
-    rectifier = distorted.rectifier()
+    rectifier = distorted_rig(rig).rectifier()
     ideal = samples[0].calibration()
     inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
     pairs = [(s.left, s.right) for s in samples]
@@ -196,22 +247,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                          bf16=bf16)
                for p in ("fp32", "int8")}
     default_iters = int(meta.get("default_iters", 4))
-
-    # stage timings inside the engine come from its own per-stage clock
-    stage_runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
-    if engines["int8"].edge_match is not None:
-        stage_runs["edge_match"] = []  # its wall time: StereoBM beside the choice's preparation
-        if engines["int8"].edge_match.median != "off":
-            stage_runs["edge_median"] = []
-
-    def engine_run(precision, iters):
-        def fn(left, right, sparse):
-            r = engines[precision].infer(left, right, sparse, iters=iters)
-            if precision == "int8" and iters == default_iters:
-                for name in stage_runs:  # a stage with nothing to do this frame: 0 ms
-                    stage_runs[name].append(r.timings_ms.get("step_mean" if name == "step"
-                                                             else name, 0.0))
-        return fn
+    clock = StageClock(engines, default_iters)
 
     tmp = tempfile.TemporaryDirectory()
     logger = McapLogger(Path(tmp.name) / "bench.mcap")
@@ -234,7 +270,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                "frame": (lambda f: pipeline.on_frame(f), [(f,) for f in frames])}
     for precision in ("fp32", "int8"):
         for iters in iters_list:
-            methods[f"engine_{precision}_{iters}"] = (engine_run(precision, iters), inputs)
+            methods[f"engine_{precision}_{iters}"] = (clock.run(precision, iters), inputs)
     times: dict[str, list[float]] = {k: [] for k in methods}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     with CpuShare() as share:
@@ -248,12 +284,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     logger.close()
     tmp.cleanup()
 
-    def stat(t):
-        return dict(median_ms=float(np.median(t)), p95_ms=float(np.percentile(t, 95)),
-                    runs=len(t))
-
     out = {name: stat(t) for name, t in times.items()}
-    for name, t in stage_runs.items():
+    for name, t in clock.runs.items():
         out[name] = stat(t)
     sgbm_ms = out["sgbm"]["median_ms"]
     engine_ms = {p: {str(i): out[f"engine_{p}_{i}"]["median_ms"] for i in iters_list}
@@ -271,16 +303,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                 busy=share.others is not None and share.others > BUSY_SHARE,
                                 cpu=cpu_description()))
     if key in engine_ms["int8"]:
-        summary["ratios"] = dict(
-            int8_vs_sgbm=engine_ms["int8"][key] / sgbm_ms,
-            fp32_vs_sgbm=engine_ms["fp32"][key] / sgbm_ms,
-            int8_speedup=engine_ms["fp32"][key] / engine_ms["int8"][key],
-            frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key],
-            **({"edge_match_vs_sgbm": out["edge_match"]["median_ms"] / sgbm_ms}
-               if "edge_match" in out else {}),
-            int8_vs_sgbm_paired=float(np.median(paired)),
-            int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
-                                         float(np.percentile(paired, 90))])
+        summary["ratios"] = ratios(out, engine_ms, key, paired)
     if engines["int8"].edge_match is not None:
         summary["match_starts"] = dict(engines["int8"].match_schedule.starts)
     if rss_frames:
