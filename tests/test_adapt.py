@@ -79,7 +79,13 @@ def test_better_needs_photometric_and_held_out_lidar_both_lower():
     assert not is_better(old, dict(photometric=0.09, held_out_px=1.1))[0]
     assert not is_better(old, dict(photometric=0.11, held_out_px=0.9))[0]
     no_lidar = dict(photometric=0.10, held_out_px=float("nan"))
-    assert is_better(no_lidar, dict(photometric=0.09, held_out_px=float("nan")))[0]
+    better, why = is_better(no_lidar, dict(photometric=0.09, held_out_px=float("nan")))
+    assert not better and "--photometric-only" in why       # NaN never passes
+    assert is_better(no_lidar, dict(photometric=0.09, held_out_px=float("nan")),
+                     photometric_only=True)[0]
+    assert not is_better(no_lidar, dict(photometric=0.11), photometric_only=True)[0]
+    assert not is_better(old, dict(photometric=float("nan"), held_out_px=0.5))[0]
+    assert not is_better(old, dict(photometric=0.09, held_out_px=float("nan")))[0]
 
 
 def test_fine_tune_needs_a_bound_and_stops_at_the_first():

@@ -19,7 +19,9 @@ the recordings' camera size, and a report that says whether it got better.
    (/sim/gt_disparity). Report: --work/report.md, report.json, report.png (check frames,
    before | after).
 5. The new bundle goes to --out only if it is better on the check frames — lower photometric
-   error and, where there is LiDAR, lower held-out error — unless --force. Exit status 0 when
+   error and lower held-out LiDAR error; a measure that is NaN or missing never passes
+   (without LiDAR on the check frames, --photometric-only decides on the photometric error
+   alone) — unless --force. Exit status 0 when
    it was written, 3 when the old one is kept, 2 for bad arguments or recordings.
 
 Python: `adapt(["rec.mcap"], "bundles/robot", minutes=20)` returns an `AdaptResult`.
@@ -230,7 +232,8 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
           start: Path | None = None, work: Path | None = None, resume: bool = False,
           force: bool = False, check_share: float = 0.2, max_frames: int = 300,
           plan: FineTune | None = None, node_search: bool = True,
-          test_time: bool = False, unadapted: bool = True) -> AdaptResult:
+          test_time: bool = False, unadapted: bool = True,
+          photometric_only: bool = False) -> AdaptResult:
     """The whole job (module docstring); the Python entry for scheduled adaptation.
     test_time: adapt on every frame and check on the same frames (test-time adaptation: the
     frames are the ones to be measured, e.g. one real pair with its LiDAR)."""
@@ -272,7 +275,12 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
         engines["unadapted"] = Engine(start_bundle, precision="int8")
     engines["after"] = Engine(candidate, precision="int8")
     means, rows, shown = check(engines, check_frames)
-    better, why = is_better(means["before"], means["after"])
+    better, why = is_better(means["before"], means["after"], photometric_only)
+    if not np.isfinite(means["after"].get("held_out_px", np.nan)):
+        print("adapt: the check frames have no held-out LiDAR error (no LiDAR paired with "
+              "them): " + ("deciding on the photometric error alone (--photometric-only)"
+                           if photometric_only else "the decision needs --photometric-only"),
+              flush=True)
     written = better or force
     verdict = ("better on the check frames: the new bundle is written" if better else
                "not better on the check frames: " + ("written anyway (--force)" if force
@@ -329,6 +337,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--resume", action="store_true", help="continue WORK/last.pt")
     p.add_argument("--force", action="store_true",
                    help="write the new bundle even when it is not better")
+    p.add_argument("--photometric-only", action="store_true",
+                   help="where the check frames have no LiDAR: decide on the photometric "
+                        "error alone (without it such a run keeps the old bundle)")
     p.add_argument("--check-share", type=float, default=0.2)
     p.add_argument("--max-frames", type=int, default=300,
                    help="frames kept in memory, evenly spread over the recordings' time")
@@ -364,7 +375,8 @@ def main(argv: list[str] | None = None) -> int:
                        force=args.force, check_share=args.check_share,
                        max_frames=args.max_frames, plan=plan,
                        node_search=not args.no_node_search, test_time=args.test_time,
-                       unadapted=not args.no_unadapted)
+                       unadapted=not args.no_unadapted,
+                       photometric_only=args.photometric_only)
     except ValueError as exc:
         print(f"edge-depth adapt: {exc}")
         return 2

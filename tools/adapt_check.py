@@ -58,17 +58,28 @@ def check(engines: dict[str, Engine], frames: list[Frame], seed: int = 0
     return means, rows, shown
 
 
-def is_better(old: dict, new: dict) -> tuple[bool, str]:
-    """The decision without ground truth: lower photometric error and, where the check frames
-    have LiDAR, lower held-out LiDAR error."""
-    photo = new["photometric"] < old["photometric"]
-    held = True
-    if np.isfinite(old.get("held_out_px", np.nan)):
-        held = new["held_out_px"] < old["held_out_px"]
-    why = (f"photometric {old['photometric']:.4f} -> {new['photometric']:.4f}, held-out LiDAR "
-           f"{old.get('held_out_px', float('nan')):.3f} -> "
-           f"{new.get('held_out_px', float('nan')):.3f} px")
-    return photo and held, why
+def is_better(old: dict, new: dict, photometric_only: bool = False) -> tuple[bool, str]:
+    """The decision without ground truth: lower photometric error and lower held-out LiDAR
+    error. A measure that is NaN or missing never passes: without held-out LiDAR on the check
+    frames the decision fails unless `photometric_only` (the user's --photometric-only) says
+    to decide on the photometric error alone."""
+    def value(bundle: dict, key: str) -> float:
+        v = bundle.get(key)
+        return float(v) if v is not None else float("nan")
+
+    photo_old, photo_new = value(old, "photometric"), value(new, "photometric")
+    held_old, held_new = value(old, "held_out_px"), value(new, "held_out_px")
+    why = (f"photometric {photo_old:.4f} -> {photo_new:.4f}, held-out LiDAR {held_old:.3f} -> "
+           f"{held_new:.3f} px")
+    if not (np.isfinite(photo_old) and np.isfinite(photo_new)):
+        return False, why + " (no photometric measure: nothing says it is better)"
+    photo = photo_new < photo_old
+    if np.isfinite(held_old) and np.isfinite(held_new):
+        return photo and held_new < held_old, why
+    if photometric_only:
+        return photo, why + " (decided on the photometric error alone: --photometric-only)"
+    return False, why + (" (no held-out LiDAR error on the check frames: give "
+                         "--photometric-only to decide on the photometric error alone)")
 
 
 def colour(disparity: np.ndarray, top: float) -> np.ndarray:
