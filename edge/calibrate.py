@@ -151,16 +151,18 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
     nearest in time (images rectified with `stereo` unless the recording's already are)."""
     from edge_depth.capture.replay import synced_frames
 
-    frames = []
+    frames, seen = [], 0
     for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
                                                        topics=topics):
         if frame.size != tuple(stereo.image_size):
             raise CalibrationError(f"image size {frame.size} differs from the "
                                    f"calibration's {stereo.image_size}", path=str(path))
+        seen += 1
         if len(points):
             frames.append((left, right, points))
             if len(frames) >= max_frames:
                 break
+    print(f"{path}: frames with LiDAR: {len(frames)} of {seen} read", flush=True)
     if not frames:
         raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
     return frames

@@ -237,3 +237,42 @@ def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_proces
     assert line.startswith("frames with LiDAR: 293 of 300 paired (165 of them dropped before "
                            "the engine)")
     assert "+40 ms" in line
+
+
+@pytest.mark.parametrize("scans_after_frames", [False, True])
+def test_offline_readers_pair_each_frame_with_its_own_scan_in_either_storage_order(
+        tmp_path, scans_after_frames, capsys):
+    """adapt's frames (and every reader of synced_frames) pair as replay does: a scan stored
+    after its frame (kitti2mcap's order) still reaches that frame, and the LiDAR reaches the
+    training sample."""
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.mcap_log import RAW_TOPICS, McapLogger
+    from edge_depth.sim import RigConfig, make_sample
+    from edge_depth.sim.lidar import default_T_cam_lidar
+    from edge_depth.tools.adapt_frames import load_frames
+    from edge_depth.types import LidarScan
+
+    rig = RigConfig(width=160, height=100, focal_px=112.5, max_disparity_px=16.0)
+    samples = [make_sample(1_000_000 + i, rig, "beams16") for i in range(5)]
+    path = tmp_path / "rec.mcap"
+    with McapLogger(path, topics=RAW_TOPICS) as logger:
+        logger.set_calibration(samples[0].calibration(), LidarExtrinsics(default_T_cam_lidar()))
+        for i, s in enumerate(samples):
+            stamp = 1_000_000_000 + i * 100_000_000
+            scan = LidarScan(stamp - 5_000_000, s.scan.points, s.scan.intensity)
+            if not scans_after_frames:
+                logger.log_scan(scan)
+            logger.log_frame(s.frame(stamp, i))
+            logger.log_gt(stamp, s.disp_left)
+            if scans_after_frames:
+                logger.log_scan(scan)
+    frames = load_frames(path)
+    assert "frames with LiDAR: 5 of 5" in capsys.readouterr().out
+    assert len(frames) == 5
+    for frame, s in zip(frames, samples, strict=True):
+        assert frame.gt is not None and (frame.sparse("left") > 0).sum() > 50
+        arrays = frame.arrays()   # what the fine-tune's loss reads
+        assert arrays["valid"].sum() == (frame.sparse("left") > 0).sum()
+        # its own scan: the LiDAR disparity agrees with this frame's ground truth
+        valid = arrays["valid"] & (s.disp_left > 0)
+        assert np.median(np.abs(arrays["sparse"][valid] - s.disp_left[valid])) < 1.0

@@ -78,8 +78,9 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
     offset = lidar.time_offset_ns if lidar else 0
     frames: list[Frame] = []
     stride = 1
+    counts: dict[str, int] = {}
     for i, (event, left, right, points, gt) in enumerate(
-            synced_frames(recording, stereo, offset, topics=topic_map)):
+            synced_frames(recording, stereo, offset, topics=topic_map, counters=counts)):
         if i % stride:
             continue
         sparse = {side: np.zeros(left.shape, np.float32) for side in ("left", "right")}
@@ -91,6 +92,10 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
                             None if gt is None else np.asarray(gt, np.float32)))
         if len(frames) > max_frames:
             frames, stride = frames[::2], stride * 2
+    paired = counts.get("frames_with_lidar", 0)
+    print(f"{recording}: frames with LiDAR: {paired} of "
+          f"{paired + counts.get('frames_without_lidar', 0)}"
+          + ("" if lidar is not None else " (no LiDAR extrinsics: stereo only)"), flush=True)
     return sorted(frames, key=lambda f: f.stamp_ns)
 
 
