@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -157,8 +158,11 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
              ["disparity_full", "confidence"] if cfg.refine else ["disparity_full"]),
         ]
         for name, module, args, inputs, outputs in graphs:
-            torch.onnx.export(module, args, str(out / name), input_names=inputs,
-                              output_names=outputs, opset_version=OPSET, dynamo=False)
+            with warnings.catch_warnings():  # the tracer's notes on constants the graphs
+                warnings.simplefilter("ignore", torch.jit.TracerWarning)  # mean to have,
+                warnings.filterwarnings("ignore", "Constant folding")  # not for users
+                torch.onnx.export(module, args, str(out / name), input_names=inputs,
+                                  output_names=outputs, opset_version=OPSET, dynamo=False)
         flops = dict(encoder=count_flops(encoder, (x, x, x, x)),
                      step=count_flops(step, step_args),
                      upsample=count_flops(upsample, up_args))
