@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig
 from edge_depth.daemon import (
@@ -50,18 +51,11 @@ class ReplayRun:
     source: McapSource
     files: list[Path]
 
-    @property
-    def lidar_counts(self) -> tuple[int, int]:
-        """(frames with LiDAR, frames paired or not) as the sync counted them."""
-        counters = self.pipeline.sync.counters()
-        paired = counters["frames_with_lidar"]
-        return paired, paired + counters["frames_without_lidar"]
-
     def record(self) -> dict:
         """The numbers of a fleet's result record and summary table."""
         stats = self.stats
         lat = summarise(stats.timings)
-        with_lidar, frames_seen = self.lidar_counts
+        with_lidar = self.pipeline.sync.counters()["frames_with_lidar"]
         metrics = stats.metrics
         return dict(frames=stats.frames, frames_with_lidar=with_lidar if self.pipeline.lidar
                     else 0, ms_per_frame=lat["frame"]["median"] if lat else None,
@@ -72,12 +66,21 @@ class ReplayRun:
                     output_health=self.pipeline.health.worst, files=[str(f) for f in self.files])
 
 
-def replay_recording(engine: Engine, path, out, calib=None, topics=None,
-                     realtime: bool = False, profile: str = "foxglove",
-                     on_output=None) -> ReplayRun:
-    """The pipeline over one recording with a loaded engine (its iterations and deadline from
-    `engine.options`), its output to `out` (None: no output file, as `fleet evaluate`).
-    ReplayError for a recording that cannot be read."""
+@dataclasses.dataclass
+class OpenRecording:
+    """A recording opened for replay: its source, topics checked, and the calibration
+    resolved (`replay_calibration`) — all before an engine loads."""
+
+    source: McapSource
+    stereo: StereoCalibration
+    lidar: LidarExtrinsics | None
+    calib: Path | None  # --calib, whose file replaces the recording's own
+
+
+def open_recording(path, out=None, calib=None, topics=None,
+                   realtime: bool = False) -> OpenRecording:
+    """Open `path` for replay into `out` (None: no output file); ConfigError when `out` is
+    the input, ReplayError for a recording that cannot be read or lacks the topics."""
     from edge_depth.capture.replay import McapSource, TopicMap
 
     if out is not None and Path(out).exists() and Path(path).exists() \
@@ -86,16 +89,25 @@ def replay_recording(engine: Engine, path, out, calib=None, topics=None,
     source = McapSource(path, TopicMap.from_dict(topics or {}), realtime=realtime)
     source.check_topics()
     stereo, lidar = replay_calibration(source, calib)
+    return OpenRecording(source, stereo, lidar, calib)
+
+
+def replay_recording(engine: Engine, recording: OpenRecording, out, profile: str = "foxglove",
+                     on_output=None) -> ReplayRun:
+    """The pipeline over an opened recording with a loaded engine (its iterations and
+    deadline from `engine.options`), its output to `out` (None: no output file, as `fleet
+    evaluate`)."""
+    source, realtime = recording.source, recording.source.realtime
     stop = StopFlag()
     stop.install()
     try:
         with contextlib.ExitStack() as stack:
             logger = None if out is None else stack.enter_context(open_logger(out, profile))
             o = engine.options
-            pipeline = Pipeline(engine, stereo, lidar, logger, o.iters or None,
-                                o.deadline_ms or None)
+            pipeline = Pipeline(engine, recording.stereo, recording.lidar, logger,
+                                o.iters or None, o.deadline_ms or None)
             # with --calib given, the recording's own calibration is ignored
-            if calib is not None:
+            if recording.calib is not None:
                 source.topics = dataclasses.replace(source.topics, calibration="")
             stats = run(source, pipeline, stop, threaded=realtime, on_output=on_output,
                         pipelined=realtime and o.pipelined)
@@ -108,15 +120,8 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
                    realtime: bool = False, profile: str = "foxglove") -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
     EPE / bad-3 per frame and overall where the recording carries ground truth."""
-    from edge_depth.calibration.io import load_calibration
-    from edge_depth.capture.replay import McapSource, TopicMap
-
-    if Path(out).exists() and Path(path).exists() and os.path.samefile(out, path):
-        raise ConfigError("--out", "a file other than the input recording", str(out))
     # a missing topic or a bad --calib: one line before the engine loads
-    McapSource(path, TopicMap.from_dict(topics or {})).check_topics()
-    if calib is not None:
-        load_calibration(calib)
+    recording = open_recording(path, out, calib, topics, realtime)
     engine = Engine(options=options)
     log.info("engine: %s", engine.describe())
 
@@ -128,7 +133,7 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
             line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
         print(line, flush=True)
 
-    done = replay_recording(engine, path, out, calib, topics, realtime, profile, on_output)
+    done = replay_recording(engine, recording, out, profile, on_output)
     stats, pipeline, source = done.stats, done.pipeline, done.source
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "

@@ -116,19 +116,30 @@ def _digest_files(path: Path) -> str:
     return h.hexdigest()
 
 
-def fingerprint(recording: Recording, job: FleetJob, bundle_digest: str) -> str:
-    """What made a recording's outcome: if it is unchanged, so is the outcome."""
+def job_digest(job: FleetJob) -> str:
+    """What every recording's outcome shares: the command, the bundle's bytes, the
+    calibration's, the options and the compare limits (computed once per invocation)."""
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    replay = dict(job.replay)
+    if replay.get("calib"):
+        replay["calib"] = _digest_files(Path(replay["calib"]))
+    text = json.dumps(dict(command=job.command,
+                           bundle=_digest_files(Path(job.engine.bundle or DEFAULT_BUNDLE)),
+                           engine=asdict(job.engine), replay=replay, tolerance=job.tolerance_px,
+                           max_share=job.max_share), sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def fingerprint(recording: Recording, job: FleetJob, shared: str) -> str:
+    """What made a recording's outcome — its input, its golden replay and the job's
+    `shared` digest: if it is unchanged, so is the outcome."""
     golden = None
     if job.base_dir is not None:
         base = job.base_dir / f"{recording.name}.mcap"
         golden = _file_identity(base) if base.exists() else "missing"
-    replay = dict(job.replay)
-    if replay.get("calib"):
-        replay["calib"] = _digest_files(Path(replay["calib"]))
-    text = json.dumps(dict(command=job.command, input=_file_identity(recording.path),
-                           bundle=bundle_digest, engine=asdict(job.engine), replay=replay,
-                           golden=golden, tolerance=job.tolerance_px,
-                           max_share=job.max_share), sort_keys=True, default=str)
+    text = json.dumps(dict(input=_file_identity(recording.path), golden=golden, job=shared),
+                      sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()
 
 
@@ -154,7 +165,7 @@ def previous_record(job: FleetJob, recording: Recording, print_: str) -> dict | 
 def run_one(engine, recording: Recording, job: FleetJob) -> dict:
     """One task: the replay (and compare) of one recording with a loaded engine. Never
     raises: a recording that fails is a record with its reason."""
-    from edge_depth.commands import replay_recording
+    from edge_depth.commands import open_recording, replay_recording
 
     record: dict[str, Any] = dict(name=recording.name, input=str(recording.path),
                                   command=job.command, status="ok", reason="")
@@ -162,7 +173,10 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
     partial = None if out is None else out.with_name(f".{out.stem}.partial.mcap")
     started = time.monotonic()
     try:
-        done = replay_recording(engine, recording.path, partial, **job.replay)
+        options = dict(job.replay)
+        profile = options.pop("profile", "foxglove")
+        done = replay_recording(engine, open_recording(recording.path, partial, **options),
+                                partial, profile)
         record.update(done.record())
         if done.stats.fatal:
             raise ValueError(done.stats.fatal)
@@ -289,12 +303,6 @@ def _progress_line(record: dict) -> str:
             + (f", {record['verdict']}" if "verdict" in record else ""))
 
 
-def _bundle_digest(job: FleetJob) -> str:
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE
-
-    return _digest_files(Path(job.engine.bundle or DEFAULT_BUNDLE))
-
-
 def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None,
                   workers: int | None = None) -> int:
     """The whole fleet: find, skip what is unchanged, run the rest, write the summary."""
@@ -306,8 +314,8 @@ def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None
         return 1
     recordings = find_recordings(sources)
     job.out_dir.mkdir(parents=True, exist_ok=True)
-    bundle = _bundle_digest(job)
-    prints = {r.name: fingerprint(r, job, bundle) for r in recordings}
+    shared = job_digest(job)
+    prints = {r.name: fingerprint(r, job, shared) for r in recordings}
     earlier = {r.name: previous_record(job, r, prints[r.name]) for r in recordings}
     todo = [r for r in recordings if earlier[r.name] is None]
     print(f"edge-depth fleet {job.command}: {len(recordings)} recordings, "
