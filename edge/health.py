@@ -76,8 +76,7 @@ class OutputHealth:
         least = min(f.invalid_pct for f in self.recent) if len(self.recent) == RUN else 0.0
         self.level = ERROR if least > ERROR_INVALID_PCT else WARN \
             if least > WARN_INVALID_PCT else OK
-        if _rank(self.level) > _rank(self.worst) or (
-                self.level == self.worst != OK and self.worst_frame is None):
+        if _rank(self.level) > _rank(self.worst):
             self.worst, self.worst_frame = self.level, frame
 
     def message(self, level: str | None = None) -> str:

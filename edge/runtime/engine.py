@@ -26,10 +26,8 @@ from edge_depth.runtime.edge_match import (
     AUTO,
     EdgeMatch,
     Prepared,
-    check_matcher,
-    check_row_step,
 )
-from edge_depth.runtime.edge_median import OFF, check_pattern
+from edge_depth.runtime.edge_median import OFF
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
@@ -364,12 +362,8 @@ class _Frame:
 
 
 def make_edge_match(options: EngineOptions, width: int) -> EdgeMatch | None:
-    """The matching stage the resolved options ask for (None: off); ConfigError for a value
-    it cannot run, also when it is off (a bad value is said either way)."""
-    check_row_step(options.edge_match_rows)
-    check_matcher(options.edge_matcher)
-    if options.edge_median != OFF:
-        check_pattern(options.edge_median)
+    """The matching stage the resolved options ask for (None: off; EngineOptions has checked
+    every value, off or not); ConfigError for a count as wide as the bundle's input."""
     settings = dict(row_step=options.edge_match_rows, matcher=options.edge_matcher,
                     median=options.edge_median)
     count = options.edge_match
@@ -377,8 +371,7 @@ def make_edge_match(options: EngineOptions, width: int) -> EdgeMatch | None:
         return EdgeMatch(0, **settings)
     if not count:
         return None
-    if not isinstance(count, int) or isinstance(count, bool):
-        raise ConfigError("edge_match", f"{AUTO!r}, 0 (off) or a multiple of 16", count)
+    assert isinstance(count, int), "EngineOptions admits a count, \"auto\" or \"bundle\""
     if count >= width:  # StereoBM would silently find nothing
         raise ConfigError("edge_match", f"below the bundle's input width ({width} px)", count)
     return EdgeMatch(count, **settings)
