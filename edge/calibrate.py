@@ -149,7 +149,7 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
                 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
     nearest in time (images rectified with `stereo` unless the recording's already are)."""
-    from edge_depth.capture.replay import synced_frames
+    from edge_depth.capture.synced import synced_frames
 
     frames, seen = [], 0
     for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,

@@ -66,7 +66,8 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
     stride doubles whenever the kept frames pass the limit, so memory stays bounded). A
     directory is read as scene folders (`folder_frames`)."""
     from edge_depth.calibration.projection import project_to_disparity
-    from edge_depth.capture.replay import McapSource, TopicMap, synced_frames
+    from edge_depth.capture.replay import McapSource, TopicMap
+    from edge_depth.capture.synced import synced_frames
     from edge_depth.commands import replay_calibration
 
     if Path(recording).is_dir():

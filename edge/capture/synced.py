@@ -1,0 +1,64 @@
+"""A recording's frames with their LiDAR and ground truth, for the offline readers (training,
+adapt, `calibrate lidar`): paired by the same sync, and the same bounded wait in stream time,
+as replay and the daemon (`edge.runner`)."""
+
+from __future__ import annotations
+
+from collections import deque
+from pathlib import Path
+
+from edge_depth.capture.replay import McapSource, TopicMap
+from edge_depth.capture.sync import LidarSync, SyncConfig
+from edge_depth.types import GroundTruth, LidarScan, StereoFrame
+
+
+def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
+                  topics: TopicMap | None = None, counters: dict | None = None,
+                  max_wait_ms: float | None = None):
+    """Each frame of a recording with its LiDAR and ground truth, for offline use (training,
+    adapt, the extrinsics check): yields (frame as recorded, rectified left, rectified right,
+    points (N, 3) of the revolution nearest in time (0 rows if none), GT disparity or None).
+
+    Frames pair as replay and the daemon pair them (`edge.runner`): each waits, in the
+    stream's time, up to `max_wait_ms` (default twice the window) for the scans that cover
+    it, so a recording that stores scans after their frames (a spinning LiDAR's revolution
+    ends after the frame taken in its middle; kitti2mcap writes them so) pairs as one that
+    stores them before. `stereo` rectifies frames the recording did not store rectified;
+    `time_offset_ns` moves LiDAR stamps into the camera clock; `topics` maps a ROS 2 bag's.
+    `counters`, if given, receives the sync's counts when the recording ends
+    (frames_with_lidar, frames_without_lidar, ...)."""
+    sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns, max_wait_ms=max_wait_ms))
+    wait_ns = sync.config.wait_ms * 1e6
+    rectifier = stereo.rectifier()
+    held: deque[list] = deque()  # [frame, GT or None], oldest first
+    latest: int | None = None  # the newest frame's stamp: the stream's time
+
+    def ready_frames(everything: bool = False):
+        while held:
+            stamp = held[0][0].stamp_ns
+            ready = sync.ready(stamp)
+            waited = latest is not None and latest - stamp > wait_ns
+            if not (ready or waited or everything):
+                return
+            frame, gt = held.popleft()
+            if not ready:
+                sync.waited_out += 1
+            left, right = rectifier.pair(frame)
+            yield frame, left, right, sync.points_for(stamp), gt
+
+    for event in McapSource(path, topics):
+        if isinstance(event, GroundTruth):  # joins its frame; never moves the stream on
+            for item in held:
+                if item[0].stamp_ns == event.stamp_ns:
+                    item[1] = event.disparity
+            continue
+        if isinstance(event, LidarScan):
+            sync.add(event)
+        elif isinstance(event, StereoFrame):
+            latest = event.stamp_ns if latest is None else max(latest, event.stamp_ns)
+        yield from ready_frames()
+        if isinstance(event, StereoFrame):
+            held.append([event, None])
+    yield from ready_frames(everything=True)
+    if counters is not None:
+        counters.update(sync.counters())
