@@ -18,15 +18,6 @@ def parse_size(text: str) -> tuple[int, int]:
     return w, h
 
 
-def add_edge_match_arguments(parser: argparse.ArgumentParser) -> None:
-    """The engine's matching flags (its `EngineOptions` fields), for the tools that run the
-    engine on their own terms (tools/evaluate.py)."""
-    from edge_depth.runtime.options import add_engine_arguments
-
-    add_engine_arguments(parser, only=("edge_match", "edge_match_rows", "edge_matcher",
-                                       "edge_median"))
-
-
 def positive_int(text: str) -> int:
     try:
         value = int(text)

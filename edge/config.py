@@ -49,7 +49,7 @@ from typing import Any
 
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.options import BUNDLE, ROW_STEPS, EngineOptions
+from edge_depth.runtime.options import BUNDLE, FIT, NATIVE, ROW_STEPS, EngineOptions
 
 _log = logging.getLogger(__name__)
 
@@ -150,7 +150,7 @@ OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
 
 
 def _check_range(path: str, name: str, key: str, value) -> None:
-    if (name, key) not in RANGES or isinstance(value, str):  # STRING_OR_INT's words
+    if (name, key) not in RANGES or isinstance(value, str):  # STRING_OR_NUMBER's words
         return
     lo, hi = RANGES[(name, key)]
     values = value if isinstance(value, tuple) else (value,)
@@ -160,15 +160,18 @@ def _check_range(path: str, name: str, key: str, value) -> None:
     raise ConfigError(f"{name}.{key}", f"{lo}–{hi}{off}", value, path)
 
 
-# an integer, or one of these strings
-STRING_OR_INT = {"engine.edge_match": ("auto", BUNDLE), "engine.edge_match_rows": (BUNDLE,)}
+# a number of the given type, or one of these strings
+STRING_OR_NUMBER = {"engine.edge_match": (("auto", BUNDLE), 0),
+                    "engine.edge_match_rows": ((BUNDLE,), 0),
+                    "engine.scale": ((FIT, NATIVE), 0.0)}
 
 
 def _convert(path: str, key: str, value, default):
-    if value in STRING_OR_INT.get(key, ()):
+    words, number = STRING_OR_NUMBER.get(key, ((), None))
+    if value in words:
         return value
-    if key in STRING_OR_INT:
-        default = 0
+    if number is not None:
+        default = number
     if isinstance(default, bool):
         ok = isinstance(value, bool)
     elif isinstance(default, int):
@@ -188,7 +191,7 @@ def _convert(path: str, key: str, value, default):
     else:
         ok = isinstance(value, str)
     if not ok:
-        either = "".join(f'"{w}" or ' for w in STRING_OR_INT.get(key, ()))
+        either = "".join(f'"{w}" or ' for w in words)
         raise ConfigError(key, f"{either}{type(default).__name__} like {default!r}", value,
                           path)
     return value

@@ -106,8 +106,12 @@ class Pipeline:
         plan = engine.plan_for(tuple(stereo.image_size)) if engine else None  # ConfigError
         if engine is not None and plan is not None and not plan.identity:  # if it cannot run
             w, h = plan.scaled
-            log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
-                     *stereo.image_size, *engine.size, plan.scale, w, h)
+            if plan.bundle != engine.size:
+                log.info("camera %dx%d runs at its own size (padded to %dx%d)",
+                         *stereo.image_size, *plan.bundle)
+            else:
+                log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
+                         *stereo.image_size, *engine.size, plan.scale, w, h)
         self.engine, self.logger = engine, logger
         self.iters, self.deadline_ms, self.log_raw = iters, deadline_ms, log_raw
         self.set_calibration(stereo, lidar)
@@ -125,7 +129,7 @@ class Pipeline:
                         "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
         if engine is not None:
-            engine.warm_up()
+            engine.warm_up(camera=tuple(stereo.image_size))
 
     def set_calibration(self, stereo: StereoCalibration, lidar: LidarExtrinsics | None) -> None:
         self.stereo, self.lidar = stereo, lidar

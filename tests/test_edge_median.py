@@ -151,13 +151,12 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
 def test_the_command_line_and_the_config_offer_exactly_the_patterns():
     import argparse
 
-    from edge_depth.arguments import add_edge_match_arguments
     from edge_depth.config import CHOICES
     from edge_depth.runtime.edge_median import OFF
-    from edge_depth.runtime.options import BUNDLE
+    from edge_depth.runtime.options import BUNDLE, add_engine_arguments
 
     parser = argparse.ArgumentParser()
-    add_edge_match_arguments(parser)
+    add_engine_arguments(parser)
     flag = next(a for a in parser._actions if a.dest == "edge_median")
     assert tuple(flag.choices) == (BUNDLE, OFF, *PATTERNS)
     assert CHOICES[("engine", "edge_median")] == (BUNDLE, OFF, *PATTERNS)

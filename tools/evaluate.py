@@ -11,10 +11,10 @@ lidar-nearest; lidar-linear. SGBM's disparity count follows each scene's GT rang
 to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
-downsample factor) or an exported bundle directory (run with the ONNX Runtime engine at the
-bundle's input size, with the engine settings its model.json declares: the shipped one's edge
-matching "auto" on every other row; --edge-match 0 turns it off); the default is the shipped
-bundle, int8.
+downsample factor) or an exported bundle directory (run by the robot-side engine with its
+flags: --runtime, --precision, --scale fit|native, the matching's; the settings left unsaid
+are those its model.json declares: the shipped one's edge matching "auto" on every other row;
+--edge-match 0 turns it off); the default is the shipped bundle, int8.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
@@ -36,7 +36,6 @@ from pathlib import Path
 
 import numpy as np
 
-from edge_depth.arguments import add_edge_match_arguments
 from edge_depth.baselines import (
     fill_row_nearest,
     lidar_linear,
@@ -48,7 +47,12 @@ from edge_depth.baselines import (
 )
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
+from edge_depth.runtime.options import EngineOptions, add_engine_arguments, options_from_args
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
+
+# the engine settings a bundle is evaluated with (the others: EngineOptions' defaults)
+ENGINE_FLAGS = ("precision", "runtime", "bf16", "scale", "edge_match", "edge_match_rows",
+                "edge_matcher", "edge_median")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
 ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")
@@ -85,47 +89,30 @@ class TorchNet:
 class BundleNet:
     """An exported bundle run by the robot-side engine (ONNX Runtime or OpenVINO)."""
 
-    def __init__(self, path: Path, precision: str = "int8", runtime: str = "auto",
-                 bf16: bool | None = None, lidar_select: bool = True,
-                 edge_match: int | str | None = None,
-                 edge_match_rows: int | None = None, edge_matcher: str = "bm",
-                 edge_median: str | None = None) -> None:
+    def __init__(self, path: Path, options: EngineOptions | None = None) -> None:
         from edge_depth.runtime.engine import Engine
 
-        self.engine = Engine(path, precision=precision, threads=2, runtime=runtime, bf16=bf16,
-                             lidar_select=lidar_select, edge_select=lidar_select,
-                             edge_match=edge_match, edge_match_rows=edge_match_rows,
-                             edge_matcher=edge_matcher, edge_median=edge_median)
+        self.engine = Engine(path, options)
 
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
         return result.disparity, result.confidence
 
 
-def load_net(model: Path, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True,
-             edge_match: int | str | None = None, edge_match_rows: int | None = None,
-             edge_matcher: str = "bm", edge_median: str | None = None):
-    return BundleNet(model, precision, runtime, bf16, lidar_select, edge_match,
-                     edge_match_rows, edge_matcher, edge_median) \
-        if model.is_dir() else TorchNet(model)
+def load_net(model: Path, options: EngineOptions | None = None):
+    """A bundle directory run by the engine with `options`, or a training checkpoint."""
+    return BundleNet(model, options) if model.is_dir() else TorchNet(model)
 
 
 def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
-             model: Path | None, precision: str = "int8", runtime: str = "auto",
-             bf16: bool | None = None, lidar_select: bool = True,
-             edge_match: int | str | None = None, first: dict | None = None,
-             edge_match_rows: int | None = None,
-             edge_matcher: str = "bm",
-             edge_median: str | None = None) -> dict[str, dict[str, float]]:
-    """Mean metrics per method. `first`, if given, receives the first scene ("scene") and
-    each method's prediction on it (by method name), for `picture`. `edge_match` and
-    `edge_match_rows` as the engine's (None: the bundle's), `edge_matcher` and `edge_median`
-    too."""
+             model: Path | None, options: EngineOptions | None = None,
+             first: dict | None = None) -> dict[str, dict[str, float]]:
+    """Mean metrics per method; a bundle runs with the engine `options` (default: its
+    defaults). `first`, if given, receives the first scene ("scene") and each method's
+    prediction on it (by method name), for `picture`."""
     net = None
     if {"net", "net-nolidar"} & set(methods):
-        net = load_net(model, precision, runtime, bf16, lidar_select, edge_match,
-                       edge_match_rows, edge_matcher, edge_median)
+        net = load_net(model, options)
         if isinstance(net, BundleNet):
             print(f"{model}: {net.engine.describe()}", file=sys.stderr)
     matched = isinstance(net, BundleNet) and net.engine.edge_match is not None
@@ -234,20 +221,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--model", type=Path, default=DEFAULT_BUNDLE,
                    help="training checkpoint (.pt) or bundle directory (default: the shipped "
                         "bundle)")
-    p.add_argument("--precision", choices=("int8", "fp32"), default="int8",
-                   help="for a bundle")
-    p.add_argument("--runtime", choices=("auto", "onnxruntime", "openvino"), default="auto",
-                   help="for a bundle: the engine's runtime")
-    p.add_argument("--bf16", choices=("auto", "on", "off"), default="auto",
-                   help="for a bundle on OpenVINO: the encoder in bf16 (auto: where the CPU "
-                        "has it)")
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--no-lidar", action="store_true",
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
     p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
-    add_edge_match_arguments(p)  # a bundle's: the engine's edge matching
+    add_engine_arguments(p, only=ENGINE_FLAGS)  # a bundle's
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
     p.add_argument("--picture", type=Path, default=None,
@@ -272,11 +252,10 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
+    options = options_from_args(args, only=ENGINE_FLAGS, lidar_select=not args.no_select,
+                                edge_select=not args.no_select)
     first: dict | None = {} if args.picture else None
-    summary = evaluate(folders, methods, iters_list, args.model, args.precision, args.runtime,
-                       bf16, not args.no_select, args.edge_match, first,
-                       args.edge_match_rows, args.edge_matcher, args.edge_median)
+    summary = evaluate(folders, methods, iters_list, args.model, options, first)
     print(markdown_table(summary))
     if args.picture:
         import cv2

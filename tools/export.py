@@ -2,15 +2,16 @@
 
     python tools/export.py CHECKPOINT --out BUNDLE_DIR [--size 640x400]
 
-Three graphs (opset 17, static shapes) so the iteration count stays a runtime choice:
+Three graphs (opset 17; height and width dynamic, so one bundle runs any camera at its own
+size: model.json's "any_size") so the iteration count stays a runtime choice:
 encoder.onnx (features, correlation pyramid, context, affinity, the first CSPN),
 step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsample.onnx
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
 the confidence head it returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
 summary, and with the confidence head the engine's default matching, "engine"). The export
-is checked:
-ONNX Runtime against PyTorch on a synthetic scene at 4 iterations.
+is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations, at `--size`
+and at a second size of another aspect (whose 1/8 width is odd).
 """
 
 from __future__ import annotations
@@ -33,6 +34,14 @@ STEP_INPUTS = ["disparity", "hidden", *STATE]
 STEP_OUTPUTS = ["disparity_out", "hidden_out"]
 UPSAMPLE_INPUTS = ["disparity", "hidden"]
 OPSET = 17
+# the graphs' dynamic axes: full-resolution inputs (h, w), 1/8 state (h8, w8), and the
+# flattened correlation pyramid, whose last axis grows with the width
+FULL, LOW = {2: "height", 3: "width"}, {2: "height_8", 3: "width_8"}
+DYNAMIC = {name: LOW for name in ["disparity", "hidden", *STATE]} | {
+    name: FULL for name in ENCODER_INPUTS} | {
+    "corr": {1: "height_8", 2: "width_8", 3: "pyramid"},
+    "disparity_out": LOW, "hidden_out": LOW, "disparity_full": FULL,
+    "confidence": {2: "confidence_height", 3: "confidence_width"}}
 # the confidence head (convex upsampling, a 1/8 confidence) is trained to hand its unsure
 # edges to the full-resolution matching, so its bundles declare the matching as the engine's
 # default in model.json's "engine" (config and command line still override it; without it
@@ -161,8 +170,10 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
             with warnings.catch_warnings():  # the tracer's notes on constants the graphs
                 warnings.simplefilter("ignore", torch.jit.TracerWarning)  # mean to have,
                 warnings.filterwarnings("ignore", "Constant folding")  # not for users
+                warnings.simplefilter("ignore", DeprecationWarning)  # the legacy exporter's
                 torch.onnx.export(module, args, str(out / name), input_names=inputs,
-                                  output_names=outputs, opset_version=OPSET, dynamo=False)
+                                  output_names=outputs, opset_version=OPSET, dynamo=False,
+                                  dynamic_axes={k: DYNAMIC[k] for k in inputs + outputs})
         flops = dict(encoder=count_flops(encoder, (x, x, x, x)),
                      step=count_flops(step, step_args),
                      upsample=count_flops(upsample, up_args))
@@ -171,7 +182,8 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
     if not training and "args" in ckpt:
         training = {k: v for k, v in ckpt["args"].items() if isinstance(v, (int, float, str))}
     meta = dict(
-        format=1, size=[w, h], downsample=cfg.downsample, default_iters=default_iters,
+        format=1, size=[w, h], any_size=True, downsample=cfg.downsample,
+        default_iters=default_iters,
         config=cfg.to_dict(), opset=OPSET,
         flops=flops,
         params=int(sum(p.numel() for p in net.parameters())),
@@ -188,20 +200,32 @@ def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: in
 
 
 def check_export(net, bundle: Path, meta: dict, size: tuple[int, int]) -> dict:
-    """Max |ONNX Runtime - PyTorch| disparity (px) at 4 iterations on a synthetic scene."""
-    import torch
-
+    """Max |ONNX Runtime - PyTorch| disparity (px) at 4 iterations on a synthetic scene at
+    `size`, and ("other_size") at another size run at its own resolution: a value the trace
+    kept as the export size's constant would show there."""
     from edge_depth.runtime.engine import Engine
 
-    inputs = reference_inputs(size)
+    step = meta["downsample"]
+    other = ((size[0] * 3 // 4) // (2 * step) * 2 * step + step,
+             (size[1] * 3 // 4) // step * step)
+    check = {}
+    for at, scale in ((size, "fit"), (other, "native")):
+        inputs = reference_inputs(at)
+        engine = Engine(bundle, precision="fp32", threads=2, meta=meta, runtime="onnxruntime",
+                        edge_match=0, scale=scale)  # the graphs against torch: the network
+        got = engine.infer(inputs["left"][0, 0], inputs["right"][0, 0],
+                           inputs["sparse"][0, 0], iters=4).disparity
+        diff = np.abs(got - torch_disparity(net, inputs))
+        check[at] = dict(iters=4, max_abs_px=float(diff.max()), mean_abs_px=float(diff.mean()))
+    return dict(check[size], other_size=dict(size=list(other), **check[other]))
+
+
+def torch_disparity(net, inputs: dict[str, np.ndarray], iters: int = 4) -> np.ndarray:
+    import torch
+
     with torch.no_grad():
-        ref = net(*(torch.from_numpy(inputs[k]) for k in ENCODER_INPUTS), 4)[-1][0, 0].numpy()
-    engine = Engine(bundle, precision="fp32", threads=2, meta=meta, runtime="onnxruntime",
-                    edge_match=0)  # the graphs against torch: the network alone
-    got = engine.infer(inputs["left"][0, 0], inputs["right"][0, 0], inputs["sparse"][0, 0],
-                       iters=4).disparity
-    diff = np.abs(got - ref)
-    return dict(iters=4, max_abs_px=float(diff.max()), mean_abs_px=float(diff.mean()))
+        return net(*(torch.from_numpy(inputs[k]) for k in ENCODER_INPUTS),
+                   iters)[-1][0, 0].numpy()
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -209,7 +233,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("checkpoint", type=Path)
     p.add_argument("--out", type=Path, required=True, help="bundle directory")
     p.add_argument("--size", type=parse_size, default=(640, 400),
-                   help="input WIDTHxHEIGHT (static), default 640x400")
+                   help="the bundle's size, WIDTHxHEIGHT (\"fit\" scales a camera into it; "
+                   "\"native\" runs any size), default 640x400")
     p.add_argument("--iters", type=int, default=4,
                    help="the engine's default GRU iterations (a runtime choice), default 4")
     p.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
@@ -222,8 +247,10 @@ def main(argv: list[str] | None = None) -> int:
           f"{meta['flops']['iters_4'] / 1e9:.1f} GFLOP at {size[0]}x{size[1]}, 4 iterations)")
     if "export_check" in meta:
         c = meta["export_check"]
+        o = c["other_size"]
         print(f"ONNX Runtime vs PyTorch at 4 iterations: max {c['max_abs_px']:.5f} px, "
-              f"mean {c['mean_abs_px']:.6f} px")
+              f"mean {c['mean_abs_px']:.6f} px; at {o['size'][0]}x{o['size'][1]} (its own "
+              f"size) max {o['max_abs_px']:.5f} px")
     return 0
 
 

@@ -114,15 +114,27 @@ def conv_nodes(path: Path) -> list[str]:
 
 
 def random_feeds(path: Path, seed: int = 0) -> dict[str, np.ndarray]:
-    """Float inputs 0-10 (images, disparities, features alike) at the declared shapes."""
+    """Float inputs 0-10 (images, disparities, features alike) at the declared shapes; a
+    graph that takes any size gets its bundle's (model.json beside it)."""
     import onnx
 
     rng = np.random.default_rng(seed)
+    named = bundle_dims(json.loads((path.parent / "model.json").read_text())) \
+        if (path.parent / "model.json").is_file() else {}
     feeds = {}
     for value in onnx.load(str(path), load_external_data=False).graph.input:
-        dims = [d.dim_value or 1 for d in value.type.tensor_type.shape.dim]
+        dims = [d.dim_value or named.get(d.dim_param, 1)
+                for d in value.type.tensor_type.shape.dim]
         feeds[value.name] = (rng.random(dims) * 10).astype(np.float32)
     return feeds
+
+
+def bundle_dims(meta: dict) -> dict[str, int]:
+    """The exported graphs' named dimensions (tools/export.py's DYNAMIC) at the bundle's size."""
+    (w, h), step = meta["size"], meta["downsample"]
+    levels = meta.get("config", {}).get("corr_levels", 4)
+    return dict(height=h, width=w, height_8=h // step, width_8=w // step,
+                pyramid=sum((w // step >> level) + 3 for level in range(levels)))
 
 
 def agreement(engine_a: Engine, engine_b: Engine, frames, iters: int) -> dict[str, float]:

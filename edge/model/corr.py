@@ -73,14 +73,18 @@ def lookup_flat(flat: torch.Tensor, disparity: torch.Tensor, radius: int, levels
     x = torch.arange(w, dtype=disparity.dtype, device=disparity.device).view(1, 1, w)
     target = (x - disparity[:, 0]).unsqueeze(-1)  # (B, H, W, 1)
     offsets = torch.arange(-radius, radius + 1, dtype=disparity.dtype, device=disparity.device)
+    # the level widths and where each level starts, as tensors computed from `x` rather than
+    # Python numbers: an exported graph then reads them from its input's width and runs a
+    # camera of any size (a float would be traced as the export size's constant)
+    width = x[..., -1:].unsqueeze(-1) + 1  # (1, 1, 1, 1): W
+    start = torch.zeros_like(width)
     positions, starts = [], []
-    start, width = 0, w
     for level in range(levels):
-        pos = torch.clamp(target / 2**level + offsets, -1.0, float(width))
+        pos = torch.minimum(torch.clamp(target / 2**level + offsets, min=-1.0), width)
         positions.append(pos)
-        starts.append(torch.full_like(offsets, start + 1.0))  # +1: the left pad column
-        start += width + 3
-        width = width // 2  # not //=: under tracing `w` may be a tensor, divided in place
+        starts.append(start + 1.0 + 0 * offsets)  # +1: the left pad column
+        start = start + width + 3
+        width = torch.floor(width / 2)
     pos = torch.cat(positions, -1)
     base = torch.cat(starts, -1)
     i0 = torch.floor(pos)

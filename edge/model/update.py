@@ -24,7 +24,10 @@ class ConvGRU(nn.Module):
             z, r = torch.sigmoid(self.convzr(hx)).chunk(2, 1)
             q = torch.tanh(self.convq(torch.cat([r * h, x], 1)))
         else:
-            n = h.shape[1] + x.shape[1]
+            # channel counts are the graph's constants (int(): never traced from the input's
+            # shape, which an export with dynamic height and width would keep as a Slice of
+            # the weights on every step, unquantizable)
+            n = int(h.shape[1]) + int(x.shape[1])
             zr = F.conv2d(torch.cat([h, x], 1), self.convzr.weight[:, :n], padding=1)
             z, r = torch.sigmoid(zr + fixed[0]).chunk(2, 1)
             q = torch.tanh(F.conv2d(torch.cat([r * h, x], 1), self.convq.weight[:, :n],
@@ -36,7 +39,7 @@ class ConvGRU(nn.Module):
         context: the last `c.shape[1]` input channels), biases included: computed once per
         frame instead of once per iteration (the step graph's convolutions lose a quarter of
         their input channels)."""
-        k = c.shape[1]
+        k = int(c.shape[1])  # a constant of the graph, as `n` in forward
         return (F.conv2d(c, self.convzr.weight[:, -k:], self.convzr.bias, padding=1),
                 F.conv2d(c, self.convq.weight[:, -k:], self.convq.bias, padding=1))
 

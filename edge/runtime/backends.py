@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import platform
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -117,28 +118,42 @@ class OrtSession:
 
 class OpenVinoSession:
     """`outputs`: the output names the caller reads (None: all); the others are cut from the
-    graph before compiling, and what only they needed is not computed or copied out."""
+    graph before compiling, and what only they needed is not computed or copied out. A graph
+    that takes any size is compiled for the shapes of the first feeds, and again when they
+    change (a new camera size: once, not per frame), so every run is a static-shape one."""
 
     def __init__(self, path: Path, threads: int, bf16: bool = False,
                  outputs: set[str] | None = None) -> None:
         import openvino as ov
 
-        config = {"INFERENCE_NUM_THREADS": int(threads), "PERFORMANCE_HINT": "LATENCY",
-                  "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32"}
-        core = ov.Core()
-        model = core.read_model(str(path))
+        self._config = {"INFERENCE_NUM_THREADS": int(threads), "PERFORMANCE_HINT": "LATENCY",
+                        "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32"}
+        self._core = ov.Core()
+        self._model = self._core.read_model(str(path))
         if outputs is not None:
-            for result in list(model.get_results()):
+            for result in list(self._model.get_results()):
                 if not result.output(0).get_names() & outputs:
-                    model.remove_result(result)
-        compiled = core.compile_model(model, "CPU", config)
+                    self._model.remove_result(result)
+        self.input_names = [i.get_any_name() for i in self._model.inputs]
+        self.output_names = [o.get_any_name() for o in self._model.outputs]
+        self.bf16 = bf16
+        self._shapes: dict[str, tuple[int, ...]] = {}
+        self._request: Any = None
+        self._outputs: list[Any] = []
+        if not self._model.is_dynamic():
+            self._compile()
+
+    def _compile(self) -> None:
+        compiled = self._core.compile_model(self._model, "CPU", self._config)
         self._request = compiled.create_infer_request()
         self._outputs = list(compiled.outputs)
-        self.input_names = [i.get_any_name() for i in compiled.inputs]
-        self.output_names = [o.get_any_name() for o in self._outputs]
-        self.bf16 = bf16
 
     def run(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
+        shapes = {k: tuple(feeds[k].shape) for k in self.input_names}
+        if self._request is None or (self._shapes and shapes != self._shapes):
+            self._model.reshape({k: list(v) for k, v in shapes.items()})
+            self._compile()
+        self._shapes = shapes
         # inputs without a copy (the call is synchronous; the correlation volume is ~2.6 MB
         # at 640x400, fed to every step), outputs copied: a step's outputs are the next
         # step's inputs

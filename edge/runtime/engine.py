@@ -32,11 +32,14 @@ from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
-from edge_depth.runtime.options import EngineOptions, bundle_preset
+from edge_depth.runtime.options import FIT, NATIVE, EngineOptions, bundle_preset
 from edge_depth.types import DepthResult
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
 MIN_DISPARITY = 0.5  # px: below this the depth is reported invalid (beyond f·B/0.5)
+# "native": a side of at least this many network strides (the correlation pyramid's coarsest
+# level, 1/64 of the width, keeps a column)
+NATIVE_MIN_STRIDES = 8
 
 
 def load_bundle_meta(bundle: Path) -> dict:
@@ -60,10 +63,12 @@ class Engine:
 
     `options` (`edge.runtime.options.EngineOptions`; the fields given as keyword arguments
     override it) say everything the engine does; the bundle's preset fills those left at
-    "bundle" once, here. Any camera size runs: images that are not the bundle's size are
-    scaled (`scale`; 0: the largest factor ≤ 1 that fits) and padded to it, and the outputs
-    come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s; when the
-    matching's block matching runs is `edge.runtime.match_schedule`'s."""
+    "bundle" once, here. Any camera size runs: with `scale` "fit" (or a factor) images that
+    are not the bundle's size are scaled into it and padded, with "native" (a bundle whose
+    graphs take any size: model.json's "any_size") they run at their own size padded to the
+    network's stride; the outputs come back at the camera's size (`edge.runtime.fit`). The
+    stages are `infer`'s; when the matching's block matching runs is
+    `edge.runtime.match_schedule`'s."""
 
     def __init__(self, bundle: Path | str | None = None, options: EngineOptions | None = None,
                  meta: dict | None = None, **overrides) -> None:
@@ -80,11 +85,17 @@ class Engine:
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
+        self.any_size = bool(self.meta.get("any_size"))
+        self.scale = options.scale
+        if self.scale == NATIVE and not self.any_size:
+            raise ConfigError("scale", 'a bundle whose graphs take any size for "native" '
+                              "(export it again with tools/export.py)",
+                              f"native with {self.bundle}, exported for "
+                              f"{self.width}x{self.height} only")
         self.sessions = self._open_graphs(options.threads)
         self._wire_graphs()
-        shape = (1, 1, self.height, self.width)
-        self._inputs = {k: np.zeros(shape, np.float32) for k in ("left", "right", "sparse",
-                                                                 "valid")}
+        self._inputs: dict[str, np.ndarray] = {}
+        self._buffers((self.width, self.height))
         self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
             if options.lidar_select and "lidar_select" in self.meta else None
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
@@ -95,9 +106,8 @@ class Engine:
         # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
         # "auto" starts early only where the graphs leave a core idle
         self.match_schedule = None if self.edge_match is None else MatchSchedule(
-            self.edge_match, self.width, self.downsample, options.threads < usable_cores())
+            self.edge_match, self.downsample, options.threads < usable_cores())
         self._upsample_ms = 0.0  # running estimate for the deadline
-        self.scale = options.scale or None
         self._plans: dict[tuple[int, int], FitPlan] = {}
 
     def _open_graphs(self, threads: int) -> dict[str, Any]:
@@ -150,21 +160,45 @@ class Engine:
         self.has_confidence = len(upsample.output_names) > 1
 
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
-        """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale)."""
+        """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale):
+        "native" at its own size padded to the network's stride (and to at least
+        NATIVE_MIN_STRIDES strides a side, for the correlation pyramid's coarsest level),
+        otherwise scaled into the bundle's size."""
         if camera not in self._plans:
-            self._plans[camera] = FitPlan.make(camera, self.size, self.scale)
+            if self.scale == NATIVE:
+                side = self.downsample * NATIVE_MIN_STRIDES
+                network = tuple(max(side, -(-n // self.downsample) * self.downsample)
+                                for n in camera)
+                self._plans[camera] = FitPlan.make(camera, (network[0], network[1]), 1.0)
+            else:
+                scale = None if self.scale == FIT else float(self.scale)
+                self._plans[camera] = FitPlan.make(camera, self.size, scale)
         return self._plans[camera]
 
-    def warm_up(self, iters: int = 1) -> None:
-        """One untimed inference on a blank frame: the first run of each session allocates
-        and plans, and would otherwise land on the first real frame's latency."""
-        blank = np.zeros((self.height, self.width), np.uint8)
-        self.infer(blank, blank, np.zeros((self.height, self.width), np.float32), iters=iters)
+    def _buffers(self, size: tuple[int, int]) -> dict[str, np.ndarray]:
+        """The graphs' input buffers for a (w, h) network input (kept while it stays)."""
+        first = next(iter(self._inputs.values()), None)
+        if first is None or first.shape[2:] != (size[1], size[0]):
+            shape = (1, 1, size[1], size[0])
+            self._inputs = {k: np.zeros(shape, np.float32)
+                            for k in ("left", "right", "sparse", "valid")}
+        return self._inputs
+
+    def warm_up(self, iters: int = 1, camera: tuple[int, int] | None = None) -> None:
+        """One untimed inference on a blank frame of the camera's (w, h) (default: the
+        bundle's size): the first run of each session allocates and plans (and OpenVINO
+        compiles a graph that takes any size for this one), which would otherwise land on
+        the first real frame's latency."""
+        w, h = camera or self.size
+        blank = np.zeros((h, w), np.uint8)
+        self.infer(blank, blank, np.zeros((h, w), np.float32), iters=iters)
 
     def describe(self) -> str:
         """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
         median 9x9/2 (the bundle's)': what runs, for the first log line."""
         text = f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
+        if self.scale == NATIVE:
+            text += ", at the camera's own size"
         m = self.edge_match
         source = " (the bundle's)" if self.edge_match_source == "bundle" else ""
         if m is None:
@@ -231,7 +265,7 @@ class Engine:
         plan = self.plan_for((left.shape[1], left.shape[0]))
         if not plan.identity:
             left, right, sparse = plan.prepare(left, right, sparse)
-        buf = self._inputs
+        buf = self._buffers(plan.bundle)
         np.copyto(buf["left"][0, 0], left, casting="unsafe")
         np.copyto(buf["right"][0, 0], right, casting="unsafe")
         finite = np.isfinite(sparse) & (sparse > 0)

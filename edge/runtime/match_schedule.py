@@ -29,8 +29,8 @@ class MatchSchedule:
     """The matching's thread (started on first use) and its counters, for one engine.
     `early`: whether "auto" may start before the network ends (a core left idle)."""
 
-    def __init__(self, match: EdgeMatch, width: int, downsample: int, early: bool) -> None:
-        self.match, self.width, self.downsample, self.early = match, width, downsample, early
+    def __init__(self, match: EdgeMatch, downsample: int, early: bool) -> None:
+        self.match, self.downsample, self.early = match, downsample, early
         self._thread: ThreadPoolExecutor | None = None
         # frames whose matching started before the network's end, and of those, how many
         # matched again because the final disparity needed another count than the guess
@@ -50,7 +50,8 @@ class MatchSchedule:
     def guess_count(self, disparity: np.ndarray) -> int:
         """The "auto" count a low-resolution step output (1, 1, h, w) would give: its largest
         value brought to full-resolution pixels (the convex upsampling never exceeds it)."""
-        return disparities_for(disparity[0, 0] * self.downsample, self.width)
+        low = disparity[0, 0]
+        return disparities_for(low * self.downsample, low.shape[1] * self.downsample)
 
 
 class FrameMatch:
@@ -94,7 +95,7 @@ class FrameMatch:
         """(disparity with the matched pixels taken, pixels taken, pixels beyond the count,
         the choice's preparation for the median), waiting for StereoBM if it still runs."""
         schedule, match = self.schedule, self.schedule.match
-        count = match.num_disparities or disparities_for(disparity, schedule.width)
+        count = match.num_disparities or disparities_for(disparity, disparity.shape[1])
         beyond = match.beyond_px(disparity, count)
         # the terms computed beside the encoder (a deadline may have stopped the steps
         # before the guess)

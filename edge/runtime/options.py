@@ -19,6 +19,7 @@ BUNDLE = "bundle"  # a setting taken from the bundle's model.json
 MATCH_AUTO = "auto"
 MEDIAN_PATTERNS = ("9x9/2", "13x13/3", "9x9/4")
 ROW_STEPS = (1, 2)
+FIT, NATIVE = "fit", "native"
 # where a bundle declares nothing
 UNDECLARED = {"edge_match": 0, "edge_match_rows": 1, "edge_median": "off"}
 
@@ -39,8 +40,11 @@ class EngineOptions:
     bf16: str = _option("auto", "OpenVINO: the encoder in bf16; auto = where the CPU has it "
                         "natively (AVX512-BF16, AMX)", choices=("auto", "on", "off"))
     threads: int = _option(2, "the engine's threads", bounds=(1, 256))
-    scale: float = _option(0.0, "camera → network scale; 0 = the largest that fits the bundle",
-                           bounds=(0.0, 4.0))
+    scale: float | str = _option(FIT, 'the camera\'s images as the network sees them: "fit" '
+                                 "(scaled by the largest factor ≤ 1 that fits the bundle's "
+                                 'size), "native" (the camera\'s own size, padded to the '
+                                 "network's stride; a bundle with any-size graphs), or a "
+                                 "factor in (0, 1] within the bundle's size")
     iters: int = _option(0, "GRU iterations per frame; 0 = the bundle's (the shipped one: 4)",
                          bounds=(0, 64))
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
@@ -81,6 +85,11 @@ class EngineOptions:
                 and match % 16 == 0):
             raise ConfigError("edge_match", '"bundle", "auto", 0 (off) or a multiple of 16',
                               match)
+        scale = self.scale
+        if scale not in (FIT, NATIVE) and not (
+                isinstance(scale, (int, float)) and not isinstance(scale, bool)
+                and 0 <= scale <= 1):
+            raise ConfigError("scale", '"fit", "native" or a factor in (0, 1]', scale)
         rows = self.edge_match_rows
         if isinstance(rows, bool) or rows not in (BUNDLE, *ROW_STEPS):
             raise ConfigError("edge_match_rows", '"bundle", 1 (every row) or 2 (every other '
@@ -104,10 +113,13 @@ class EngineOptions:
     @classmethod
     def with_overrides(cls, base: EngineOptions | None = None, **given: Any) -> EngineOptions:
         """`base` (default: the defaults) with the given fields; None leaves a field as it
-        is, and the Python spellings callers use are accepted: bf16 True/False, scale None."""
+        is, and the Python spellings callers use are accepted: bf16 True/False, scale 0
+        (= "fit")."""
         values = {k: v for k, v in given.items() if v is not None}
         if isinstance(values.get("bf16"), bool):
             values["bf16"] = "on" if values["bf16"] else "off"
+        if values.get("scale") == 0:
+            values["scale"] = FIT
         if "bundle" in values:
             values["bundle"] = str(values["bundle"])
         return replace(base or cls(), **values)
@@ -139,6 +151,8 @@ def _flag_type(f) -> Any:
         return _edge_match_value
     if f.name == "edge_match_rows":
         return _rows_value
+    if f.name == "scale":
+        return _scale_value
     return type(default)
 
 
@@ -157,6 +171,16 @@ def _rows_value(text: str) -> int | str:
     if text not in ("1", "2"):
         raise argparse.ArgumentTypeError(f'expected 1, 2 or "bundle", got {text!r}')
     return int(text)
+
+
+def _scale_value(text: str) -> float | str:
+    if text in (FIT, NATIVE):
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f'expected "fit", "native" or a factor in (0, 1], '
+                                         f"got {text!r}") from None
 
 
 def flag(name: str) -> str:
@@ -183,10 +207,11 @@ def add_engine_arguments(parser: argparse.ArgumentParser, only: tuple[str, ...] 
 
 
 def options_from_args(args: argparse.Namespace, base: EngineOptions | None = None,
-                      **defaults: Any) -> EngineOptions:
-    """The EngineOptions the flags of `add_engine_arguments` ask for, over `base` (and
-    `defaults` for flags not given)."""
-    given = {f.name: getattr(args, f.name, None) for f in fields(EngineOptions)}
+                      only: tuple[str, ...] | None = None, **defaults: Any) -> EngineOptions:
+    """The EngineOptions the flags of `add_engine_arguments` ask for (those in `only`, as it
+    was given them), over `base` (and `defaults` for flags not given)."""
+    given = {f.name: getattr(args, f.name, None) for f in fields(EngineOptions)
+             if only is None or f.name in only}
     return EngineOptions.with_overrides(
         EngineOptions.with_overrides(base, **defaults), **given)
 
