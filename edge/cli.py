@@ -178,7 +178,8 @@ def _add_demo_parser(sub) -> None:
     p.add_argument("--frames", type=positive_int, default=3)
     p.add_argument("--seed", type=int, default=1_000_000,
                    help="first scene (default: the test split's first)")
-    p.add_argument("--precision", choices=("int8", "fp32"), default="int8")
+    p.add_argument("--precision", choices=("auto", "int8", "fp32"), default="auto",
+                   help="auto: int8 where this CPU runs it faster, else fp32")
     p.add_argument("--iters", type=positive_int, default=None,
                    help="GRU iterations (default: the bundle's)")
     p.add_argument("--deadline-ms", type=float, default=None)

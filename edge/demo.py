@@ -89,7 +89,7 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
     return np.vstack(rows)
 
 
-def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "int8",
+def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "auto",
                  iters: int | None = None, deadline_ms: float | None = None,
                  profile: str = "foxglove") -> int:
     from edge_depth.capture.sim import SimSource
@@ -138,7 +138,7 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
     sgbm_epe = np.mean([r["epe"] for r in sgbm_rows])
     sgbm_bad3 = np.mean([r["bad3"] for r in sgbm_rows])
     sgbm_ms = float(np.median([r["ms"] for r in sgbm_rows]))
-    print(f"  network ({precision}) EPE {net_epe:.2f} px, bad-3 {net_bad3:.1f}%, "
+    print(f"  network ({engine.precision}) EPE {net_epe:.2f} px, bad-3 {net_bad3:.1f}%, "
           f"engine {lat['engine']['median']:.0f} ms")
     print(f"  OpenCV SGBM     EPE {sgbm_epe:.2f} px, bad-3 {sgbm_bad3:.1f}%, "
           f"{sgbm_ms:.0f} ms (same pairs, same run)")

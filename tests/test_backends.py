@@ -126,3 +126,25 @@ def test_openvino_computes_only_the_encoder_outputs_the_other_graphs_read():
     session = backends.OpenVinoSession(DEFAULT_BUNDLE / "encoder.onnx", 1,
                                        outputs={"corr", "hidden"})
     assert sorted(session.output_names) == ["corr", "hidden"]
+
+
+@pytest.mark.parametrize("dot, runtime, expected", [
+    (True, "onnxruntime", "int8"), (True, "openvino", "int8"),
+    (False, "openvino", "int8"),        # OpenVINO's int8 kernels win without dot products too
+    (False, "onnxruntime", "fp32"),     # ONNX Runtime's do not
+    (None, "onnxruntime", "fp32")])     # instructions unknown: float
+def test_auto_precision_is_int8_where_the_cpu_runs_it_faster(dot, runtime, expected):
+    cpu = dict(model="x", int8_dot_product=dot, isa=[])
+    both = {"fp32": {}, "int8": {}}
+    assert backends.resolve_precision("auto", runtime, both, cpu) == expected
+    assert backends.resolve_precision("auto", runtime, {"fp32": {}}, cpu) == "fp32"
+    assert backends.resolve_precision("int8", runtime, both, cpu) == "int8"   # as asked
+    assert backends.resolve_precision("fp32", runtime, both, cpu) == "fp32"
+
+
+def test_the_engine_resolves_auto_precision_once_and_says_which(monkeypatch):
+    monkeypatch.setattr(backends, "cpu_description",
+                        lambda: dict(model="x", int8_dot_product=False, isa=["AVX2"]))
+    engine = Engine(runtime="onnxruntime", threads=1)
+    assert engine.options.precision == "auto" and engine.precision == "fp32"
+    assert engine.describe().startswith("fp32 on onnxruntime")

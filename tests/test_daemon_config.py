@@ -72,7 +72,7 @@ def test_defaults_and_values_load():
     import tomllib
 
     cfg = load_robot_config.__globals__["RobotConfig"]()
-    assert cfg.camera.size == (640, 400) and cfg.engine.precision == "int8"
+    assert cfg.camera.size == (640, 400) and cfg.engine.precision == "auto"
     text = "[camera]\nsize = [320, 200]\n[log]\nraw = false\n"
     assert tomllib.loads(text)  # valid TOML
 

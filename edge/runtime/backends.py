@@ -80,6 +80,20 @@ def cpu_has_bf16() -> bool:
         return False
 
 
+def resolve_precision(precision: str, runtime: str, available, cpu: dict | None = None) -> str:
+    """"auto" → "int8" where the bundle has it and it runs faster than float here: on a CPU
+    with int8 dot products (`cpu_description`), or on OpenVINO, whose int8 kernels beat its
+    float ones without them too (×1.12 on an AVX2-only EPYC, docs/speed.md); ONNX Runtime
+    without them runs int8 no faster (×0.97 there), so "fp32". `runtime` already resolved;
+    `available`: the bundle's precisions."""
+    if precision != "auto":
+        return precision
+    if "int8" not in available:
+        return "fp32"
+    dot = (cpu or cpu_description())["int8_dot_product"]
+    return "int8" if dot or runtime == "openvino" else "fp32"
+
+
 def resolve_runtime(runtime: str) -> str:
     """"auto" → "openvino" on x86-64 with OpenVINO installed, else "onnxruntime"; an explicit
     "openvino" without the package is a ConfigError naming the install."""

@@ -21,7 +21,13 @@ import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
-from edge_depth.runtime.backends import BF16_GRAPHS, cpu_has_bf16, open_session, resolve_runtime
+from edge_depth.runtime.backends import (
+    BF16_GRAPHS,
+    cpu_has_bf16,
+    open_session,
+    resolve_precision,
+    resolve_runtime,
+)
 from edge_depth.runtime.edge_match import (
     AUTO,
     EdgeMatch,
@@ -81,7 +87,8 @@ class Engine:
         self.bf16 = bool(bf16) and self.runtime == "openvino"
         self.bundle = Path(options.bundle or DEFAULT_BUNDLE)
         self.meta = meta or load_bundle_meta(self.bundle)
-        self.precision = options.precision
+        self.precision = resolve_precision(options.precision, self.runtime,
+                                           self.meta["precisions"])
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
