@@ -14,9 +14,12 @@ date -u +%FT%TZ
 [ -d data/test16 ] || "$BIN/edge-depth" synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 for pair in aloe motorcycle; do
   "$BIN/python" tools/evaluate.py "data/$pair" --methods net,sgbm-filled,sgbm+lidar,lidar-nearest \
-      --no-lidar --runtime onnxruntime --json "$OUT/$pair.json"
+      --no-lidar --runtime onnxruntime --precision int8 --json "$OUT/$pair.json"
 done
-"$BIN/python" tools/evaluate.py data/test16 --methods net --no-lidar --runtime onnxruntime \
+"$BIN/python" tools/evaluate.py data/test16 --methods net --no-lidar --runtime onnxruntime --precision int8 \
     --json "$OUT/test16.json"
 "$BIN/python" tools/bench.py --runs 3 --json "$OUT/bench.json" --markdown "$OUT/bench.md"
 date -u +%FT%TZ
+for i in 1 2 3; do  # the daemon on the synthetic robot
+  "$BIN/edge-depth" run --config experiments/sim_robot.toml --max-frames 100 | grep throughput
+done

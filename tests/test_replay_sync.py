@@ -276,3 +276,32 @@ def test_offline_readers_pair_each_frame_with_its_own_scan_in_either_storage_ord
         # its own scan: the LiDAR disparity agrees with this frame's ground truth
         valid = arrays["valid"] & (s.disp_left > 0)
         assert np.median(np.abs(arrays["sparse"][valid] - s.disp_left[valid])) < 1.0
+
+
+def test_native_replays_a_1242x375_recording_at_its_size_without_torch(tmp_path):
+    """`--scale native` on the robot-side install: torch cannot be imported, and the engine
+    runs the recording's 1242x375 frames padded to 1248x376, not scaled."""
+    import subprocess
+    import sys
+
+    rec, out = tmp_path / "kitti_sized.mcap", tmp_path / "out.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "2", "--seed", str(SEED),
+                 "--size", "1242x375"]) == 0
+    code = ("import sys\n"
+            "class NoTorch:\n"  # `import torch` raises ImportError, as on the robot
+            "    def find_spec(self, name, path=None, target=None):\n"
+            "        if name.split('.')[0] == 'torch':\n"
+            "            raise ImportError('no torch on the robot')\n"
+            "sys.meta_path.insert(0, NoTorch())\n"
+            "from edge_depth.cli import main\n"
+            f"sys.exit(main(['replay', {str(rec)!r}, '--out', {str(out)!r}, '--iters', '2', "
+            "'--scale', 'native']))")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    text = done.stdout + done.stderr
+    assert "at the camera's own size" in text and "frames with LiDAR: 2 of 2" in text
+    from tests.test_ros2_profile import foxglove_images
+
+    images = foxglove_images(out, TOPICS["disparity"])
+    assert [image.shape for image in images] == [(375, 1242)] * 2

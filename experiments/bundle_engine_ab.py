@@ -1,0 +1,47 @@
+"""Two bundles' engines at their defaults, alternated frame by frame in one process on the same
+rig frame (640x400, 16 LiDAR rows): median ms per frame and per stage.
+
+    python experiments/bundle_engine_ab.py BUNDLE_A BUNDLE_B [--frames 40]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import time
+
+import numpy as np
+
+from edge_depth.runtime.backends import cpu_description
+from edge_depth.runtime.engine import Engine
+from edge_depth.sim import RigConfig, make_sample
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("bundles", nargs=2)
+    p.add_argument("--frames", type=int, default=40)
+    args = p.parse_args()
+    cpu = cpu_description()
+    print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
+    sample = make_sample(1_000_000, RigConfig(), "beams16")
+    sparse, valid = sample.sparse_disparity("left")
+    sparse = (sparse * valid).astype(np.float32)
+    engines = {b: Engine(b, threads=2) for b in args.bundles}
+    for engine in engines.values():
+        engine.warm_up()
+    stages: dict[str, dict[str, list[float]]] = {b: {} for b in engines}
+    for _ in range(args.frames):
+        for b, engine in engines.items():
+            t = time.perf_counter()
+            result = engine.infer(sample.left, sample.right, sparse)
+            stages[b].setdefault("frame", []).append((time.perf_counter() - t) * 1000)
+            for k, v in result.timings_ms.items():
+                stages[b].setdefault(k, []).append(v)
+    for b in engines:
+        medians = {k: round(statistics.median(v), 1) for k, v in stages[b].items()}
+        print(f"{b} ({engines[b].describe()}): {medians}")
+
+
+if __name__ == "__main__":
+    main()
