@@ -115,6 +115,9 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     assert report["frames"] == {"adapt": 4, "check": 1} and report["written"]
     assert report["training"]["steps"] == 1
     assert set(report["check"]) == {"before", "unadapted", "after"}  # 192x128 != 640x400
+    # the shipped bundle takes any size: its weights ran at the camera's, nothing re-exported
+    assert not (tmp_path / "robot.adapt" / "start_bundle").exists()
+    assert "from the camera's resolution" in report["why"] and "from adaptation" in report["why"]
     for side in ("before", "after"):
         assert 0 < report["check"][side]["photometric"] < 1
         assert report["check"][side]["epe"] >= 0  # the recording carries GT

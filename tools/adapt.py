@@ -269,13 +269,22 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     size = bundle_size(adapt_frames)
     if unadapted and tuple(engines["before"].size) != size:
         # the starting weights at the camera's size: what adaptation gained apart from the
-        # resolution the old bundle ran at
-        start_bundle = work / "start_bundle"
-        build_bundle(init, start_bundle, size, adapt_frames, node_search=node_search)
-        engines["unadapted"] = Engine(start_bundle, precision="int8")
+        # resolution the old bundle ran at; a bundle with any-size graphs holding those
+        # weights runs there itself, others are exported at that size
+        if engines["before"].any_size and (start is None or Path(start).is_dir()):
+            engines["unadapted"] = Engine(old_bundle, precision="int8", scale="native")
+        else:
+            start_bundle = work / "start_bundle"
+            build_bundle(init, start_bundle, size, adapt_frames, node_search=node_search)
+            engines["unadapted"] = Engine(start_bundle, precision="int8")
     engines["after"] = Engine(candidate, precision="int8")
     means, rows, shown = check(engines, check_frames)
     better, why = is_better(means["before"], means["after"], photometric_only)
+    if "unadapted" in means:  # the two parts of the change, apart
+        held = [means[k].get("held_out_px", float("nan"))
+                for k in ("before", "unadapted", "after")]
+        why += (f"; held-out LiDAR from the camera's resolution {held[0]:.3f} -> "
+                f"{held[1]:.3f} px, from adaptation {held[1]:.3f} -> {held[2]:.3f} px")
     if not np.isfinite(means["after"].get("held_out_px", np.nan)):
         print("adapt: the check frames have no held-out LiDAR error (no LiDAR paired with "
               "them): " + ("deciding on the photometric error alone (--photometric-only)"
