@@ -1,7 +1,8 @@
-"""Two bundles' engines at their defaults, alternated frame by frame in one process on the same
-rig frame (640x400, 16 LiDAR rows): median ms per frame and per stage.
+"""Bundles' engines at their defaults (or each at several precisions), alternated frame by frame
+in one process on the same rig frame (640x400, 16 LiDAR rows): median ms per frame and stage.
 
-    python experiments/bundle_engine_ab.py BUNDLE_A BUNDLE_B [--frames 40]
+    python experiments/bundle_engine_ab.py BUNDLE [BUNDLE ...] [--frames 40]
+        [--precisions int8,fp32] [--bf16 auto|on|off]
 """
 
 from __future__ import annotations
@@ -19,15 +20,18 @@ from edge_depth.sim import RigConfig, make_sample
 
 def main() -> None:
     p = argparse.ArgumentParser()
-    p.add_argument("bundles", nargs=2)
+    p.add_argument("bundles", nargs="+")
     p.add_argument("--frames", type=int, default=40)
+    p.add_argument("--precisions", default="auto")
+    p.add_argument("--bf16", default="auto", choices=("auto", "on", "off"))
     args = p.parse_args()
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
     sample = make_sample(1_000_000, RigConfig(), "beams16")
     sparse, valid = sample.sparse_disparity("left")
     sparse = (sparse * valid).astype(np.float32)
-    engines = {b: Engine(b, threads=2) for b in args.bundles}
+    engines = {f"{b} {p}": Engine(b, threads=2, precision=p, bf16=args.bf16)
+               for b in args.bundles for p in args.precisions.split(",")}
     for engine in engines.values():
         engine.warm_up()
     stages: dict[str, dict[str, list[float]]] = {b: {} for b in engines}

@@ -3,7 +3,10 @@
 own stages around them, on this host.
 
     python experiments/profile_graphs.py [--bundle DIR] [--precision int8] [--threads 2]
-        [--runs 30] [--markdown OUT.md]
+        [--runs 30] [--markdown OUT.md] [--bf16 auto|on|off]
+
+With `ONEDNN_MAX_CPU_ISA=AVX2` (and `--bf16 off`) OpenVINO's oneDNN kernels are those an
+AVX2-only CPU gets (the table's kernel column says which ran); ONNX Runtime's are not limited.
 
 Graph inputs are a rig frame's (640x400, 16 LiDAR rows) as the engine feeds them; each graph
 runs `--runs` times after a warm-up, and the per-run time of an operator type is its total over
@@ -55,8 +58,11 @@ def ort_profile(path: Path, feeds: dict, threads: int, runs: int) -> dict[str, f
     return {op: ms / total_runs for op, ms in by_op.items()}
 
 
-def ov_profile(path: Path, feeds: dict, threads: int, runs: int, bf16: bool
-               ) -> dict[str, float]:
+def ov_profile(path: Path, feeds: dict, threads: int, runs: int, bf16: bool,
+               nodes: dict | None = None) -> dict[str, float]:
+    """ms per run by operator type; `nodes`, if given, receives ms per run by node name with
+    the kernel OpenVINO chose (its exec_type names the instruction set: jit_avx512, brgconv_avx2,
+    ..._amx)."""
     import openvino as ov
 
     core = ov.Core()
@@ -74,7 +80,11 @@ def ov_profile(path: Path, feeds: dict, threads: int, runs: int, bf16: bool
     for _ in range(runs):
         request.infer({k: feeds[k] for k in names})
         for info in request.get_profiling_info():
-            by_op[info.node_type] += info.real_time.total_seconds() * 1000
+            ms = info.real_time.total_seconds() * 1000
+            by_op[info.node_type] += ms
+            if nodes is not None:
+                key = (info.node_name, info.exec_type)
+                nodes[key] = nodes.get(key, 0.0) + ms / runs
     return {op: ms / runs for op, ms in by_op.items()}
 
 
@@ -104,21 +114,28 @@ def main() -> None:
     p.add_argument("--threads", type=int, default=2)
     p.add_argument("--runs", type=int, default=30)
     p.add_argument("--markdown", type=Path, default=None)
+    p.add_argument("--bf16", default="auto", choices=("auto", "on", "off"),
+                   help="off with ONEDNN_MAX_CPU_ISA=AVX2 (an AVX2-only CPU's kernels on this "
+                        "one), where OpenVINO cannot compile bf16")
     args = p.parse_args()
     cpu = cpu_description()
     lines = [f"host: {cpu['model']}; ISA {', '.join(cpu['isa'])}; {args.threads} threads; "
              f"{args.precision} graphs of {args.bundle}", ""]
-    engine = Engine(args.bundle, precision=args.precision, threads=args.threads)
+    engine = Engine(args.bundle, precision=args.precision, threads=args.threads, bf16=args.bf16)
     feeds = recorded_feeds(engine)
     files = engine.meta["precisions"][args.precision]
     for part in ("encoder", "step", "upsample"):
         path = args.bundle / files[part]
         lines += table(f"{part} on ONNX Runtime", ort_profile(path, feeds[part], args.threads,
                                                               args.runs))
+        nodes: dict = {}
         lines += table(f"{part} on OpenVINO" + (" (bf16)" if engine.bf16 and part == "encoder"
                                                else ""),
                        ov_profile(path, feeds[part], args.threads, args.runs,
-                                  engine.bf16 and part == "encoder"))
+                                  engine.bf16 and part == "encoder", nodes))
+        lines += ["| its slowest nodes | kernel | ms |", "|---|---|---|"]
+        lines += [f"| {name} | {kernel} | {ms:.2f} |" for (name, kernel), ms in
+                  sorted(nodes.items(), key=lambda kv: -kv[1])[:5]] + [""]
     stages = stage_medians(engine, args.runs)
     lines += [f"**the engine's stages** ({engine.describe()}), median ms of {args.runs} frames:",
               "", "| stage | ms |", "|---|---|"]
