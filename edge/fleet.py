@@ -255,7 +255,9 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
     """Every recording on the workers, as they come free; records in completion order."""
     import ray
 
-    _init_ray(ray, address, workers, job.engine.threads)
+    owned = not ray.is_initialized()  # a caller's session (a notebook, a scheduler) is used
+    if owned:
+        _init_ray(ray, address, workers, job.engine.threads)
     try:
         cpus = int(ray.cluster_resources().get("CPU", 1))
         threads = job.engine.threads
@@ -291,7 +293,8 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
             bar.close()
         return records
     finally:
-        ray.shutdown()
+        if owned:
+            ray.shutdown()
 
 
 def _progress_line(record: dict) -> str:

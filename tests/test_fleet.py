@@ -14,6 +14,19 @@ pytest.importorskip("ray")
 THREADS = ["--threads", "1"]
 
 
+@pytest.fixture(scope="module", autouse=True)
+def ray_session():
+    """One local Ray for the module, started as the command starts its own: every `fleet`
+    call uses it (a caller's session is the command's), and leaves it running."""
+    import ray
+
+    from edge_depth.fleet import _init_ray
+
+    _init_ray(ray, None, 4, 1)
+    yield ray
+    ray.shutdown()
+
+
 @pytest.fixture(scope="module")
 def recordings(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fleet") / "recordings"
@@ -31,7 +44,7 @@ def _summary(out):
 
 
 def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordings, tmp_path,
-                                                                        capsys):
+                                                                        capsys, ray_session):
     from edge_depth.compare import compare
 
     golden = tmp_path / "golden"
@@ -42,6 +55,7 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
     assert sorted(by_name) == ["damaged", *(f"rec{i}" for i in range(5))]
     assert summary["failed"] == ["damaged"] and by_name["damaged"]["reason"]
     assert "damaged" in (golden / "summary.md").read_text()
+    assert ray_session.is_initialized()  # the caller's session: used, not shut down
     for i in range(5):
         single = tmp_path / f"single{i}.mcap"
         assert main(["replay", str(recordings / f"rec{i}.mcap"), "--out", str(single),
