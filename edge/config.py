@@ -49,7 +49,7 @@ from typing import Any
 
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.options import BUNDLE, FIT, NATIVE, ROW_STEPS, EngineOptions
+from edge_depth.runtime.options import BUNDLE, ROW_STEPS, SCALE_WORDS, EngineOptions
 
 _log = logging.getLogger(__name__)
 
@@ -163,7 +163,7 @@ def _check_range(path: str, name: str, key: str, value) -> None:
 # a number of the given type, or one of these strings
 STRING_OR_NUMBER = {"engine.edge_match": (("auto", BUNDLE), 0),
                     "engine.edge_match_rows": ((BUNDLE,), 0),
-                    "engine.scale": ((FIT, NATIVE), 0.0)}
+                    "engine.scale": (SCALE_WORDS, 0.0)}
 
 
 def _convert(path: str, key: str, value, default):

@@ -106,9 +106,9 @@ class Pipeline:
         plan = engine.plan_for(tuple(stereo.image_size)) if engine else None  # ConfigError
         if engine is not None and plan is not None and not plan.identity:  # if it cannot run
             w, h = plan.scaled
-            if plan.bundle != engine.size:
-                log.info("camera %dx%d runs at its own size (padded to %dx%d)",
-                         *stereo.image_size, *plan.bundle)
+            if plan.bundle != engine.size:  # "budget" or "native": an input of its own
+                log.info("camera %dx%d runs at scale %.3f (%dx%d, padded to %dx%d)",
+                         *stereo.image_size, plan.scale, w, h, *plan.bundle)
             else:
                 log.info("camera %dx%d runs on the %dx%d bundle at scale %.3f (%dx%d, padded)",
                          *stereo.image_size, *engine.size, plan.scale, w, h)

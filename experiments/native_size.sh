@@ -1,5 +1,5 @@
 #!/bin/sh
-# "fit" against "native" (`[engine] scale`) for the shipped bundle at three camera sizes:
+# "fit", "budget" and "native" (`[engine] scale`) for the shipped bundle at three camera sizes:
 # EPE / bad-3 against the ground truth and the median ms per pair (tools/evaluate.py, int8,
 # the bundle's matching, 2 threads), on the rig world (16-beam LiDAR, 12 scenes) and the
 # things world (scene folders, 12 scenes) rendered at each size from test-split seeds.
@@ -20,7 +20,7 @@ for size in 640x400 1280x800 1242x375; do
           --seed 1100000 --size $size
       fi
     fi
-    for scale in fit native; do
+    for scale in fit budget native; do
       "$BIN/python" tools/evaluate.py "$data" --methods net --scale $scale \
         --json "$OUT/$world-$size-$scale.json" > /dev/null
     done
@@ -31,13 +31,13 @@ import json, sys
 from pathlib import Path
 out = Path(sys.argv[1])
 print(f"host ISA: {(out / 'isa.txt').read_text().strip() or 'AVX2 only'}")
-print("| camera | world | fit EPE / bad-3 | fit ms | native EPE / bad-3 | native ms |")
-print("|---|---|---|---|---|---|")
+scales = ("fit", "budget", "native")
+print("| camera | world | " + " | ".join(f"{s} EPE / bad-3 | {s} ms" for s in scales) + " |")
+print("|---|---|" + "---|---|" * len(scales))
 for size in ("640x400", "1280x800", "1242x375"):
     for world in ("rig", "things"):
         r = {s: json.loads((out / f"{world}-{size}-{s}.json").read_text())["net"]
-             for s in ("fit", "native")}
-        print(f"| {size} | {world} | {r['fit']['epe']:.3f} / {r['fit']['bad3']:.2f} % | "
-              f"{r['fit']['ms']:.0f} | {r['native']['epe']:.3f} / {r['native']['bad3']:.2f} % | "
-              f"{r['native']['ms']:.0f} |")
+             for s in scales}
+        print(f"| {size} | {world} | " + " | ".join(
+            f"{r[s]['epe']:.3f} / {r[s]['bad3']:.2f} % | {r[s]['ms']:.0f}" for s in scales) + " |")
 PY

@@ -261,8 +261,10 @@ def test_any_camera_size_runs_on_the_shipped_int8_bundle(size):
     result = engine.infer(left, right, sparse, iters=4, focal_px=sample.rig.focal_px,
                           baseline_m=sample.rig.baseline_m)
     assert result.disparity.shape == (size[1], size[0])
-    plan = engine.plan_for(size)
-    assert plan.scale == pytest.approx(min(1.0, 640 / size[0], 400 / size[1]))
+    plan = engine.plan_for(size)  # "budget": the bundle's pixel count at the camera's aspect
+    assert plan.scale == pytest.approx(min(1.0, (640 * 400 / (size[0] * size[1])) ** 0.5),
+                                       rel=0.03)
+    assert plan.bundle[0] * plan.bundle[1] <= 640 * 400
     # disparities come back in camera pixels: the rig's GT at that size
     m = disparity_metrics(result.disparity, sample.disp_left)
     assert m["epe"] < 3.0 and m["density"] > 99, m
@@ -274,6 +276,7 @@ def test_an_engine_scale_beyond_the_bundle_is_a_config_error():
     engine = Engine(precision="int8", threads=1, scale=1.0)
     with pytest.raises(ConfigError, match="at most 0.500"):
         engine.plan_for((1280, 800))
+    assert Engine(threads=1, scale="fit").plan_for((640, 480)).scale == pytest.approx(400 / 480)
 
 
 def test_random_feeds_take_each_graphs_declared_shapes(small_bundle):

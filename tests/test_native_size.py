@@ -1,5 +1,6 @@
-"""A camera at its own resolution: graphs that take any size, `scale = "native"` in the engine,
-the robot file and the command line, and OpenVINO compiling such a graph for the size it gets."""
+"""A camera at its own resolution: graphs that take any size, `scale = "native"` (and "budget",
+the bundle's pixel count at the camera's aspect) in the engine, the robot file and the command
+line, and OpenVINO compiling such a graph for the size it gets."""
 
 from __future__ import annotations
 
@@ -58,7 +59,7 @@ def test_native_runs_the_shipped_bundle_at_the_cameras_size_padded_to_the_stride
     result = native.infer(sample.left, sample.right, sparse, iters=4)
     assert result.disparity.shape == (375, 1242)
     assert native._inputs["left"].shape == (1, 1, 376, 1248)   # no resize: padded only
-    fit = Engine(threads=2).infer(sample.left, sample.right, sparse, iters=4)
+    fit = Engine(threads=2, scale="fit").infer(sample.left, sample.right, sparse, iters=4)
     m_native = disparity_metrics(result.disparity, sample.disp_left)
     m_fit = disparity_metrics(fit.disparity, sample.disp_left)
     assert m_native["density"] > 99 and m_native["epe"] < 2.0, m_native
@@ -71,6 +72,23 @@ def test_native_runs_the_shipped_bundle_at_the_cameras_size_padded_to_the_stride
     assert small.infer(sample.left, sample.right, sparse, iters=2).disparity.shape == (40, 48)
 
 
+@pytest.mark.parametrize("camera, padded", [((1242, 375), (912, 280)), ((1280, 800), (640, 400)),
+                                            ((640, 480), (576, 432)), ((320, 200), (320, 200))])
+def test_budget_keeps_the_bundles_pixel_count_at_the_cameras_aspect(camera, padded):
+    engine = Engine(scale="budget", threads=1)
+    plan = engine.plan_for(camera)
+    w, h = plan.bundle
+    assert (w, h) == padded and w % 8 == 0 and h % 8 == 0
+    assert w * h <= 640 * 400 and plan.scale <= 1.0
+    sw, sh = plan.scaled  # the scaled image fits its padded input
+    assert sw <= w and sh <= h and abs(sw / camera[0] - sh / camera[1]) < 0.01
+    if camera == (1242, 375):  # a wide camera keeps more than "fit" gives it (640x193)
+        assert sw * sh > 1.8 * 640 * 193
+        sample, sparse = scene(camera, lidar="beams32")
+        disparity = engine.infer(sample.left, sample.right, sparse, iters=2).disparity
+        assert disparity.shape == (375, 1242) and engine._inputs["left"].shape == (1, 1, h, w)
+
+
 def test_a_bundle_of_one_size_refuses_native_in_one_line(small_bundle, tmp_path):
     bundle = tmp_path / "old"
     shutil.copytree(small_bundle[0], bundle)
@@ -79,8 +97,9 @@ def test_a_bundle_of_one_size_refuses_native_in_one_line(small_bundle, tmp_path)
     (bundle / "model.json").write_text(json.dumps(meta))
     with pytest.raises(ConfigError, match="export it again"):
         Engine(bundle, scale="native", precision="fp32", threads=1)
-    # "fit" still runs
-    assert Engine(bundle, precision="fp32", threads=1).plan_for((1280, 800)).scale < 1
+    # "budget" (the default) is "fit" there: its pixel budget is its shape
+    engine = Engine(bundle, precision="fp32", threads=1)
+    assert engine.scale == "fit" and engine.plan_for((1280, 800)).bundle == tuple(meta["size"])
 
 
 @pytest.mark.skipif(not openvino_available(), reason="OpenVINO not installed")
@@ -104,9 +123,10 @@ def test_openvino_compiles_an_any_size_graph_for_each_size_it_gets():
 def test_scale_is_fit_native_or_a_factor_in_the_robot_file_and_on_the_command_line(tmp_path):
     import argparse
 
-    assert EngineOptions().scale == "fit"
+    assert EngineOptions().scale == "budget"
     path = tmp_path / "robot.toml"
-    for text, expected in (('"native"', "native"), ('"fit"', "fit"), ("0.5", 0.5)):
+    for text, expected in (('"native"', "native"), ('"fit"', "fit"), ('"budget"', "budget"),
+                           ("0.5", 0.5)):
         path.write_text(f"[engine]\nscale = {text}\n")
         assert load_robot_config(path).engine.scale == expected
     for text in ('"wide"', "1.5", "true"):
@@ -117,7 +137,7 @@ def test_scale_is_fit_native_or_a_factor_in_the_robot_file_and_on_the_command_li
     add_engine_arguments(parser)
     assert options_from_args(parser.parse_args(["--scale", "native"])).scale == "native"
     assert options_from_args(parser.parse_args(["--scale", "0.25"])).scale == 0.25
-    assert options_from_args(parser.parse_args([])).scale == "fit"
+    assert options_from_args(parser.parse_args([])).scale == "budget"
     with pytest.raises(SystemExit):
         parser.parse_args(["--scale", "huge"])
     # the spelling older callers use: 0 = fit

@@ -11,6 +11,7 @@ upsampling time of earlier frames, would finish after it; it always runs at leas
 from __future__ import annotations
 
 import json
+import math
 import os
 import time
 from dataclasses import dataclass, field
@@ -38,7 +39,7 @@ from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
-from edge_depth.runtime.options import FIT, NATIVE, EngineOptions, bundle_preset
+from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
 from edge_depth.types import DepthResult
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
@@ -70,9 +71,10 @@ class Engine:
     `options` (`edge.runtime.options.EngineOptions`; the fields given as keyword arguments
     override it) say everything the engine does; the bundle's preset fills those left at
     "bundle" once, here. Any camera size runs: with `scale` "fit" (or a factor) images that
-    are not the bundle's size are scaled into it and padded, with "native" (a bundle whose
-    graphs take any size: model.json's "any_size") they run at their own size padded to the
-    network's stride; the outputs come back at the camera's size (`edge.runtime.fit`). The
+    are not the bundle's size are scaled into it and padded; on a bundle whose graphs take any
+    size (model.json's "any_size"), "budget" scales them to the bundle's pixel count at their
+    own aspect and "native" runs them at their own size, padded to the network's stride; the
+    outputs come back at the camera's size (`edge.runtime.fit`). The
     stages are `infer`'s; when the matching's block matching runs is
     `edge.runtime.match_schedule`'s."""
 
@@ -94,6 +96,8 @@ class Engine:
         self.default_iters = int(self.meta.get("default_iters", 4))
         self.any_size = bool(self.meta.get("any_size"))
         self.scale = options.scale
+        if self.scale == BUDGET and not self.any_size:
+            self.scale = FIT  # a bundle of one size: its pixel budget is its shape
         if self.scale == NATIVE and not self.any_size:
             raise ConfigError("scale", 'a bundle whose graphs take any size for "native" '
                               "(export it again with tools/export.py)",
@@ -168,19 +172,35 @@ class Engine:
 
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
         """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale):
-        "native" at its own size padded to the network's stride (and to at least
-        NATIVE_MIN_STRIDES strides a side, for the correlation pyramid's coarsest level),
-        otherwise scaled into the bundle's size."""
+        "native" at its own size, "budget" scaled to the bundle's pixel count, each padded to
+        the network's stride (and to at least NATIVE_MIN_STRIDES strides a side, for the
+        correlation pyramid's coarsest level); otherwise scaled into the bundle's size."""
         if camera not in self._plans:
-            if self.scale == NATIVE:
-                side = self.downsample * NATIVE_MIN_STRIDES
-                network = tuple(max(side, -(-n // self.downsample) * self.downsample)
-                                for n in camera)
-                self._plans[camera] = FitPlan.make(camera, (network[0], network[1]), 1.0)
+            if self.scale in (NATIVE, BUDGET):
+                factor = 1.0 if self.scale == NATIVE else self._budget_factor(camera)
+                network = self._network_size(camera, factor)
+                self._plans[camera] = FitPlan.make(camera, network, factor)
             else:
                 scale = None if self.scale == FIT else float(self.scale)
                 self._plans[camera] = FitPlan.make(camera, self.size, scale)
         return self._plans[camera]
+
+    def _network_size(self, camera: tuple[int, int], factor: float) -> tuple[int, int]:
+        """The padded network input for a camera scaled by `factor`."""
+        side, step = self.downsample * NATIVE_MIN_STRIDES, self.downsample
+        w, h = (max(side, -(-math.ceil(n * factor - 1e-9) // step) * step) for n in camera)
+        return w, h
+
+    def _budget_factor(self, camera: tuple[int, int]) -> float:
+        """The largest factor ≤ 1 whose padded input has no more pixels than the bundle's."""
+        budget = self.width * self.height
+        factor = min(1.0, math.sqrt(budget / (camera[0] * camera[1])))
+        while factor > 0.05:
+            w, h = self._network_size(camera, factor)
+            if w * h <= budget:
+                break
+            factor *= 0.995
+        return factor
 
     def _buffers(self, size: tuple[int, int]) -> dict[str, np.ndarray]:
         """The graphs' input buffers for a (w, h) network input (kept while it stays)."""
@@ -204,7 +224,7 @@ class Engine:
         """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
         median 9x9/2 (the bundle's)': what runs, for the first log line."""
         text = f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
-        if self.scale == NATIVE:
+        if self.scale == NATIVE:  # the default ("budget") goes without saying
             text += ", at the camera's own size"
         m = self.edge_match
         source = " (the bundle's)" if self.edge_match_source == "bundle" else ""

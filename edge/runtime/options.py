@@ -19,7 +19,8 @@ BUNDLE = "bundle"  # a setting taken from the bundle's model.json
 MATCH_AUTO = "auto"
 MEDIAN_PATTERNS = ("9x9/2", "13x13/3", "9x9/4")
 ROW_STEPS = (1, 2)
-FIT, NATIVE = "fit", "native"
+FIT, NATIVE, BUDGET = "fit", "native", "budget"
+SCALE_WORDS = (FIT, BUDGET, NATIVE)
 # where a bundle declares nothing
 UNDECLARED = {"edge_match": 0, "edge_match_rows": 1, "edge_median": "off"}
 
@@ -43,11 +44,13 @@ class EngineOptions:
     bf16: str = _option("auto", "OpenVINO: the encoder in bf16; auto = where the CPU has it "
                         "natively (AVX512-BF16, AMX)", choices=("auto", "on", "off"))
     threads: int = _option(2, "the engine's threads", bounds=(1, 256))
-    scale: float | str = _option(FIT, 'the camera\'s images as the network sees them: "fit" '
-                                 "(scaled by the largest factor ≤ 1 that fits the bundle's "
-                                 'size), "native" (the camera\'s own size, padded to the '
-                                 "network's stride; a bundle with any-size graphs), or a "
-                                 "factor in (0, 1] within the bundle's size")
+    scale: float | str = _option(BUDGET, 'the camera\'s images as the network sees them: '
+                                 '"budget" (the largest factor ≤ 1 that keeps the bundle\'s '
+                                 "pixel count, at the camera's aspect; on a bundle of one size: "
+                                 '"fit"), "fit" (the largest factor ≤ 1 that fits the '
+                                 "bundle's width and height), \"native\" (the camera's own "
+                                 "size, a bundle with any-size graphs), or a factor in (0, 1] "
+                                 "within the bundle's size")
     iters: int = _option(0, "GRU iterations per frame; 0 = the bundle's (the shipped one: 4)",
                          bounds=(0, 64))
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
@@ -89,10 +92,10 @@ class EngineOptions:
             raise ConfigError("edge_match", '"bundle", "auto", 0 (off) or a multiple of 16',
                               match)
         scale = self.scale
-        if scale not in (FIT, NATIVE) and not (
+        if scale not in SCALE_WORDS and not (
                 isinstance(scale, (int, float)) and not isinstance(scale, bool)
                 and 0 <= scale <= 1):
-            raise ConfigError("scale", '"fit", "native" or a factor in (0, 1]', scale)
+            raise ConfigError("scale", '"fit", "budget", "native" or a factor in (0, 1]', scale)
         rows = self.edge_match_rows
         if isinstance(rows, bool) or rows not in (BUNDLE, *ROW_STEPS):
             raise ConfigError("edge_match_rows", '"bundle", 1 (every row) or 2 (every other '
@@ -177,13 +180,13 @@ def _rows_value(text: str) -> int | str:
 
 
 def _scale_value(text: str) -> float | str:
-    if text in (FIT, NATIVE):
+    if text in SCALE_WORDS:
         return text
     try:
         return float(text)
     except ValueError:
-        raise argparse.ArgumentTypeError(f'expected "fit", "native" or a factor in (0, 1], '
-                                         f"got {text!r}") from None
+        raise argparse.ArgumentTypeError(f'expected "fit", "budget", "native" or a factor in '
+                                         f"(0, 1], got {text!r}") from None
 
 
 def flag(name: str) -> str:
