@@ -33,11 +33,12 @@ class EventList:
         pass
 
 
-def sim_events(count: int, lag_ms: float):
+def sim_events(count: int, lag_ms: float, distinct: int | None = None):
     """Per moment: (scan, frame, gt) from the rig, the scan stamped lag_ms before its frame
     (negative: after it, as a spinning LiDAR's revolution ends after the frame taken in its
-    middle)."""
-    events = list(SimSource(count, SEED, lidar_lag_ms=lag_ms, start_ns=10_000_000_000))
+    middle); `distinct`: that many scenes rendered, cycled through."""
+    events = list(SimSource(count, SEED, lidar_lag_ms=lag_ms, start_ns=10_000_000_000,
+                            distinct=distinct))
     return [tuple(events[i:i + 3]) for i in range(0, len(events), 3)]
 
 
@@ -66,7 +67,7 @@ def test_pairing_does_not_depend_on_whether_scans_are_stored_before_or_after_fra
 
 @pytest.mark.slow
 def test_a_lidar_on_another_clock_warns_with_the_measured_gap(engine, caplog):
-    moments = sim_events(60, 5.0)
+    moments = sim_events(60, 5.0, distinct=4)  # the stamps matter here, not the scenes
     shifted = []
     for scan, frame, gt in moments:  # the LiDAR's stamps 3 s behind the camera's
         shifted += [LidarScan(scan.stamp_ns - 3_000_000_000, scan.points), frame, gt]
