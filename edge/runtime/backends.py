@@ -83,9 +83,9 @@ def cpu_has_bf16() -> bool:
 def resolve_precision(precision: str, runtime: str, available, cpu: dict | None = None) -> str:
     """"auto" → "int8" where the bundle has it and it runs faster than float here: on a CPU
     with int8 dot products (`cpu_description`), or on OpenVINO, whose int8 kernels beat its
-    float ones without them too (×1.12 on an AVX2-only EPYC, docs/speed.md); ONNX Runtime
-    without them runs int8 no faster (×0.97 there), so "fp32". `runtime` already resolved;
-    `available`: the bundle's precisions."""
+    float ones without them too (×1.12 on an AVX2-only EPYC); ONNX Runtime without them runs
+    int8 no faster (×0.97 there), so "fp32" (docs/speed.md, "Precision by CPU"). `runtime`
+    already resolved; `available`: the bundle's precisions."""
     if precision != "auto":
         return precision
     if "int8" not in available:

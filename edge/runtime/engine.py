@@ -74,9 +74,8 @@ class Engine:
     are not the bundle's size are scaled into it and padded; on a bundle whose graphs take any
     size (model.json's "any_size"), "budget" scales them to the bundle's pixel count at their
     own aspect and "native" runs them at their own size, padded to the network's stride; the
-    outputs come back at the camera's size (`edge.runtime.fit`). The
-    stages are `infer`'s; when the matching's block matching runs is
-    `edge.runtime.match_schedule`'s."""
+    outputs come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s;
+    when the matching's block matching runs is `edge.runtime.match_schedule`'s."""
 
     def __init__(self, bundle: Path | str | None = None, options: EngineOptions | None = None,
                  meta: dict | None = None, **overrides) -> None:
