@@ -233,8 +233,9 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("checkpoint", type=Path)
     p.add_argument("--out", type=Path, required=True, help="bundle directory")
     p.add_argument("--size", type=parse_size, default=(640, 400),
-                   help="the bundle's size, WIDTHxHEIGHT (\"fit\" scales a camera into it; "
-                   "\"native\" runs any size), default 640x400")
+                   help="the bundle's size, WIDTHxHEIGHT: its pixel budget (\"budget\", "
+                   "the engine's default, and \"fit\" scale a camera to it; \"native\" runs "
+                   "any size), default 640x400")
     p.add_argument("--iters", type=int, default=4,
                    help="the engine's default GRU iterations (a runtime choice), default 4")
     p.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
