@@ -285,7 +285,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                 max_frames: int | None = None, profile: str | None = None) -> int:
     """`edge-depth run --config robot.toml`: the on-robot daemon."""
     from edge_depth.config import load_robot_config, sync_mode
-    from edge_depth.mcap_log import RESULT_TOPICS, TOPICS
+    from edge_depth.mcap_log import RAW_TOPICS
 
     config = load_robot_config(config_path)
     mode = sync_mode(config)
@@ -297,7 +297,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     except ConfigError as exc:
         raise exc.naming(config.path, "engine") from None
     lg = config.log
-    topics = tuple(TOPICS) if lg.raw else RESULT_TOPICS
+    topics = (RAW_TOPICS if lg.raw else ()) + lg.results
     stop = StopFlag()
     stop.install()
     started = time.monotonic()

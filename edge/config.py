@@ -50,6 +50,7 @@ from typing import Any
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.options import BUNDLE, ROW_STEPS, SCALE_WORDS, EngineOptions
+from edge_depth.topics import RESULT_TOPICS
 
 _log = logging.getLogger(__name__)
 
@@ -107,6 +108,8 @@ class LogConfig:
     ros2_prefix: str = "/"     # the ros2 profile's topic namespace
     tf_parent_frame: str = ""  # the transforms: camera_left under this frame (e.g. base_link)
     tf_parent_xyz_rpy: tuple[float, ...] = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0)  # m, m, m, deg x3
+    # the result topics written (docs/configuration.md gives each one's cost)
+    results: tuple[str, ...] = RESULT_TOPICS
 
 
 @dataclass(frozen=True)
@@ -179,6 +182,12 @@ def _convert(path: str, key: str, value, default):
     elif isinstance(default, float):
         ok = isinstance(value, (int, float)) and not isinstance(value, bool)
         value = float(value) if ok else value
+    elif isinstance(default, tuple) and isinstance(default[0], str):  # a subset of names
+        ok = isinstance(value, list) and all(isinstance(v, str) for v in value)
+        unknown = sorted(set(value) - set(default)) if ok else []
+        if unknown:
+            raise ConfigError(key, f"a list of {', '.join(default)}", value, path)
+        value = tuple(value) if ok else value
     elif isinstance(default, tuple) and isinstance(default[0], float):  # finite numbers
         ok = (isinstance(value, list) and len(value) == len(default)
               and all(isinstance(v, (int, float)) and not isinstance(v, bool)

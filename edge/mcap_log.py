@@ -445,13 +445,16 @@ class McapLogger:
         if self._disk_full(t):
             return
         self._maybe_rotate(t)
-        if sparse is not None:
+        # a message is built only for a topic that is written (`topics`: [log] results)
+        if sparse is not None and self._logs("sparse"):
             self._log("sparse", self._image(sparse.astype(np.float32, copy=False), t), t)
-        self._log("disparity", self._disparity(result), t)
-        self._log("depth", self._depth(result), t)
-        if result.confidence is not None:
+        if self._logs("disparity"):
+            self._log("disparity", self._disparity(result), t)
+        if self._logs("depth"):
+            self._log("depth", self._depth(result), t)
+        if result.confidence is not None and self._logs("confidence"):
             self._log("confidence", self._image(result.confidence, t), t)
-        if "points" in self.enabled and focal_px is not None and principal_point is not None:
+        if self._logs("points") and focal_px is not None and principal_point is not None:
             pts, intensity = depth_to_points(result.depth, result.valid, focal_px,
                                              principal_point, image=left if left is not None
                                              else np.zeros(result.depth.shape, np.uint8))

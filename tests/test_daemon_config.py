@@ -110,6 +110,27 @@ def test_run_on_the_virtual_robot_logs_results_and_diagnostics(tmp_path, capsys)
     assert counts[TOPICS["diagnostics"]] >= 1
 
 
+def test_the_log_writes_only_the_result_topics_asked_for(tmp_path, capsys, monkeypatch):
+    from edge_depth import mcap_log
+
+    built = []  # point clouds made: none when points are not written
+    monkeypatch.setattr(mcap_log, "depth_to_points",
+                        lambda *a, **k: built.append(1) or (np.zeros((0, 3)), None))
+    out = tmp_path / "depth.mcap"
+    cfg = write(tmp_path, SIM.format(out=out) + 'raw = false\nresults = ["depth", '
+                '"diagnostics"]\n')
+    assert load_robot_config(cfg).log.results == ("depth", "diagnostics")
+    assert main(["run", "--config", str(cfg), "--max-frames", "2"]) == 0
+    counts = topic_counts(out)
+    assert counts[TOPICS["depth"]] == 2 and counts[TOPICS["diagnostics"]] >= 1
+    assert not {TOPICS[k] for k in ("disparity", "sparse", "confidence", "points", "left")} \
+        & set(counts)
+    assert built == []
+    bad = write(tmp_path, SIM.format(out=out) + 'results = ["depth", "dsiparity"]\n')
+    with pytest.raises(ConfigError, match="log.results: expected a list of sparse, disparity"):
+        load_robot_config(bad)
+
+
 def test_record_then_replay(tmp_path, capsys):
     rec = tmp_path / "rec.mcap"
     cfg = write(tmp_path, SIM.format(out=tmp_path / "unused.mcap"))
