@@ -12,9 +12,10 @@ to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
 downsample factor) or an exported bundle directory (run by the robot-side engine with its
-flags: --runtime, --precision, --scale fit|native, the matching's; the settings left unsaid
-are those its model.json declares: the shipped one's edge matching "auto" on every other row;
---edge-match 0 turns it off); the default is the shipped bundle, int8.
+flags: --runtime, --precision, --scale budget|fit|native, the matching's; the settings left
+unsaid are the engine's defaults and those its model.json declares: the shipped one's edge
+matching "auto" on every other row; --edge-match 0 turns it off); the default is the shipped
+bundle.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);

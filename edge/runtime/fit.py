@@ -33,10 +33,11 @@ class FitPlan:
         if scale is None or scale == 0:
             scale = fit
         elif not 0 < scale <= 1:
-            raise ConfigError("engine.scale", "in (0, 1] (0 = fit the bundle)", scale)
+            raise ConfigError("engine.scale", 'a factor in (0, 1], or "budget", "fit", "native"',
+                              scale)
         elif scale > fit + 1e-9:
             raise ConfigError("engine.scale", f"at most {fit:.3f} for a {w}x{h} camera on a "
-                              f"{bundle[0]}x{bundle[1]} bundle (0 = fit)", scale)
+                              f'{bundle[0]}x{bundle[1]} bundle ("fit": that factor)', scale)
         return cls((int(camera[0]), int(camera[1])), (int(bundle[0]), int(bundle[1])),
                    float(scale))
 
