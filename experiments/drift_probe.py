@@ -170,16 +170,49 @@ class DriftWatch:
         beyond = bool(np.abs(self.centre).max() >= MAX_CENTRE_DEG - RECENTRE_DEG)
         lever = np.array([self.calib.focal_px, self.calib.focal_px,
                           float(np.median(self.radius_px))])
-
-        def shift_px(margin_deg: np.ndarray) -> float:
-            beyond = np.radians(np.maximum(np.abs(error) - margin_deg, 0.0))
-            return float(np.hypot.reduce(beyond * lever))
-
-        shift = shift_px(2 * sigma)
-        level = ERROR if shift > ERROR_PX else WARN \
-            if shift_px(2 * sigma + RESOLUTION_DEG) > WARN_PX else OK
+        shift, level = verdict(error, sigma, lever, RESOLUTION_DEG)
         e, s = [float(v) for v in error], [float(v) for v in sigma]
         return DriftEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, beyond)
+
+
+def verdict(error: np.ndarray, sigma: np.ndarray, lever: np.ndarray,
+            resolution_deg) -> tuple[float, str]:
+    """(px the points move by beyond twice the standard error, the level): ERROR beyond
+    ERROR_PX, WARN beyond WARN_PX once `resolution_deg` more is allowed, else OK. `lever`:
+    px per radian per axis (f, f, the points' distance from the image centre)."""
+    def shift_px(margin_deg) -> float:
+        beyond = np.radians(np.maximum(np.abs(error) - margin_deg, 0.0))
+        return float(np.hypot.reduce(beyond * lever))
+
+    shift = shift_px(2 * sigma)
+    level = ERROR if shift > ERROR_PX else WARN \
+        if shift_px(2 * sigma + resolution_deg) > WARN_PX else OK
+    return shift, level
+
+
+# the calibration errors the studies inject: (name, rotation about x, y, z in degrees)
+CASES = (("right calibration", (0, 0, 0)), ("yaw +0.3", (0, 0.3, 0)), ("yaw -0.3", (0, -0.3, 0)),
+         ("pitch +0.3", (0.3, 0, 0)), ("pitch -0.3", (-0.3, 0, 0)))
+
+
+def run_cases(make_watch, frames, every: int):
+    """Each case's watch fed every frame: yields (name, watch, ms a frame, worst ms of one
+    frame, the level's first letter every `every` frames)."""
+    import time
+
+    from edge_depth.sim.lidar import default_T_cam_lidar
+
+    calib, T = frames[0].calibration(), default_T_cam_lidar()
+    for name, x in CASES:
+        watch = make_watch(calib, _perturb(T, np.r_[x, 0.0, 0.0, 0.0]))
+        started, levels, worst = time.perf_counter(), [], 0.0
+        for s in frames:
+            t = time.perf_counter()
+            watch.add(s.left, s.right, s.scan.points)
+            worst = max(worst, time.perf_counter() - t)
+            levels.append(watch.estimate().level[0])
+        ms = (time.perf_counter() - started) / len(frames) * 1000
+        yield name, watch, ms, worst * 1000, "".join(levels[every - 1::every])
 
 
 def _axis_vector(axis: int, degrees: float) -> np.ndarray:
@@ -199,10 +232,8 @@ def _minimum(costs: np.ndarray) -> float:
 
 def main() -> None:
     import argparse
-    import time
 
     from edge_depth.sim import RigConfig, make_sample
-    from edge_depth.sim.lidar import default_T_cam_lidar
 
     global MAX_POINTS, BLUR_PX
     p = argparse.ArgumentParser()
@@ -212,19 +243,11 @@ def main() -> None:
     p.add_argument("--blur", type=float, default=BLUR_PX)
     args = p.parse_args()
     MAX_POINTS, BLUR_PX = args.points, args.blur
-    samples = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(args.frames)]
-    calib, T = samples[0].calibration(), default_T_cam_lidar()
-    for name, x in (("right calibration", (0, 0, 0)), ("yaw +0.3", (0, 0.3, 0)),
-                    ("yaw -0.3", (0, -0.3, 0)), ("pitch +0.3", (0.3, 0, 0)),
-                    ("pitch -0.3", (-0.3, 0, 0))):
-        watch = DriftWatch(calib, _perturb(T, np.r_[x, 0.0, 0.0, 0.0]), every=args.every)
-        started, levels = time.perf_counter(), []
-        for s in samples:
-            watch.add(s.left, s.right, s.scan.points)
-            levels.append(watch.estimate().level[0])
-        ms = (time.perf_counter() - started) / len(samples) * 1000
+    frames = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(args.frames)]
+    for name, watch, ms, _, levels in run_cases(
+            lambda calib, T: DriftWatch(calib, T, every=args.every), frames, args.every):
         print(f"{name}: {watch.estimate().describe()}; centre moved {watch.recentred}x; "
-              f"{ms:.2f} ms/frame; levels {''.join(levels[args.every - 1::args.every])}")
+              f"{ms:.2f} ms/frame; levels {levels}")
 
 
 if __name__ == "__main__":

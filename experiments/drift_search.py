@@ -38,6 +38,9 @@ from edge_depth.calibration.errors import CalibrationError
 from edge_depth.calibration.extrinsics import PhotometricCost, _perturb, _subpixel
 from edge_depth.calibration.model import StereoCalibration
 
+# the levels, the verdict and the cases are the first study's (run from experiments/)
+from drift_probe import SETTLING, run_cases, verdict  # noqa: E402  # isort: skip
+
 AXES = ("pitch", "yaw", "roll")  # about the left camera's x (right), y (down), z (forward)
 BLUR_PX = 1.0  # the images' blur: a smoother cost for the search
 MAX_POINTS = 2000  # per sample, a fixed budget: evenly thinned beyond it
@@ -46,12 +49,10 @@ SIMPLEX_DEG = 0.3  # the search's first steps
 MAX_EVALS = 60  # per part and search
 PARTS = 2
 PRIOR = 0.02  # cost per degree² of rotation from the calibration
-WARN_PX, ERROR_PX = 0.1, 1.0
 # what the estimate resolves per axis (pitch, yaw, roll): with the right calibration on the sim
 # robot it read up to 0.04° of pitch and yaw and wandered up to 0.37° in roll (whose lever,
 # the points' distance from the image centre, is a third of the focal length's)
 RESOLUTION_DEG = np.array([0.05, 0.05, 0.3])
-OK, WARN, ERROR, SETTLING = "OK", "WARN", "ERROR", "SETTLING"
 
 
 @dataclass(frozen=True)
@@ -72,12 +73,6 @@ class DriftEstimate:
         parts = [f"{name} {self.error_deg[AXES.index(name)]:+.2f}° ± "
                  f"{self.sigma_deg[AXES.index(name)]:.2f}°" for name in ("yaw", "pitch", "roll")]
         return f"{', '.join(parts)} ({self.shift_px:.2f} px): {self.level}"
-
-    def as_dict(self) -> dict:
-        return dict(level=self.level, samples=self.samples, shift_px=round(self.shift_px, 3),
-                    **{f"{a}_deg": round(e, 3) for a, e in zip(AXES, self.error_deg, strict=True)},
-                    **{f"{a}_sigma_deg": round(s, 3)
-                       for a, s in zip(AXES, self.sigma_deg, strict=True)})
 
 
 class DriftWatch:
@@ -158,14 +153,7 @@ class DriftWatch:
         sigma = np.std(optima, axis=0, ddof=1) / np.sqrt(PARTS)
         lever = np.array([self.calib.focal_px, self.calib.focal_px,
                           float(np.median(self.radius_px))])
-
-        def shift_px(margin_deg: np.ndarray) -> float:
-            beyond = np.radians(np.maximum(np.abs(error) - margin_deg, 0.0))
-            return float(np.hypot.reduce(beyond * lever))
-
-        shift = shift_px(2 * sigma)
-        level = ERROR if shift > ERROR_PX else WARN \
-            if shift_px(2 * sigma + RESOLUTION_DEG) > WARN_PX else OK
+        shift, level = verdict(error, sigma, lever, RESOLUTION_DEG)
         e, s = [float(v) for v in error], [float(v) for v in sigma]
         return DriftEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level,
                              len(samples))
@@ -173,30 +161,17 @@ class DriftWatch:
 
 def main() -> None:
     import argparse
-    import time
 
     from edge_depth.sim import RigConfig, make_sample
-    from edge_depth.sim.lidar import default_T_cam_lidar
 
     p = argparse.ArgumentParser()
     p.add_argument("--frames", type=int, default=100)
     p.add_argument("--seed", type=int, default=1_000_000)
     args = p.parse_args()
     frames = [make_sample(args.seed + i, RigConfig(), "beams16") for i in range(args.frames)]
-    calib, T = frames[0].calibration(), default_T_cam_lidar()
-    for name, x in (("right calibration", (0, 0, 0)), ("yaw +0.3", (0, 0.3, 0)),
-                    ("yaw -0.3", (0, -0.3, 0)), ("pitch +0.3", (0.3, 0, 0)),
-                    ("pitch -0.3", (-0.3, 0, 0))):
-        watch = DriftWatch(calib, _perturb(T, np.r_[x, 0.0, 0.0, 0.0]))
-        started, levels, worst = time.perf_counter(), [], 0.0
-        for s in frames:
-            t = time.perf_counter()
-            watch.add(s.left, s.right, s.scan.points)
-            worst = max(worst, time.perf_counter() - t)
-            levels.append(watch.estimate().level[0])
-        ms = (time.perf_counter() - started) / len(frames) * 1000
+    for name, watch, ms, worst, levels in run_cases(DriftWatch, frames, 10):
         print(f"{name}: {watch.estimate().describe()}; {ms:.2f} ms a frame (worst "
-              f"{worst * 1000:.0f} ms); levels every 10 frames {''.join(levels[9::10])}")
+              f"{worst:.0f} ms); levels every 10 frames {levels}")
 
 
 if __name__ == "__main__":
