@@ -151,10 +151,11 @@ class OpenVinoSession:
         self.input_names = [i.get_any_name() for i in self._model.inputs]
         self.output_names = [o.get_any_name() for o in self._model.outputs]
         self.bf16 = bf16
-        self._shapes: dict[str, tuple[int, ...]] = {}
+        self._shapes: dict[str, tuple[int, ...]] = {}  # what an any-size graph is compiled for
         self._request: Any = None
         self._outputs: list[Any] = []
-        if not self._model.is_dynamic():
+        self._any_size = self._model.is_dynamic()
+        if not self._any_size:
             self._compile()
 
     def _compile(self) -> None:
@@ -163,11 +164,12 @@ class OpenVinoSession:
         self._outputs = list(compiled.outputs)
 
     def run(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
-        shapes = {k: tuple(feeds[k].shape) for k in self.input_names}
-        if self._request is None or (self._shapes and shapes != self._shapes):
-            self._model.reshape({k: list(v) for k, v in shapes.items()})
-            self._compile()
-        self._shapes = shapes
+        if self._any_size:  # a static graph (each run of a step) skips the comparison
+            shapes = {k: tuple(feeds[k].shape) for k in self.input_names}
+            if shapes != self._shapes:
+                self._model.reshape({k: list(v) for k, v in shapes.items()})
+                self._compile()
+                self._shapes = shapes
         # inputs without a copy (the call is synchronous; the correlation volume is ~2.6 MB
         # at 640x400, fed to every step), outputs copied: a step's outputs are the next
         # step's inputs
