@@ -71,6 +71,18 @@ def add_parsers(sub) -> None:
     lid.add_argument("--max-frames", type=int, default=20,
                      help="frames taken from the recording (default 20)")
 
+    chk = csub.add_parser("check", help="estimate the LiDAR-camera rotation error of a "
+                          "recording (exit status 1 on ERROR)")
+    chk.add_argument("recording", type=Path, help="a .mcap recording with images and LiDAR")
+    chk.add_argument("--calib", type=Path, default=None,
+                     help="the calibration to check (default: the recording's own)")
+    chk.add_argument("--topics", type=Path, default=None,
+                     help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
+    chk.add_argument("--every", type=int, default=1,
+                     help="one sample in this many frames with LiDAR (default 1: all)")
+    chk.add_argument("--max-samples", type=int, default=60,
+                     help="stop after this many samples (default 60, the watch's window)")
+
 
 def run(args: argparse.Namespace) -> int:
     try:
@@ -102,6 +114,13 @@ def run(args: argparse.Namespace) -> int:
             topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
             return lidar_command(args.recording, args.calib, args.out, args.refine,
                                  args.overlay, args.max_frames, topics)
+        if args.calib_command == "check":
+            from edge_depth.arguments import load_topic_map
+            from edge_depth.capture.replay import TopicMap
+
+            topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
+            return check_command(args.recording, args.calib, topics, args.every,
+                                 args.max_samples)
     except (CalibrationError, ValueError, EdgeError) as exc:
         print(f"edge-depth calibrate {args.calib_command}: error: {exc}", file=sys.stderr)
         return 1
@@ -166,6 +185,58 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
     if not frames:
         raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
     return frames
+
+
+def check_command(recording: Path, calib_path: Path | None, topics=None, every: int = 1,
+                  max_samples: int = 60) -> int:
+    """`edge-depth calibrate check REC.mcap`: the calibration watch of the daemon
+    (`edge.calibration_watch`) over a recording's frames with LiDAR; prints the estimate, its
+    uncertainty and the level, and the command that refines it. 1 on ERROR, else 0."""
+    from edge_depth.calibration.projection import project_to_disparity
+    from edge_depth.calibration_watch import (
+        ERROR,
+        MIN_SAMPLES,
+        OK,
+        CalibrationWatch,
+        refine_command,
+        stereo_reference,
+    )
+    from edge_depth.capture.synced import synced_frames
+    from edge_depth.runtime.engine import Engine
+
+    if every < 1 or max_samples < 1:
+        raise ValueError(f"--every and --max-samples: at least 1, got {every}, {max_samples}")
+    stereo, lidar, origin = _initial_calibration(recording, calib_path, True, topics)
+    if lidar is None:
+        raise CalibrationError(f"{origin} has no LiDAR extrinsics: nothing to check (a "
+                               "[lidar] section in --calib)", key="lidar")
+    print(f"calibration: {origin}")
+    engine = Engine()
+    watch = CalibrationWatch(stereo, lidar.T_cam_lidar, every)
+    seen = 0
+    for frame, left, right, points, _ in synced_frames(recording, stereo, lidar.time_offset_ns,
+                                                       topics=topics):
+        if frame.size != tuple(stereo.image_size):
+            raise CalibrationError(f"image size {frame.size} differs from the calibration's "
+                                   f"{stereo.image_size}", path=str(recording))
+        seen += 1
+        if not len(points) or not watch.due():
+            continue
+        sparse, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar)
+        engine.infer(left, right, sparse)
+        watch.add(stereo_reference(engine), points)
+        if watch.samples >= max_samples:
+            break
+    estimate = watch.estimate()
+    print(f"{watch.samples} samples from {seen} frames")
+    print(f"LiDAR-camera rotation error: {estimate.describe()}")
+    if estimate.samples < MIN_SAMPLES:
+        print(f"too few samples for a verdict ({MIN_SAMPLES} needed): a longer recording, or "
+              "--every 1")
+    elif estimate.level != OK:
+        calib = None if calib_path is None else str(calib_path)
+        print(f"to refine it: {refine_command(str(recording), calib)}")
+    return 1 if estimate.level == ERROR else 0
 
 
 def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarray,

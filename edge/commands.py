@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
+from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig
 from edge_depth.daemon import (
@@ -27,6 +28,7 @@ from edge_depth.daemon import (
     lidar_summary,
     selection_summary,
     summarise,
+    watch_summary,
 )
 from edge_depth.errors import ConfigError
 from edge_depth.loggers import open_logger
@@ -93,10 +95,10 @@ def open_recording(path, out=None, calib=None, topics=None,
 
 
 def replay_recording(engine: Engine, recording: OpenRecording, out, profile: str = "foxglove",
-                     on_output=None) -> ReplayRun:
+                     on_output=None, watch_every: int = WATCH_EVERY) -> ReplayRun:
     """The pipeline over an opened recording with a loaded engine (its iterations and
     deadline from `engine.options`), its output to `out` (None: no output file, as `fleet
-    evaluate`)."""
+    evaluate`); the calibration watched every `watch_every` frames with LiDAR (0: off)."""
     source, realtime = recording.source, recording.source.realtime
     stop = StopFlag()
     stop.install()
@@ -105,7 +107,8 @@ def replay_recording(engine: Engine, recording: OpenRecording, out, profile: str
             logger = None if out is None else stack.enter_context(open_logger(out, profile))
             o = engine.options
             pipeline = Pipeline(engine, recording.stereo, recording.lidar, logger,
-                                o.iters or None, o.deadline_ms or None)
+                                o.iters or None, o.deadline_ms or None,
+                                watch_every=watch_every)
             # with --calib given, the recording's own calibration is ignored
             if recording.calib is not None:
                 source.topics = dataclasses.replace(source.topics, calibration="")
@@ -139,6 +142,8 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
     print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
           f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
     print(lidar_summary(pipeline))
+    if watched := watch_summary(pipeline, str(path), None if calib is None else str(calib)):
+        print(watched)
     if selected := selection_summary(stats.timings):
         print(selected)
     if unhealthy := pipeline.health.summary():
@@ -310,7 +315,7 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                                 e.deadline_ms or None,
                                 SyncConfig(mode, config.sync.window_ms,
                                            max_wait_ms=config.sync.max_wait_ms),
-                                log_raw=lg.raw)
+                                log_raw=lg.raw, watch_every=config.calibration.watch_every)
             print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model}"
                   f" (sync {mode}{' by the model' if config.sync.mode == 'auto' else ''}),"
                   f" {engine.describe()} engine, logging to {logger.files[0]}"
@@ -325,6 +330,9 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
           f"dropped, errors {dict(stats.errors) or 'none'}")
     print(lidar_summary(pipeline))
+    if watched := watch_summary(pipeline, str(logger.files[0]) if lg.raw else None,
+                                config.calibration.file or None):
+        print(watched)
     if selected := selection_summary(stats.timings):
         print(selected)
     if unhealthy := pipeline.health.summary():

@@ -15,6 +15,8 @@
     file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
                                 # calibration, which has no LiDAR extrinsics (then a
                                 # LiDAR model other than "none" is an error)
+    watch_every = 12            # the LiDAR-camera rotation watched (/diagnostics): one
+                                # sample in this many frames with LiDAR; 0 = off
 
     [sync]
     mode = "auto"               # "nearest" (spinning 3-D) | "accumulate" (2-D scanner) |
@@ -48,6 +50,7 @@ from pathlib import Path
 from typing import Any
 
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
+from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.options import BUNDLE, ROW_STEPS, SCALE_WORDS, EngineOptions
 from edge_depth.topics import RESULT_TOPICS
@@ -73,6 +76,7 @@ class LidarConfig:
 @dataclass(frozen=True)
 class CalibrationConfig:
     file: str = ""
+    watch_every: int = WATCH_EVERY
 
 
 @dataclass(frozen=True)
@@ -141,6 +145,7 @@ RANGES = {
     ("log", "rotate_mb"): (1.0, 1e7),
     ("log", "rotate_s"): (1.0, 1e8),
     ("log", "queue"): (1, 1000),
+    ("calibration", "watch_every"): (1, 100_000),
     ("log", "tf_parent_xyz_rpy"): (-1000.0, 1000.0),  # each: metres, or degrees
 }
 # the engine's, from its options' own
@@ -149,7 +154,7 @@ CHOICES.update({("engine", f.name): f.metadata["choices"] for f in fields(Engine
 RANGES.update({("engine", f.name): f.metadata["bounds"] for f in fields(EngineOptions)
                if f.metadata["bounds"]})
 RANGES[("engine", "edge_match_rows")] = ROW_STEPS
-OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s")}
+OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s"), ("calibration", "watch_every")}
 
 
 def _check_range(path: str, name: str, key: str, value) -> None:

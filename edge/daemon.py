@@ -22,6 +22,7 @@ import numpy as np
 
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.calibration_watch import CalibrationWatch, refine_command, stereo_reference
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
@@ -60,6 +61,7 @@ class Prepared:
     t0: float  # perf_counter at the start of `prepare`
     timings: dict
     queued_ms: float = 0.0  # from prepared to the engine's start (pipelined: the hand-off)
+    points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
 
 
 HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
@@ -97,12 +99,15 @@ class Pipeline:
     """One frame at a time: `on_scan(scan)`, `on_frame(frame, gt=None) -> FrameOutput`.
 
     With `engine=None` it is the recorder: frames are checked, rectified and logged with
-    the raw scans, and nothing is inferred (`on_frame` returns None)."""
+    the raw scans, and nothing is inferred (`on_frame` returns None). `watch_every`: the
+    calibration watched (`edge.calibration_watch`), one sample in this many frames with LiDAR
+    points; 0 off."""
 
     def __init__(self, engine: Engine | None, stereo: StereoCalibration,
                  lidar: LidarExtrinsics | None, logger: McapLogger | None = None,
                  iters: int | None = None, deadline_ms: float | None = None,
-                 sync: SyncConfig | None = None, log_raw: bool = True) -> None:
+                 sync: SyncConfig | None = None, log_raw: bool = True,
+                 watch_every: int = 0) -> None:
         plan = engine.plan_for(tuple(stereo.image_size)) if engine else None  # ConfigError
         if engine is not None and plan is not None and not plan.identity:  # if it cannot run
             w, h = plan.scaled
@@ -114,6 +119,7 @@ class Pipeline:
                          *stereo.image_size, *engine.size, plan.scale, w, h)
         self.engine, self.logger = engine, logger
         self.iters, self.deadline_ms, self.log_raw = iters, deadline_ms, log_raw
+        self.watch_every = watch_every if engine is not None else 0
         self.set_calibration(stereo, lidar)
         sync = sync or SyncConfig()
         if lidar is not None and sync.time_offset_ns == 0:
@@ -136,6 +142,8 @@ class Pipeline:
         self.rectifier = stereo.rectifier()
         self.focal_px, self.baseline_m = stereo.focal_px, stereo.baseline_m
         self.principal_point = stereo.principal_point
+        self.watch = None if lidar is None or self.watch_every < 1 else \
+            CalibrationWatch(stereo, lidar.T_cam_lidar, self.watch_every)
         if self.logger is not None:
             self.logger.set_calibration(stereo, lidar)
 
@@ -224,17 +232,34 @@ class Pipeline:
             sparse = np.zeros(left.shape, np.float32)
         t2 = time.perf_counter()
         return Prepared(frame, left, right, sparse, gt, t0, dict(
-            rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms))
+            rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
+            points=points if len(points) else None)
 
     def infer(self, p: Prepared) -> DepthResult:
         """Stage 2: the engine (its deadline counts from the start of `prepare`)."""
         assert self.engine is not None, "the recorder infers nothing"
         p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
             - p.timings["project"]
-        return self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
-                                 deadline_ms=self.deadline_ms, focal_px=self.focal_px,
-                                 baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,
-                                 started=p.t0)
+        result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
+                                   deadline_ms=self.deadline_ms, focal_px=self.focal_px,
+                                   baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,
+                                   started=p.t0)
+        self._watch(p)
+        return result
+
+    def _watch(self, p: Prepared) -> None:
+        """A sample of the calibration watch when one is due: after the frame's inference, on
+        the engine's thread; its ms go in the frame's timings as "watch"."""
+        watch = self.watch
+        if watch is None or self.engine is None or p.points is None or not watch.due():
+            return
+        t = time.perf_counter()
+        try:
+            reference = stereo_reference(self.engine)
+            watch.add(reference, p.points)
+        except Exception as exc:  # noqa: BLE001 - the watch must never stop the daemon
+            self.stats.count_error("calibration_watch", exc)
+        p.timings["watch"] = (time.perf_counter() - t) * 1000
 
     def finish(self, p: Prepared, result: DepthResult) -> FrameOutput:
         """Stage 3: log, count, score against ground truth. `frame` in the timings is the
@@ -278,6 +303,20 @@ class Pipeline:
             if metrics is not None:
                 self.stats.metrics.append(metrics)
         return FrameOutput(result, p.sparse, p.left, metrics, p.gt)
+
+def watch_summary(pipeline: Pipeline, recording: str | None = None,
+                  calibration: str | None = None) -> str | None:
+    """The closing line about the calibration watch (None when it did not run), with the
+    command that fixes it when the level is not OK."""
+    watch = pipeline.watch
+    if watch is None:
+        return None
+    estimate = watch.estimate()
+    line = f"LiDAR-camera calibration watch: {estimate.describe()}"
+    if estimate.level in ("WARN", "ERROR"):
+        line += f"; to refine it: {refine_command(recording, calibration)}"
+    return line
+
 
 def lidar_summary(pipeline: Pipeline) -> str:
     """The closing line about the LiDAR: how many frames had it, or why none did. Counted

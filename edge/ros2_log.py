@@ -188,5 +188,23 @@ class Ros2Logger(McapLogger):
         status = {"level": level, "name": "edge-depth", "message": message,
                   "hardware_id": "", "values": [{"key": k, "value": v}
                                                 for k, v in flat.items()]}
-        self._log("diagnostics", {"header": header(stamp_ns, ""), "status": [status]},
+        statuses = [status]
+        if watch := values.get("calibration_watch"):  # its own status: a panel row of its own
+            statuses.append(watch_status(watch))
+        self._log("diagnostics", {"header": header(stamp_ns, ""), "status": statuses},
                   stamp_ns)
+
+
+def watch_status(watch: dict) -> dict:
+    """The calibration watch's DiagnosticStatus: OK (also while settling), WARN or ERROR, the
+    estimate in the message and each number as a key."""
+    level = {"WARN": 1, "ERROR": 2}.get(watch["level"], 0)
+    if watch["level"] == "SETTLING":
+        message = f"settling ({watch['samples']} samples)"
+    else:
+        message = (f"{watch['level']}: yaw {watch['yaw_deg']:+.2f}, pitch "
+                   f"{watch['pitch_deg']:+.2f}, roll {watch['roll_deg']:+.2f} deg "
+                   f"({watch['shift_px']:.2f} px)")
+    return {"level": level, "name": "edge-depth/lidar_calibration", "message": message,
+            "hardware_id": "", "values": [{"key": k, "value": str(v)}
+                                          for k, v in watch.items()]}

@@ -236,7 +236,9 @@ class Runner:
                                          replaced_shares(window, "matched_pct")],
                 edge_match_beyond_pct=[round(s, 2) for s in
                                        replaced_shares(window, "match_beyond_pct")],
-                output_health=pipeline.health.diagnostics()))
+                output_health=pipeline.health.diagnostics(),
+                **({} if pipeline.watch is None else
+                   dict(calibration_watch=pipeline.watch.estimate().as_dict()))))
 
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:

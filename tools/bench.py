@@ -45,6 +45,8 @@ import numpy as np
 from edge_depth.baselines import make_sgbm, sgbm_disparity
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.calibration_watch import EVERY as WATCH_EVERY
+from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
 from edge_depth.runtime.backends import cpu_description
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
@@ -281,6 +283,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             lambda a, b, p: engines["int8"].infer(a, b, p, iters=default_iters),
             lambda a, b: sgbm_disparity(a, b, matcher), inputs, repeat) \
             if default_iters in iters_list else []
+    watch_ms = watch_sample_ms(engines["int8"], samples, inputs, repeat)
     logger.close()
     tmp.cleanup()
 
@@ -304,12 +307,31 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                 cpu=cpu_description()))
     if key in engine_ms["int8"]:
         summary["ratios"] = ratios(out, engine_ms, key, paired)
+    per_frame = float(np.median(watch_ms)) / WATCH_EVERY
+    summary["calibration_watch"] = dict(
+        sample_ms=float(np.median(watch_ms)), every=WATCH_EVERY, per_frame_ms=per_frame,
+        share_of_frame_pct=100 * per_frame / out["frame"]["median_ms"])
     if engines["int8"].edge_match is not None:
         summary["match_starts"] = dict(engines["int8"].match_schedule.starts)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return summary
+
+
+def watch_sample_ms(engine, samples, inputs, repeat: int) -> list[float]:
+    """The calibration watch's ms a sample (the stereo-only reference after the frame's
+    inference, and the probes), on each scene `repeat` times: the daemon takes one sample in
+    WATCH_EVERY frames with LiDAR."""
+    watch = CalibrationWatch(samples[0].calibration(), samples[0].T_cam_lidar, every=1)
+    times = []
+    for _ in range(repeat):
+        for s, x in zip(samples, inputs, strict=True):
+            engine.infer(*x)
+            t = time.perf_counter()
+            watch.add(stereo_reference(engine), s.scan.points)
+            times.append((time.perf_counter() - t) * 1000)
+    return times
 
 
 def markdown(summary: dict) -> str:
@@ -343,6 +365,11 @@ def markdown(summary: dict) -> str:
                      f"frames, {again} of them matched again with the final count"
                      if early else "the int8 engine's matching started after its graphs "
                      "(they use every core)")
+    if "calibration_watch" in summary:
+        c = summary["calibration_watch"]
+        lines.append(f"calibration watch: {c['sample_ms']:.1f} ms a sample, one in {c['every']} "
+                     f"frames with LiDAR: {c['per_frame_ms']:.2f} ms a frame, "
+                     f"{c['share_of_frame_pct']:.1f} % of the daemon's frame")
     if "replay_peak_rss_mb" in summary:
         lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
     if "engine" in summary:

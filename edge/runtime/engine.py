@@ -47,6 +47,9 @@ MIN_DISPARITY = 0.5  # px: below this the depth is reported invalid (beyond f·B
 # "native": a side of at least this many network strides (the correlation pyramid's coarsest
 # level, 1/64 of the width, keeps a column)
 NATIVE_MIN_STRIDES = 8
+# the encoder's outputs made from the LiDAR (the seed and the anchors at 1/8); the others are
+# the images' alone, so a stereo-only pass can reuse them (`Engine.stereo_only`)
+LIDAR_OUTPUTS = ("disparity", "sparse_low", "valid_low")
 
 
 def load_bundle_meta(bundle: Path) -> dict:
@@ -118,6 +121,7 @@ class Engine:
         self.match_schedule = None if self.edge_match is None else MatchSchedule(
             self.edge_match, self.downsample, options.threads < usable_cores())
         self._upsample_ms = 0.0  # running estimate for the deadline
+        self._last: tuple[dict, FitPlan] | None = None  # the last frame's encoding
         self._plans: dict[tuple[int, int], FitPlan] = {}
 
     def _open_graphs(self, threads: int) -> dict[str, Any]:
@@ -260,6 +264,7 @@ class Engine:
         plan, has_points = self._prepare(left, right, sparse)
         matching = self._start_matching(iters)
         enc = self._encode(frame)
+        self._last = (enc, plan)
         disparity, hidden = self._iterate(frame, enc, iters, deadline_ms, matching)
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
         disp, confidence = self._select(frame, disp, confidence, has_points)
@@ -277,6 +282,21 @@ class Engine:
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=frame.steps, timings_ms=frame.timings,
                            confidence=confidence, **frame.counts)
+
+    def stereo_only(self, iters: int = 2) -> np.ndarray:
+        """The last frame's network disparity without the LiDAR, (H, W) float32 at the
+        camera's size: its encoder's image features again (they do not depend on the LiDAR),
+        the seed and the anchors zeroed (`LIDAR_OUTPUTS`), `iters` steps, upsampled; no
+        selection, matching or median. A reference that never saw the LiDAR, for
+        `edge.calibration_watch`; call it after `infer`, on the same thread."""
+        if self._last is None:
+            raise RuntimeError("stereo_only follows an infer of the frame")
+        enc, plan = self._last
+        enc = dict(enc, **{k: np.zeros_like(enc[k]) for k in LIDAR_OUTPUTS if k in enc})
+        frame = _Frame(time.perf_counter())
+        disparity, hidden = self._iterate(frame, enc, max(1, int(iters)), None, None)
+        disp, _ = self._upsample(frame, enc, disparity, hidden)
+        return disp if plan.identity else plan.restore(disp, disparity=True)
 
     def _prepare(self, left: np.ndarray, right: np.ndarray, sparse: np.ndarray
                  ) -> tuple[FitPlan, bool]:

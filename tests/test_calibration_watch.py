@@ -1,0 +1,160 @@
+"""The calibration watch: the LiDAR–camera rotation error from the frames the daemon runs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from edge_depth.calibration.extrinsics import _perturb
+from edge_depth.calibration_watch import (
+    ERROR,
+    OK,
+    SETTLING,
+    WARN,
+    CalibrationWatch,
+    refine_command,
+    verdict,
+)
+from edge_depth.cli import main
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim.lidar import default_T_cam_lidar
+
+RIG = RigConfig(width=320, height=200, focal_px=225.0, max_disparity_px=30.0)
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """Sim frames at 320x200 with their true disparity as the reference: what the watch
+    measures, without the engine's own error."""
+    return [make_sample(3_000_000 + i, RIG, "beams16") for i in range(12)]
+
+
+def watched(frames, rotation_deg) -> CalibrationWatch:
+    watch = CalibrationWatch(frames[0].calibration(),
+                             _perturb(default_T_cam_lidar(), np.r_[rotation_deg, 0, 0, 0]), 1)
+    for s in frames:
+        assert watch.due()
+        assert watch.add(np.nan_to_num(s.disp_left).astype(np.float32), s.scan.points)
+    return watch
+
+
+@pytest.mark.parametrize("rotation, axis", [((0, 0.4, 0), 1), ((0, -0.4, 0), 1),
+                                            ((0.4, 0, 0), 0), ((-0.4, 0, 0), 0)])
+def test_an_injected_rotation_is_estimated_with_its_sign(frames, rotation, axis):
+    estimate = watched(frames, rotation).estimate()
+    assert estimate.error_deg[axis] == pytest.approx(rotation[axis], abs=0.08)
+    assert abs(estimate.error_deg[1 - axis]) < 0.08  # the other axis stays put
+    # 0.4 deg at f = 225 px moves the points by 1.6 px: ERROR (beyond 1 px)
+    assert estimate.level == ERROR and estimate.shift_px > 1.0
+
+
+def test_the_right_calibration_is_ok_and_settles_first(frames):
+    watch = watched(frames[:7], (0, 0, 0))
+    assert watch.estimate().level == SETTLING and "settling" in watch.estimate().describe()
+    watch.add(np.nan_to_num(frames[7].disp_left).astype(np.float32), frames[7].scan.points)
+    estimate = watch.estimate()
+    assert estimate.level == OK and max(abs(e) for e in estimate.error_deg[:2]) < 0.05
+    assert estimate.as_dict()["level"] == OK and estimate.as_dict()["samples"] == 8
+
+
+def test_every_nth_frame_is_a_sample_and_a_frame_without_seen_points_is_none():
+    watch = CalibrationWatch(make_sample(1, RIG).calibration(), default_T_cam_lidar(), every=3)
+    assert [watch.due() for _ in range(7)] == [True, False, False, True, False, False, True]
+    assert not watch.add(np.ones((200, 320), np.float32), np.zeros((0, 3)))
+    behind = np.array([[0.0, 0.0, -5.0]] * 10)  # behind the LiDAR: nothing in view
+    assert not watch.add(np.ones((200, 320), np.float32), behind) and watch.samples == 0
+
+
+def test_levels_are_pixels_beyond_twice_the_uncertainty_and_the_resolution():
+    lever = np.array([450.0, 450.0, 200.0])
+    assert verdict(np.array([0.0, 0.3, 0.0]), np.zeros(3), lever)[1] == ERROR  # 2.4 px
+    # 0.12 deg is 0.94 px: under ERROR, and beyond the 0.1 deg resolution + 0.1 px: WARN
+    assert verdict(np.array([0.0, 0.12, 0.0]), np.zeros(3), lever)[1] == WARN
+    assert verdict(np.array([0.0, 0.08, 0.0]), np.zeros(3), lever)[1] == OK  # within it
+    # the same 0.3 deg with an uncertainty of 0.15 deg is not yet certain: 0 px beyond 2 sigma
+    shift, level = verdict(np.array([0.0, 0.3, 0.0]), np.array([0.0, 0.15, 0.0]), lever)
+    assert shift == 0.0 and level == OK
+
+
+def test_the_refine_command_is_pre_filled():
+    assert refine_command("rec.mcap", "robot.toml") == (
+        "edge-depth calibrate lidar --recording rec.mcap --refine --calib robot.toml "
+        "--out robot_refined.toml")
+    assert refine_command("rec.mcap", None).endswith("--refine --out refined.toml")
+
+
+def test_the_stereo_only_reference_never_sees_the_lidar(engine, noiseless_samples):
+    from edge_depth.calibration.projection import project_to_disparity
+
+    s = noiseless_samples[0]
+    with pytest.raises(RuntimeError, match="follows an infer"):
+        type(engine)(precision="int8", threads=1).stereo_only()
+    sparse, _ = project_to_disparity(s.scan.points, s.calibration(), s.T_cam_lidar)
+    with_lidar = engine.infer(s.left, s.right, sparse)
+    reference = engine.stereo_only(2)
+    engine.infer(s.left, s.right, np.zeros_like(sparse))
+    assert reference.shape == s.left.shape
+    np.testing.assert_array_equal(reference, engine.stereo_only(2))
+    # and it is not the frame's result, which the LiDAR anchors
+    assert np.abs(reference - with_lidar.disparity).max() > 0.5
+
+
+@pytest.fixture(scope="module")
+def small_recording(tmp_path_factory):
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.capture.replay import McapSource, recording_calibration
+
+    folder = tmp_path_factory.mktemp("watch")
+    rec = folder / "rec.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "10", "--seed", "1000000",
+                 "--size", "320x200"]) == 0
+    stereo, lidar = recording_calibration(McapSource(rec))[:2]
+    calibs = {}
+    for name, yaw in (("right", 0.0), ("yawed", 0.5)):
+        calibs[name] = folder / f"{name}.toml"
+        save_calibration(calibs[name], stereo,
+                         LidarExtrinsics(_perturb(lidar.T_cam_lidar, np.r_[0, yaw, 0, 0, 0, 0])))
+    return rec, calibs
+
+
+def test_calibrate_check_exits_1_on_error_with_the_command_that_fixes_it(small_recording,
+                                                                         capsys):
+    rec, calibs = small_recording
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["yawed"])]) == 1
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("LiDAR-camera rotation error"))
+    yaw = float(line.split("yaw ")[1].split("°")[0])
+    assert 0.35 < yaw < 0.65 and line.endswith("ERROR")
+    assert f"--recording {rec} --refine --calib {calibs['yawed']}" in out
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["right"])]) == 0
+    assert capsys.readouterr().out.count(": OK") == 1
+
+
+def test_replay_says_it_in_one_line_and_on_diagnostics(small_recording, tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    rec, calibs = small_recording
+    out = tmp_path / "out.mcap"
+    assert main(["replay", str(rec), "--calib", str(calibs["yawed"]), "--out", str(out)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines()
+                if x.startswith("LiDAR-camera calibration watch"))
+    # one sample in twelve frames with LiDAR: 1 of the 8 a verdict needs
+    assert "settling (1 of 8 samples)" in line and "refine" not in line
+    with open(out, "rb") as f:
+        diagnostics = [json.loads(m.data) for _, _, m in
+                       make_reader(f).iter_messages(topics=["/diagnostics"])]
+    assert diagnostics[-1]["calibration_watch"]["level"] == SETTLING
+
+
+def test_the_ros2_profile_gives_it_a_diagnostic_status_of_its_own():
+    from edge_depth.ros2_log import watch_status
+
+    status = watch_status(dict(level=ERROR, samples=12, shift_px=2.4, at_reach=False,
+                               pitch_deg=0.01, yaw_deg=0.31, roll_deg=0.0))
+    assert status["level"] == 2 and status["name"] == "edge-depth/lidar_calibration"
+    assert "yaw +0.31" in status["message"]
+    assert {"key": "yaw_deg", "value": "0.31"} in status["values"]
+    assert watch_status(dict(level=SETTLING, samples=3))["level"] == 0
