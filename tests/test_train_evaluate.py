@@ -118,10 +118,14 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert set(result["engine_ms"]["int8"]) == {"1", "4"}
     # each column timed its own precision and iterations: (1 untimed + 1 scene) x 2 blocks x
     # 2 runs (no "1 iteration is faster" here: a timing assertion fails on a busy machine);
-    # the daemon pipeline's warm-up adds one int8 call at 1 iteration per run, the paired
-    # ratio one int8 call at 4 per scene, block and run
+    # the two daemon pipelines' warm-ups (the frame's, the calibration watch's) add two int8
+    # calls at 1 iteration per run, the paired ratio one int8 call at 4 per scene, block and run
     assert calls["fp32", 1] == calls["fp32", 4] == 8 and calls["int8", 4] == 12, calls
-    assert calls["int8", 1] == 10, calls
+    assert calls["int8", 1] == 12, calls
+    watch = result["calibration_watch"]  # a sample on each scene of each block, paired
+    assert watch["every"] == 12 and watch["per_frame_ms"] == pytest.approx(
+        watch["sample_ms"] / 12) and 0 < watch["share_of_frame_pct"] < 100
+    assert "calibration watch:" in md.read_text()
     assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000

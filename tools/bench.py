@@ -46,7 +46,6 @@ from edge_depth.baselines import make_sgbm, sgbm_disparity
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
-from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
 from edge_depth.runtime.backends import cpu_description
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
@@ -283,7 +282,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
             lambda a, b, p: engines["int8"].infer(a, b, p, iters=default_iters),
             lambda a, b: sgbm_disparity(a, b, matcher), inputs, repeat) \
             if default_iters in iters_list else []
-    watch_ms = watch_sample_ms(engines["int8"], samples, inputs, repeat)
+    watch = watch_costs(engines["int8"], source, logger, samples, repeat)
     logger.close()
     tmp.cleanup()
 
@@ -307,10 +306,10 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                 cpu=cpu_description()))
     if key in engine_ms["int8"]:
         summary["ratios"] = ratios(out, engine_ms, key, paired)
-    per_frame = float(np.median(watch_ms)) / WATCH_EVERY
+    sample_ms = float(np.median([w for w, _ in watch]))
     summary["calibration_watch"] = dict(
-        sample_ms=float(np.median(watch_ms)), every=WATCH_EVERY, per_frame_ms=per_frame,
-        share_of_frame_pct=100 * per_frame / out["frame"]["median_ms"])
+        sample_ms=sample_ms, every=WATCH_EVERY, per_frame_ms=sample_ms / WATCH_EVERY,
+        share_of_frame_pct=100 * float(np.median([w / f for w, f in watch])) / WATCH_EVERY)
     if engines["int8"].edge_match is not None:
         summary["match_starts"] = dict(engines["int8"].match_schedule.starts)
     if rss_frames:
@@ -319,19 +318,22 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     return summary
 
 
-def watch_sample_ms(engine, samples, inputs, repeat: int) -> list[float]:
-    """The calibration watch's ms a sample (the stereo-only reference after the frame's
-    inference, and the probes), on each scene `repeat` times: the daemon takes one sample in
-    WATCH_EVERY frames with LiDAR."""
-    watch = CalibrationWatch(samples[0].calibration(), samples[0].T_cam_lidar, every=1)
-    times = []
-    for _ in range(repeat):
-        for s, x in zip(samples, inputs, strict=True):
-            engine.infer(*x)
-            t = time.perf_counter()
-            watch.add(stereo_reference(engine), s.scan.points)
-            times.append((time.perf_counter() - t) * 1000)
-    return times
+def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[float, float]]:
+    """The calibration watch's (ms a sample, the same frame's ms without it): the daemon's
+    pipeline taking a sample on every frame, each scene `repeat` times. Paired frame by frame,
+    since this host's speed drifts between blocks."""
+    from edge_depth.daemon import Pipeline
+
+    pipeline = Pipeline(engine, *source.calibration, logger, watch_every=1)
+    out = []
+    for k in range(repeat * len(samples)):
+        s, stamp = samples[k % len(samples)], 5_000_000_000 + k * 100_000_000
+        pipeline.on_scan(LidarScan(stamp - 5_000_000, s.scan.points))
+        pipeline.on_frame(s.frame(stamp, k))
+        timings = pipeline.stats.timings[-1]
+        if "watch" in timings:
+            out.append((timings["watch"], timings["frame"] - timings["watch"]))
+    return out
 
 
 def markdown(summary: dict) -> str:
