@@ -25,6 +25,8 @@ from edge_depth.errors import EdgeError
 
 
 def add_parsers(sub) -> None:
+    from edge_depth.calibration_watch import EVERY as WATCH_EVERY
+
     cal = sub.add_parser("calibrate", help="stereo calibration, imports, LiDAR extrinsics")
     csub = cal.add_subparsers(dest="calib_command", required=True, parser_class=type(cal))
     st = csub.add_parser("stereo", help="calibrate a stereo pair from board views")
@@ -78,8 +80,9 @@ def add_parsers(sub) -> None:
                      help="the calibration to check (default: the recording's own)")
     chk.add_argument("--topics", type=Path, default=None,
                      help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
-    chk.add_argument("--every", type=int, default=1,
-                     help="one sample in this many frames with LiDAR (default 1: all)")
+    chk.add_argument("--every", type=int, default=WATCH_EVERY,
+                     help="the daemon's sampling: one sample's budget in this many frames "
+                          f"with LiDAR (default {WATCH_EVERY}, as [calibration] watch_every)")
     chk.add_argument("--max-samples", type=int, default=60,
                      help="stop after this many samples (default 60, the watch's window)")
 
@@ -196,12 +199,11 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
     from edge_depth.calibration_watch import (
         ERROR,
         MIN_SAMPLES,
-        OK,
         CalibrationWatch,
-        refine_command,
+        fixes,
         stereo_reference,
     )
-    from edge_depth.capture.synced import synced_frames
+    from edge_depth.capture.synced import stamped_frames
     from edge_depth.runtime.engine import Engine
 
     if every < 1 or max_samples < 1:
@@ -214,17 +216,18 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
     engine = Engine()
     watch = CalibrationWatch(stereo, lidar.T_cam_lidar, every)
     seen = 0
-    for frame, left, right, points, _ in synced_frames(recording, stereo, lidar.time_offset_ns,
-                                                       topics=topics):
+    for frame, left, right, points, stamp, _ in stamped_frames(
+            recording, stereo, lidar.time_offset_ns, topics=topics):
         if frame.size != tuple(stereo.image_size):
             raise CalibrationError(f"image size {frame.size} differs from the calibration's "
                                    f"{stereo.image_size}", path=str(recording))
         seen += 1
+        watch.frame(frame.stamp_ns, left)  # every frame: the turn between frames
         if not len(points) or not watch.due():
             continue
         sparse, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar)
         engine.infer(left, right, sparse)
-        watch.add(stereo_reference(engine), points)
+        watch.add(stereo_reference(engine), points, (stamp - frame.stamp_ns) / 1e9)
         if watch.samples >= max_samples:
             break
     estimate = watch.estimate()
@@ -232,10 +235,10 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
     print(f"LiDAR-camera rotation error: {estimate.describe()}")
     if estimate.samples < MIN_SAMPLES:
         print(f"too few samples for a verdict ({MIN_SAMPLES} needed): a longer recording, or "
-              "--every 1")
-    elif estimate.level != OK:
-        calib = None if calib_path is None else str(calib_path)
-        print(f"to refine it: {refine_command(str(recording), calib)}")
+              "a smaller --every")
+    elif todo := fixes(estimate, str(recording),
+                       None if calib_path is None else str(calib_path), lidar.time_offset_ns):
+        print(todo)
     return 1 if estimate.level == ERROR else 0
 
 

@@ -29,6 +29,7 @@ to.
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 from collections import deque
 from dataclasses import dataclass
@@ -51,24 +52,39 @@ TRUNCATE_PX, HOLE_PX = 3.0, 1.5
 GROW_PX = 6
 MAX_POINTS = 3000  # per sample, evenly thinned beyond it: a fixed budget
 MIN_DEPTH_M = 0.2
+TURN_SCALE = 4  # the turn between frames measured on images this many times smaller
+MAX_TURN_GAP_S = 0.5  # ... no further apart than this
+# ... and matching at least this well (phase correlation's peak: 0.83 and more between frames
+# of one scene on the turning sim robot, at most 0.17 between two scenes)
+MIN_TURN_RESPONSE = 0.5
+BANK = 8  # samples the budget may hold back for a turn
+TURN_SPACING = 4  # while turning, a sample in this many frames (each a moment of its own)
 WINDOW = 60  # the samples the estimate stands on: older ones are forgotten (a drift shows)
 MIN_SAMPLES = 8
-EVERY = 12  # one sample in this many frames with LiDAR (the daemon's default: < 3 % of it)
+EVERY = 12  # one sample's budget in this many frames with LiDAR (the daemon's default: < 3 %)
 REFERENCE_ITERS = 2
 WARN_PX, ERROR_PX = 0.1, 1.0
 # what the estimate reads with the right calibration on the sim robot's scenes, per axis
 # (pitch, yaw, roll): yaw and pitch up to 0.07°, roll up to 0.32° (its lever, the points'
 # distance from the image centre, is short and the rig's edges seldom constrain it)
 RESOLUTION_DEG = np.array([0.1, 0.1, 0.35])
+# the LiDAR-camera clock offset: observed while the camera turns (the points then land where
+# the turn in the offset's time moved them); searched over ±CLOCK_REACH_S
+CLOCK_STEP_S, CLOCK_REACH_S = 0.005, 0.15
+MIN_TURN_DPS = 2.0  # the samples' RMS turn rate below which the offset is not observed
+MIN_TURN_SAMPLES = 6  # ... and the samples with a turn rate measured
+CLOCK_RESOLUTION_S = 0.01
 OK, WARN, ERROR, SETTLING = "OK", "WARN", "ERROR", "SETTLING"
 LEVELS = (OK, WARN, ERROR)
 
 
 @dataclass(frozen=True)
 class WatchEstimate:
-    """The calibration's rotation error (degrees: pitch, yaw, roll), its standard error, the
-    pixels it moves the points by beyond twice that, the level and the samples it stands on.
-    `at_reach`: an axis at the probes' edge (the error is at least that)."""
+    """The calibration's rotation error (degrees: pitch, yaw, roll) and its standard error;
+    the LiDAR–camera clock offset's error (seconds to add to the points' stamps; None while the
+    camera has not turned enough to observe it) and its; the pixels they move the points by
+    beyond twice their uncertainty, the level and the samples it stands on. `at_reach`: an
+    axis at the probes' edge (the error is at least that)."""
 
     error_deg: tuple[float, float, float]
     sigma_deg: tuple[float, float, float]
@@ -76,22 +92,35 @@ class WatchEstimate:
     level: str
     samples: int
     at_reach: bool = False
+    clock_s: float | None = None
+    clock_sigma_s: float | None = None
+    turn_dps: float = 0.0  # the samples' RMS turn rate
 
     def describe(self) -> str:
-        """'yaw +0.31° ± 0.02°, pitch −0.01° ± 0.02°, roll +0.05° ± 0.06° (2.4 px): ERROR'."""
+        """'yaw +0.31° ± 0.02°, pitch −0.01° ± 0.02°, roll +0.05° ± 0.06°, clock −30 ms ± 4 ms
+        (2.4 px): ERROR'."""
         if self.level == SETTLING:
             return f"settling ({self.samples} of {MIN_SAMPLES} samples)"
         parts = [f"{name} {self.error_deg[AXES.index(name)]:+.2f}° ± "
                  f"{self.sigma_deg[AXES.index(name)]:.2f}°" for name in ("yaw", "pitch", "roll")]
+        if self.clock_s is not None and self.clock_sigma_s is not None:
+            parts.append(f"clock {self.clock_s * 1000:+.0f} ms ± "
+                         f"{self.clock_sigma_s * 1000:.0f} ms")
+        else:
+            parts.append(f"clock not observed (turning {self.turn_dps:.1f}°/s)")
         reach = ", at least that: beyond the probes" if self.at_reach else ""
         return f"{', '.join(parts)} ({self.shift_px:.2f} px{reach}): {self.level}"
 
     def as_dict(self) -> dict:
+        clock = None if self.clock_s is None else round(self.clock_s * 1000, 1)
+        sigma = None if self.clock_sigma_s is None else round(self.clock_sigma_s * 1000, 1)
         return dict(level=self.level, samples=self.samples, shift_px=round(self.shift_px, 3),
                     at_reach=self.at_reach,
                     **{f"{axis}_deg": round(self.error_deg[i], 3) for i, axis in enumerate(AXES)},
                     **{f"{axis}_sigma_deg": round(self.sigma_deg[i], 3)
-                       for i, axis in enumerate(AXES)})
+                       for i, axis in enumerate(AXES)},
+                    clock_offset_ms=clock, clock_sigma_ms=sigma,
+                    turn_dps=round(self.turn_dps, 2))
 
 
 def stereo_reference(engine) -> np.ndarray:
@@ -99,6 +128,16 @@ def stereo_reference(engine) -> np.ndarray:
     (`Engine.stereo_only`, REFERENCE_ITERS steps on the frame's own encoding), (H, W) float32
     px at the camera's size."""
     return engine.stereo_only(REFERENCE_ITERS)
+
+
+@dataclass(frozen=True)
+class _Sample:
+    grid: np.ndarray  # the (pitch, yaw) probes' costs
+    roll: np.ndarray  # the roll line's
+    radius_px: float  # the points' median distance from the image centre
+    turn_dps: float  # the camera's turn about its vertical axis, deg/s (NaN: not measured)
+    gap_s: float  # the points' stamp minus the frame's, by the configured clock offset
+    stamp_ns: int = -1  # the frame's
 
 
 def _axis(step: float, reach: float) -> np.ndarray:
@@ -136,6 +175,8 @@ class CalibrationWatch:
         self.calib, self.T = calib, np.asarray(T_cam_lidar, np.float64)
         self.every = every
         self.offered = 0
+        self._credit = BANK * every  # the budget (`due`), in frames: `every` a sample
+        self._since = 0  # frames offered since the last sample
         base = OcclusionFilterConfig()
         self._filter = OcclusionFilterConfig(
             window=(base.window[0] + 2 * GROW_PX, base.window[1] + 2 * GROW_PX),
@@ -146,26 +187,79 @@ class CalibrationWatch:
         self.roll_axis = _axis(ROLL_STEP_DEG, ROLL_REACH_DEG)
         # each sample's probe costs: (pitch, yaw) grid, roll line, the points' median
         # distance from the image centre (px)
-        self._samples: deque[tuple[np.ndarray, np.ndarray, float]] = deque(maxlen=WINDOW)
+        self._samples: deque[_Sample] = deque(maxlen=WINDOW)
         self.samples = 0  # all samples taken, the forgotten ones too
+        # the last two frames seen (stamp, grey at 1/TURN_SCALE): the turn between them
+        self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=2)
+        self._window: np.ndarray | None = None
         self._lock = threading.Lock()  # `add` on the engine's thread, `estimate` on others
 
     def due(self) -> bool:
-        """Whether this frame (one with LiDAR points) becomes a sample: one in `every`."""
-        take = self.offered % self.every == 0
+        """Whether this frame (one with LiDAR points) becomes a sample. A budget of one sample
+        in `every` frames, banked up to BANK samples: spent one in TURN_SPACING frames while
+        the camera turns (the clock offset shows only then), else one in `every` frames. Over
+        any stretch of frames the samples are at most its length / `every` + BANK."""
         self.offered += 1
+        self._since += 1
+        self._credit = min(self._credit + 1, BANK * self.every)  # in frames
+        if self._credit < self.every:
+            return False
+        take = self._credit >= BANK * self.every
+        if not take and self._since >= TURN_SPACING:
+            turn = self.turn_rate()
+            take = bool(np.isfinite(turn) and abs(turn) >= MIN_TURN_DPS)
+        if take:
+            self._credit -= self.every
+            self._since = 0
         return take
 
-    def add(self, reference: np.ndarray, points: np.ndarray) -> bool:
-        """A sample: the stereo-only disparity (H, W) and the frame's LiDAR points (N, 3). False
-        (nothing counted) when no point the camera sees lands in the image."""
+    def frame(self, stamp_ns: int, left: np.ndarray) -> None:
+        """Every frame the engine runs, before `add`: its left image, at 1/TURN_SCALE, for the
+        camera's turn since the frame before (what a clock offset turns into a rotation)."""
+        h, w = left.shape
+        small = cv2.resize(left, (max(8, w // TURN_SCALE), max(8, h // TURN_SCALE)),
+                           interpolation=cv2.INTER_AREA).astype(np.float32)
+        self._frames.append((int(stamp_ns), small))
+        with self._lock:
+            last = self._samples[-1] if self._samples else None
+            waiting = last is not None and last.stamp_ns == self._frames[0][0]
+        if waiting:  # the last sample's frame and this one: its turn rate, centred
+            assert last is not None
+            after = self.turn_rate()
+            turn = float(np.nanmean([last.turn_dps, after])) \
+                if np.isfinite([last.turn_dps, after]).any() else float("nan")
+            with self._lock:
+                if self._samples and self._samples[-1] is last:
+                    self._samples[-1] = dataclasses.replace(last, turn_dps=turn)
+
+    def turn_rate(self) -> float:
+        """The camera's turn about its vertical axis between the last two frames, deg/s, from
+        the images' shift (phase correlation); NaN when they are too far apart in time or do
+        not match (a new scene, a blur)."""
+        if len(self._frames) < 2:
+            return float("nan")
+        (t0, a), (t1, b) = self._frames
+        dt = (t1 - t0) / 1e9
+        if not 0 < dt <= MAX_TURN_GAP_S or a.shape != b.shape:
+            return float("nan")
+        if self._window is None or self._window.shape != a.shape:
+            self._window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
+        (dx, _), response = cv2.phaseCorrelate(a, b, self._window)
+        if response < MIN_TURN_RESPONSE:
+            return float("nan")
+        return float(np.degrees(dx * TURN_SCALE / self.calib.focal_px) / dt)
+
+    def add(self, reference: np.ndarray, points: np.ndarray, gap_s: float = 0.0) -> bool:
+        """A sample: the stereo-only disparity (H, W), the frame's LiDAR points (N, 3) and their
+        stamp minus the frame's (s, by the configured offset). False (nothing counted) when no
+        point the camera sees lands in the image."""
         cam = self._seen_points(np.asarray(points, np.float64))
         if len(cam) == 0:
             return False
         moves = self._jacobian(cam)
         grid = self._costs(moves, reference, self._grid).reshape(len(self.grid_axis), -1)
         with self._lock:
-            total = sum((g for g, _, _ in self._samples), grid)
+            total = sum((x.grid for x in self._samples), grid)
         pitch, yaw = self._grid_minimum(total)[0]
         roll = np.stack([np.full(len(self.roll_axis), pitch), np.full(len(self.roll_axis), yaw),
                          self.roll_axis], 1)
@@ -173,8 +267,10 @@ class CalibrationWatch:
         f = self.calib.focal_px
         radius = float(np.median(np.hypot(f * cam[:, 0] / cam[:, 2],
                                           f * cam[:, 1] / cam[:, 2])))
+        stamp = self._frames[-1][0] if self._frames else -1
+        sample = _Sample(grid, roll_costs, radius, self.turn_rate(), float(gap_s), stamp)
         with self._lock:
-            self._samples.append((grid, roll_costs, radius))
+            self._samples.append(sample)
             self.samples += 1
         return True
 
@@ -244,37 +340,94 @@ class CalibrationWatch:
         n = len(window)
         if n < MIN_SAMPLES:
             return WatchEstimate((0.0,) * 3, (0.0,) * 3, 0.0, SETTLING, n)
-        grid = np.stack([g for g, _, _ in window])
-        roll = np.stack([r for _, r, _ in window])
-        best, at_reach = self._minimum(grid.sum(axis=0), roll.sum(axis=0))
+        turn = np.array([x.turn_dps for x in window])
+        known = np.isfinite(turn)
+        rms_turn = float(np.sqrt(np.mean(turn[known] ** 2))) if known.any() else 0.0
+        observed = known.sum() >= MIN_TURN_SAMPLES and rms_turn >= MIN_TURN_DPS
+        offsets = _axis(CLOCK_STEP_S, CLOCK_REACH_S) if observed else np.zeros(1)
+        # each sample's (pitch, yaw) costs moved along yaw by the turn during its points'
+        # true age at each candidate offset: (samples, offsets, pitch, yaw)
+        age = np.array([x.gap_s for x in window])[:, None] + offsets[None, :]
+        grids = self._turned(np.stack([x.grid for x in window]),
+                             np.where(known, turn, 0.0)[:, None] * age)
+        roll = np.stack([x.roll for x in window])
+        total, roll_total = grids.sum(axis=0), roll.sum(axis=0)
+        best, clock, at_reach = self._joint_minimum(total, roll_total, offsets)
         # the jackknife: the estimate without each sample in turn
-        grid_total, roll_total = grid.sum(axis=0), roll.sum(axis=0)
-        leave_one = np.array([self._minimum(grid_total - g, roll_total - r)[0]
-                              for g, r in zip(grid, roll, strict=True)])
-        sigma = np.sqrt((n - 1) / n * ((leave_one - leave_one.mean(axis=0)) ** 2).sum(axis=0))
-        radius = float(np.mean([r for _, _, r in window]))
-        samples = n
+        leave_one = [self._joint_minimum(total - g, roll_total - r, offsets)
+                     for g, r in zip(grids, roll, strict=True)]
+        values = np.array([list(b) + [c] for b, c, _ in leave_one])
+        sigma = np.sqrt((n - 1) / n * ((values - values.mean(axis=0)) ** 2).sum(axis=0))
+        radius = float(np.mean([x.radius_px for x in window]))
         error = -best
-        lever = np.array([self.calib.focal_px, self.calib.focal_px, radius])
-        shift, level = verdict(error, sigma, lever)
-        e, s = [float(x) for x in error], [float(x) for x in sigma]
-        return WatchEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, samples,
-                             at_reach)
+        lever = np.radians([self.calib.focal_px, self.calib.focal_px, radius])  # px per °
+        clock_lever = self.calib.focal_px * np.radians(rms_turn)  # px per second of offset
+        shift, level = verdict(np.r_[error, clock if observed else 0.0], sigma,
+                               np.r_[lever, clock_lever], np.r_[RESOLUTION_DEG,
+                                                                CLOCK_RESOLUTION_S])
+        e, s = [float(x) for x in error], [float(x) for x in sigma[:3]]
+        return WatchEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, at_reach,
+                             float(clock) if observed else None,
+                             float(sigma[3]) if observed else None, rms_turn)
 
+    def _turned(self, grids: np.ndarray, turn_deg: np.ndarray) -> np.ndarray:
+        """(samples, pitch, yaw) costs, each sample's evaluated at yaw − its turn per offset
+        (samples, offsets; degrees), linearly between the probes and held beyond them."""
+        step = self.grid_axis[1] - self.grid_axis[0]
+        at = (self.grid_axis[None, None, :] - turn_deg[:, :, None] - self.grid_axis[0]) / step
+        at = np.clip(at, 0, len(self.grid_axis) - 1)
+        lo = np.minimum(at.astype(int), len(self.grid_axis) - 2)
+        frac = (at - lo)[:, :, None, :]
+        idx = np.arange(len(grids))[:, None, None, None]
+        rows = np.arange(grids.shape[1])[None, None, :, None]
+        lo4 = lo[:, :, None, :]
+        return grids[idx, rows, lo4] * (1 - frac) + grids[idx, rows, lo4 + 1] * frac
 
-def verdict(error_deg: np.ndarray, sigma_deg: np.ndarray, lever_px: np.ndarray
-            ) -> tuple[float, str]:
+    def _joint_minimum(self, total: np.ndarray, roll: np.ndarray, offsets: np.ndarray
+                       ) -> tuple[np.ndarray, float, bool]:
+        """The (pitch, yaw, roll) probe and the clock offset whose summed costs are lowest
+        (`total`: offsets, pitch, yaw)."""
+        k = int(np.argmin(total.reshape(len(offsets), -1).min(axis=1)))
+        clock = 0.0
+        if len(offsets) > 1:
+            clock, _ = parabola_minimum(offsets, total.reshape(len(offsets), -1).min(axis=1))
+        best, at_reach = self._minimum(total[k], roll)
+        return best, clock, at_reach
+
+def verdict(error: np.ndarray, sigma: np.ndarray, lever_px: np.ndarray,
+            resolution: np.ndarray = RESOLUTION_DEG) -> tuple[float, str]:
     """(px the points move by beyond twice the standard error, the level): ERROR beyond
-    ERROR_PX, WARN beyond WARN_PX once RESOLUTION_DEG more is allowed, else OK. `lever_px`:
-    px per radian per axis (f, f, the points' distance from the image centre)."""
-    def shift_px(margin_deg) -> float:
-        beyond = np.radians(np.maximum(np.abs(error_deg) - margin_deg, 0.0))
+    ERROR_PX, WARN beyond WARN_PX once `resolution` more is allowed, else OK. Per term (the
+    rotation's axes in degrees, the clock offset in seconds): `lever_px`, px per unit (f·π/180
+    for pitch and yaw, the points' distance from the image centre·π/180 for roll, the image's
+    speed in px/s for the clock)."""
+    def shift_px(margin) -> float:
+        beyond = np.maximum(np.abs(error) - margin, 0.0)
         return float(np.hypot.reduce(beyond * lever_px))
 
-    shift = shift_px(2 * sigma_deg)
+    shift = shift_px(2 * sigma)
     if shift > ERROR_PX:
         return shift, ERROR
-    return shift, WARN if shift_px(2 * sigma_deg + RESOLUTION_DEG) > WARN_PX else OK
+    return shift, WARN if shift_px(2 * sigma + resolution) > WARN_PX else OK
+
+
+def fixes(estimate: WatchEstimate, recording: str | None, calibration: str | None,
+          time_offset_ns: int = 0) -> str:
+    """What to do about a WARN or ERROR (empty otherwise): the rotation's refine command, and
+    the clock offset's value where the clock is off beyond its uncertainty and resolution."""
+    if estimate.level not in (WARN, ERROR):
+        return ""
+    todo = []
+    sigma = estimate.sigma_deg[:3]
+    if any(abs(e) > 2 * s + r for e, s, r in zip(estimate.error_deg, sigma, RESOLUTION_DEG,
+                                                 strict=True)):
+        todo.append(f"to refine the rotation: {refine_command(recording, calibration)}")
+    if estimate.clock_s is not None and estimate.clock_sigma_s is not None and \
+            abs(estimate.clock_s) > 2 * estimate.clock_sigma_s + CLOCK_RESOLUTION_S:
+        value = int(round(time_offset_ns + estimate.clock_s * 1e9, -6))
+        todo.append(f"the LiDAR's clock: set [lidar] time_offset_ns = {value} in "
+                    f"{calibration or 'the calibration'}")
+    return "; ".join(todo) or f"to refine it: {refine_command(recording, calibration)}"
 
 
 def refine_command(recording: str | None, calibration: str | None) -> str:

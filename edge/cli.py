@@ -156,6 +156,13 @@ def _add_synth_parser(sub) -> None:
                         "world as OUT/NNNNNNN.npz (LiDAR sampled at training time); "
                         "street: a recording (--mcap) of a road at 1242x375 with a "
                         "64-beam LiDAR, a world no shipped model trained on")
+    p.add_argument("--turn-deg", type=float, default=0.0,
+                   help="--mcap of the rig: the robot turns back and forth by this many "
+                        "degrees (a 2 s period, a new scene every 20 frames; 0: still)")
+    p.add_argument("--lidar-late-ms", type=float, default=0.0,
+                   help="with --turn-deg: the LiDAR's stamps run this late, an offset the "
+                        "recorded calibration does not know of (what the calibration watch "
+                        "finds)")
     p.add_argument("--workers", type=positive_int, default=1,
                    help="rendering processes (--world things)")
     p.add_argument("--view-spread", type=_view_spread, default=1.0,
@@ -273,6 +280,11 @@ def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         parser.error("synth: --world things writes training pairs to --out DIR, not --mcap")
     if args.world == "street" and not args.mcap:
         parser.error("synth: --world street writes a recording: give --mcap FILE")
+    if (args.turn_deg or args.lidar_late_ms) and (args.world != "rig" or not args.mcap):
+        parser.error("synth: --turn-deg and --lidar-late-ms make a recording of the rig "
+                     "(--mcap FILE)")
+    if args.lidar_late_ms and not args.turn_deg:
+        parser.error("synth: --lidar-late-ms shows only on a turning robot: give --turn-deg")
     if args.clean_cameras or args.view_spread != 1.0:
         if args.world != "things":
             parser.error("synth: --view-spread and --clean-cameras apply to --world things")
@@ -287,6 +299,18 @@ def synth(args: argparse.Namespace) -> int:
 
         n = write_street_recording(args.mcap, args.count, args.seed)
         print(f"wrote {args.mcap} ({args.count} street frames, 1242x375, {n} messages)")
+        return 0
+    if args.mcap and args.turn_deg:
+        from edge_depth.sim import RigConfig
+        from edge_depth.sim_recording import write_turning_recording
+
+        w, h = args.size
+        n = write_turning_recording(args.mcap, args.count, args.seed,
+                                    RigConfig(width=w, height=h), args.lidar,
+                                    amplitude_deg=args.turn_deg,
+                                    lidar_clock_ms=args.lidar_late_ms)
+        print(f"wrote {args.mcap} ({args.count} frames of a robot turning ±{args.turn_deg:g}°, "
+              f"LiDAR stamps {args.lidar_late_ms:+g} ms late, {n} messages)")
         return 0
     if args.mcap:
         from edge_depth.sim import RigConfig

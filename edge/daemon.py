@@ -22,7 +22,7 @@ import numpy as np
 
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
-from edge_depth.calibration_watch import CalibrationWatch, refine_command, stereo_reference
+from edge_depth.calibration_watch import CalibrationWatch, fixes, stereo_reference
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
@@ -62,6 +62,7 @@ class Prepared:
     timings: dict
     queued_ms: float = 0.0  # from prepared to the engine's start (pipelined: the hand-off)
     points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
+    points_stamp_ns: int | None = None  # ... their stamp in the camera's clock
 
 
 HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
@@ -224,6 +225,7 @@ class Pipeline:
         t1 = time.perf_counter()
         with self._lock:
             points = self.sync.points_for(frame.stamp_ns)
+            points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
         if self.lidar is not None:
             self._check_pairing(frame.stamp_ns, len(points) > 0)
         if len(points) and self.lidar is not None:
@@ -233,7 +235,7 @@ class Pipeline:
         t2 = time.perf_counter()
         return Prepared(frame, left, right, sparse, gt, t0, dict(
             rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
-            points=points if len(points) else None)
+            points=points if len(points) else None, points_stamp_ns=points_stamp_ns)
 
     def infer(self, p: Prepared) -> DepthResult:
         """Stage 2: the engine (its deadline counts from the start of `prepare`)."""
@@ -251,12 +253,16 @@ class Pipeline:
         """A sample of the calibration watch when one is due: after the frame's inference, on
         the engine's thread; its ms go in the frame's timings as "watch"."""
         watch = self.watch
-        if watch is None or self.engine is None or p.points is None or not watch.due():
+        if watch is None or self.engine is None:
             return
         t = time.perf_counter()
+        watch.frame(p.frame.stamp_ns, p.left)  # every frame: the turn between frames
+        if p.points is None or not watch.due():
+            return
+        gap_s = 0.0 if p.points_stamp_ns is None else (p.points_stamp_ns - p.frame.stamp_ns) / 1e9
         try:
             reference = stereo_reference(self.engine)
-            watch.add(reference, p.points)
+            watch.add(reference, p.points, gap_s)
         except Exception as exc:  # noqa: BLE001 - the watch must never stop the daemon
             self.stats.count_error("calibration_watch", exc)
         p.timings["watch"] = (time.perf_counter() - t) * 1000
@@ -313,8 +319,9 @@ def watch_summary(pipeline: Pipeline, recording: str | None = None,
         return None
     estimate = watch.estimate()
     line = f"LiDAR-camera calibration watch: {estimate.describe()}"
-    if estimate.level in ("WARN", "ERROR"):
-        line += f"; to refine it: {refine_command(recording, calibration)}"
+    offset = 0 if pipeline.lidar is None else pipeline.lidar.time_offset_ns
+    if todo := fixes(estimate, recording, calibration, offset):
+        line += f"; {todo}"
     return line
 
 

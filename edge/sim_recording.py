@@ -61,3 +61,70 @@ def write_street_recording(path, count: int, seed: int = 0, period_ms: float = 1
             logger.log_frame(StereoFrame(stamp, i, sample.left, sample.right, rectified=True))
             logger.log_gt(stamp, sample.disp_left)
         return logger.messages
+
+
+def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | None = None,
+                            lidar: str = "beams16", period_ms: float = 100.0,
+                            lidar_lag_ms: float = 5.0, amplitude_deg: float = 3.0,
+                            turn_period_s: float = 2.0, hold: int = 20,
+                            lidar_clock_ms: float = 0.0) -> int:
+    """A robot turning back and forth in front of rig scenes, for the calibration watch's
+    clock offset: its yaw θ(t) = amplitude · sin(2π t / turn_period) about the left camera's
+    vertical axis, a new scene every `hold` frames. Each frame is the scene's pair rotated by
+    θ at the frame's time (a rotation about a camera's centre is a homography of its image;
+    both views get the same one, which leaves the pair rectified to within 0.7 px at 3°); each
+    scan holds the scene's points as the LiDAR saw each at its own time, is stamped by its
+    forward middle (what the camera sees) `lidar_lag_ms` before its frame, and swept that
+    middle `lidar_clock_ms` before its stamp says: stamps that run late (a USB adapter's
+    latency) by an offset the calibration's `time_offset_ns` does not know of, whose right
+    value is then −lidar_clock_ms. No ground truth. Returns the number of messages."""
+    import cv2
+    import numpy as np
+
+    from edge_depth.calibration.projection import transform_points
+    from edge_depth.mcap_log import RAW_TOPICS, McapLogger
+    from edge_depth.sim import make_sample
+    from edge_depth.types import LidarScan, StereoFrame
+
+    rig = rig or RigConfig()
+    if hold < 1 or turn_period_s <= 0:
+        raise ValueError(f"hold >= 1 and turn_period_s > 0, got {hold}, {turn_period_s}")
+    source = SimSource(count, seed, rig, lidar, period_ms)
+    stereo, extrinsics = source.calibration
+    K = np.array([[rig.focal_px, 0, rig.cx], [0, rig.focal_px, rig.cy], [0, 0, 1.0]])
+    T = extrinsics.T_cam_lidar
+
+    def rotation(t_s: float) -> np.ndarray:  # the robot's turn at t_s into the recording
+        yaw = np.radians(amplitude_deg) * np.sin(2 * np.pi * t_s / turn_period_s)
+        return cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
+
+    with McapLogger(path, topics=RAW_TOPICS) as logger:
+        logger.set_calibration(stereo, extrinsics)
+        sample = None
+        for i in range(count):
+            if i % hold == 0:
+                sample = make_sample(seed + i // hold, rig, lidar)
+            assert sample is not None
+            stamp = 1_000_000_000 + int(i * period_ms * 1e6)
+            # the revolution that sweeps forward (its middle) `lidar_lag_ms` before the frame;
+            # each point as seen at its own time: X_cam -> R(t)^T X_cam, back to the LiDAR
+            offsets = sample.scan.point_stamps_ns - sample.scan.stamp_ns
+            # stamped `lidar_lag_ms` before its frame by the revolution's forward middle (what
+            # the camera sees), which the LiDAR swept `lidar_clock_ms` before its stamp says
+            forward_ns = stamp - int(lidar_lag_ms * 1e6)
+            start_ns = forward_ns - int(lidar_clock_ms * 1e6) - int(np.median(offsets))
+            yaw = np.radians(amplitude_deg) * np.sin(
+                2 * np.pi * (start_ns + offsets - 1_000_000_000) / 1e9 / turn_period_s)
+            cam = transform_points(T, sample.scan.points)
+            c, s_ = np.cos(yaw), np.sin(yaw)
+            turned = np.stack([c * cam[:, 0] - s_ * cam[:, 2], cam[:, 1],
+                               s_ * cam[:, 0] + c * cam[:, 2]], 1)
+            points = transform_points(np.linalg.inv(T), turned)
+            logger.log_scan(LidarScan(forward_ns, points.astype(np.float32)))
+            H = K @ rotation(i * period_ms / 1000).T @ np.linalg.inv(K)
+            size = (rig.width, rig.height)
+            left, right = (cv2.warpPerspective(im, H, size, flags=cv2.INTER_LINEAR,
+                                               borderMode=cv2.BORDER_REPLICATE)
+                           for im in (sample.left, sample.right))
+            logger.log_frame(StereoFrame(stamp, i, left, right, rectified=True))
+        return logger.messages

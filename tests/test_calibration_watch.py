@@ -68,7 +68,7 @@ def test_every_nth_frame_is_a_sample_and_a_frame_without_seen_points_is_none():
 
 
 def test_levels_are_pixels_beyond_twice_the_uncertainty_and_the_resolution():
-    lever = np.array([450.0, 450.0, 200.0])
+    lever = np.radians([450.0, 450.0, 200.0])  # px per degree
     assert verdict(np.array([0.0, 0.3, 0.0]), np.zeros(3), lever)[1] == ERROR  # 2.4 px
     # 0.12 deg is 0.94 px: under ERROR, and beyond the 0.1 deg resolution + 0.1 px: WARN
     assert verdict(np.array([0.0, 0.12, 0.0]), np.zeros(3), lever)[1] == WARN
@@ -76,6 +76,11 @@ def test_levels_are_pixels_beyond_twice_the_uncertainty_and_the_resolution():
     # the same 0.3 deg with an uncertainty of 0.15 deg is not yet certain: 0 px beyond 2 sigma
     shift, level = verdict(np.array([0.0, 0.3, 0.0]), np.array([0.0, 0.15, 0.0]), lever)
     assert shift == 0.0 and level == OK
+    # a clock 30 ms off while the image moves 50 px/s: 1.5 px, beside a right rotation
+    clock = verdict(np.zeros(4), np.zeros(4), np.r_[lever, 50.0], np.r_[0.1, 0.1, 0.35, 0.01])
+    off = verdict(np.r_[0.0, 0.0, 0.0, 0.03], np.zeros(4), np.r_[lever, 50.0],
+                  np.r_[0.1, 0.1, 0.35, 0.01])
+    assert clock == (0.0, OK) and off[1] == ERROR and off[0] == pytest.approx(1.5)
 
 
 def test_the_refine_command_is_pre_filled():
@@ -123,13 +128,15 @@ def small_recording(tmp_path_factory):
 def test_calibrate_check_exits_1_on_error_with_the_command_that_fixes_it(small_recording,
                                                                          capsys):
     rec, calibs = small_recording
-    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["yawed"])]) == 1
+    every = ["--every", "1"]  # a sample on each of its 10 frames
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["yawed"])] + every) == 1
     out = capsys.readouterr().out
     line = next(x for x in out.splitlines() if x.startswith("LiDAR-camera rotation error"))
     yaw = float(line.split("yaw ")[1].split("°")[0])
     assert 0.35 < yaw < 0.65 and line.endswith("ERROR")
     assert f"--recording {rec} --refine --calib {calibs['yawed']}" in out
-    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["right"])]) == 0
+    assert "not observed" in line  # a still robot: no clock offset to see
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["right"])] + every) == 0
     assert capsys.readouterr().out.count(": OK") == 1
 
 
@@ -158,3 +165,27 @@ def test_the_ros2_profile_gives_it_a_diagnostic_status_of_its_own():
     assert "yaw +0.31" in status["message"]
     assert {"key": "yaw_deg", "value": "0.31"} in status["values"]
     assert watch_status(dict(level=SETTLING, samples=3))["level"] == 0
+
+
+def test_a_turning_robot_shows_the_lidar_clock_offset_and_its_fix(tmp_path, capsys):
+    from edge_depth.calibration.io import save_calibration
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.capture.replay import McapSource, recording_calibration
+
+    rec = tmp_path / "turning.mcap"
+    assert main(["synth", "--mcap", str(rec), "--frames", "100", "--seed", "1000000",
+                 "--size", "320x200", "--turn-deg", "3", "--lidar-late-ms", "30"]) == 0
+    capsys.readouterr()
+    assert main(["calibrate", "check", str(rec)]) == 1  # the daemon's sampling, 100 frames
+    out = capsys.readouterr().out
+    clock_ms = float(out.split("clock ")[1].split(" ms")[0])
+    assert -39 < clock_ms < -21  # the stamps run 30 ms late: the offset to set is -30 ms
+    value = int(out.split("time_offset_ns = ")[1].split()[0])
+    assert value == round(clock_ms) * 1_000_000
+    # with that offset in the calibration the same recording checks OK
+    stereo, lidar = recording_calibration(McapSource(rec))[:2]
+    fixed = tmp_path / "fixed.toml"
+    save_calibration(fixed, stereo, LidarExtrinsics(lidar.T_cam_lidar, value))
+    assert main(["calibrate", "check", str(rec), "--calib", str(fixed)]) == 0
+    after = capsys.readouterr().out
+    assert abs(float(after.split("clock ")[1].split(" ms")[0])) < 8 and after.count("OK") == 1

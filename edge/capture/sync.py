@@ -57,6 +57,8 @@ class LidarSync:
         self._newest_ns: int | None = None  # latest stamp covered by any scan (LiDAR clock)
         self._gaps_ns: deque[int] = deque(maxlen=50)  # unmatched: nearest scan − frame
         self._stamps: deque[int] = deque(maxlen=16)   # recent scan stamps, for the period
+        # the last points returned: their (median) stamp in the camera's clock
+        self.last_points_stamp_ns: int | None = None
 
     def add(self, scan: LidarScan) -> None:
         """Keep a scan (non-finite points dropped); forget scans older than keep_s."""
@@ -125,15 +127,18 @@ class LidarSync:
                        default=None)
             if best is not None and abs(best.stamp_ns + offset - stamp_ns) <= half \
                     and len(best):
+                self.last_points_stamp_ns = best.stamp_ns + offset
                 return best.points
         else:
-            chunks = []
+            chunks, times = [], []
             for scan in self._scans:
                 stamps = (scan.point_stamps_ns if scan.point_stamps_ns is not None
                           else np.full(len(scan), scan.stamp_ns, np.int64)) + offset
                 keep = np.abs(stamps - stamp_ns) <= half
                 if keep.any():
                     chunks.append(scan.points[keep])
+                    times.append(stamps[keep])
             if chunks:
+                self.last_points_stamp_ns = int(np.median(np.concatenate(times)))
                 return np.concatenate(chunks)
         return np.zeros((0, 3), np.float32)

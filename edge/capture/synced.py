@@ -27,6 +27,17 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
     `time_offset_ns` moves LiDAR stamps into the camera clock; `topics` maps a ROS 2 bag's.
     `counters`, if given, receives the sync's counts when the recording ends
     (frames_with_lidar, frames_without_lidar, ...)."""
+    for frame, left, right, points, _, gt in stamped_frames(path, stereo, time_offset_ns,
+                                                            window_ms, topics, counters,
+                                                            max_wait_ms):
+        yield frame, left, right, points, gt
+
+
+def stamped_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
+                   topics: TopicMap | None = None, counters: dict | None = None,
+                   max_wait_ms: float | None = None):
+    """`synced_frames` with the points' stamp in the camera's clock (None without points):
+    yields (frame, left, right, points, points' stamp, GT or None)."""
     sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns, max_wait_ms=max_wait_ms))
     wait_ns = sync.config.wait_ms * 1e6
     rectifier = stereo.rectifier()
@@ -44,7 +55,9 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
             if not ready:
                 sync.waited_out += 1
             left, right = rectifier.pair(frame)
-            yield frame, left, right, sync.points_for(stamp), gt
+            points = sync.points_for(stamp)
+            yield (frame, left, right, points,
+                   sync.last_points_stamp_ns if len(points) else None, gt)
 
     for event in McapSource(path, topics):
         if isinstance(event, GroundTruth):  # joins its frame; never moves the stream on
