@@ -46,7 +46,8 @@ from edge_depth.calibration.projection import (
 )
 
 AXES = ("pitch", "yaw", "roll")
-GRID_STEP_DEG, GRID_REACH_DEG = 0.15, 0.6  # the (pitch, yaw) grid: 9 x 9 probes
+# the (pitch, yaw) grid, 9 x 17 probes: yaw reaches further, a turning robot's clock moves it
+GRID_STEP_DEG, GRID_REACH_DEG, YAW_REACH_DEG = 0.15, 0.6, 1.2
 ROLL_STEP_DEG, ROLL_REACH_DEG = 0.2, 1.2  # the roll line: 13 probes
 TRUNCATE_PX, HOLE_PX = 3.0, 1.5
 GROW_PX = 6
@@ -181,8 +182,9 @@ class CalibrationWatch:
         self._filter = OcclusionFilterConfig(
             window=(base.window[0] + 2 * GROW_PX, base.window[1] + 2 * GROW_PX),
             slack_px=base.slack_px + GROW_PX, relative=0.08, margin_px=1.0)
-        self.grid_axis = _axis(GRID_STEP_DEG, GRID_REACH_DEG)
-        pitch, yaw = np.meshgrid(self.grid_axis, self.grid_axis, indexing="ij")
+        self.grid_axis = _axis(GRID_STEP_DEG, GRID_REACH_DEG)  # pitch
+        self.yaw_axis = _axis(GRID_STEP_DEG, YAW_REACH_DEG)
+        pitch, yaw = np.meshgrid(self.grid_axis, self.yaw_axis, indexing="ij")
         self._grid = np.stack([pitch.ravel(), yaw.ravel(), np.zeros(pitch.size)], 1)
         self.roll_axis = _axis(ROLL_STEP_DEG, ROLL_REACH_DEG)
         # each sample's probe costs: (pitch, yaw) grid, roll line, the points' median
@@ -325,7 +327,7 @@ class CalibrationWatch:
     def _grid_minimum(self, costs: np.ndarray) -> tuple[tuple[float, float], bool]:
         i, j = np.unravel_index(int(np.argmin(costs)), costs.shape)
         pitch, edge_p = parabola_minimum(self.grid_axis, costs[:, j])
-        yaw, edge_y = parabola_minimum(self.grid_axis, costs[i, :])
+        yaw, edge_y = parabola_minimum(self.yaw_axis, costs[i, :])
         return (pitch, yaw), edge_p or edge_y
 
     def _minimum(self, grid: np.ndarray, roll: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -373,10 +375,10 @@ class CalibrationWatch:
     def _turned(self, grids: np.ndarray, turn_deg: np.ndarray) -> np.ndarray:
         """(samples, pitch, yaw) costs, each sample's evaluated at yaw − its turn per offset
         (samples, offsets; degrees), linearly between the probes and held beyond them."""
-        step = self.grid_axis[1] - self.grid_axis[0]
-        at = (self.grid_axis[None, None, :] - turn_deg[:, :, None] - self.grid_axis[0]) / step
-        at = np.clip(at, 0, len(self.grid_axis) - 1)
-        lo = np.minimum(at.astype(int), len(self.grid_axis) - 2)
+        axis = self.yaw_axis
+        at = (axis[None, None, :] - turn_deg[:, :, None] - axis[0]) / (axis[1] - axis[0])
+        at = np.clip(at, 0, len(axis) - 1)
+        lo = np.minimum(at.astype(int), len(axis) - 2)
         frac = (at - lo)[:, :, None, :]
         idx = np.arange(len(grids))[:, None, None, None]
         rows = np.arange(grids.shape[1])[None, None, :, None]

@@ -47,7 +47,7 @@ def main() -> None:
                 watch.add(stereo_reference(engine), points, (stamp - frame.stamp_ns) / 1e9)
             rows = []
             for s in watch._samples:
-                yaw, _ = parabola_minimum(watch.grid_axis, s.grid.min(axis=0))  # its own
+                yaw, _ = parabola_minimum(watch.yaw_axis, s.grid.min(axis=0))  # its own
                 rows.append((s.turn_dps, s.gap_s, -yaw))
             turn, gap, yaw = (np.array(c) for c in zip(*rows, strict=True))
             ok = np.isfinite(turn)
