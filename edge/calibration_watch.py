@@ -51,7 +51,8 @@ GRID_STEP_DEG, GRID_REACH_DEG, YAW_REACH_DEG = 0.15, 0.6, 1.2
 ROLL_STEP_DEG, ROLL_REACH_DEG = 0.2, 1.2  # the roll line: 13 probes
 TRUNCATE_PX, HOLE_PX = 3.0, 1.5
 GROW_PX = 6
-MAX_POINTS = 3000  # per sample, evenly thinned beyond it: a fixed budget
+MAX_POINTS = 6000  # per sample, evenly thinned beyond it: a fixed budget
+PROBE_CHUNK = 16  # probes evaluated together
 MIN_DEPTH_M = 0.2
 TURN_SCALE = 4  # the turn between frames measured on images this many times smaller
 MAX_TURN_GAP_S = 0.5  # ... no further apart than this
@@ -62,7 +63,7 @@ BANK = 8  # samples the budget may hold back for a turn
 TURN_SPACING = 4  # while turning, a sample in this many frames (each a moment of its own)
 WINDOW = 60  # the samples the estimate stands on: older ones are forgotten (a drift shows)
 MIN_SAMPLES = 8
-EVERY = 12  # one sample's budget in this many frames with LiDAR (the daemon's default: < 3 %)
+EVERY = 13  # one sample's budget in this many frames with LiDAR (the daemon's default: < 3 %)
 REFERENCE_ITERS = 2
 WARN_PX, ERROR_PX = 0.1, 1.0
 # what the estimate reads with the right calibration on the sim robot's scenes, per axis
@@ -249,7 +250,11 @@ class CalibrationWatch:
         (dx, _), response = cv2.phaseCorrelate(a, b, self._window)
         if response < MIN_TURN_RESPONSE:
             return float("nan")
-        return float(np.degrees(dx * TURN_SCALE / self.calib.focal_px) / dt)
+        # a turn by θ moves a pixel at x (in focal lengths from the centre) by f·θ·(1 + x²):
+        # the shift found is about the image's mean, (1 + (w / 2f)² / 3) times the centre's
+        f = self.calib.focal_px
+        spread = 1.0 + (a.shape[1] * TURN_SCALE / (2 * f)) ** 2 / 3
+        return float(np.degrees(dx * TURN_SCALE / f) / dt / spread)
 
     def add(self, reference: np.ndarray, points: np.ndarray, gap_s: float = 0.0) -> bool:
         """A sample: the stereo-only disparity (H, W), the frame's LiDAR points (N, 3) and their
@@ -298,15 +303,22 @@ class CalibrationWatch:
         the probes' reach (0.6°, roll 1.2°) the second-order terms stay below 0.1 px."""
         base, jacobian = moves
         probes = np.asarray(probes_deg, np.float32)
-        u, v, d = (base[c] + probes @ jacobian[c] for c in range(3))  # (P, N) each
         h, w = reference.shape
-        inside = (u > -0.5) & (u < w - 0.5) & (v > -0.5) & (v < h - 0.5)
-        col = np.clip(u + 0.5, 0, w - 1).astype(np.int32)  # the nearest pixel
-        row = np.clip(v + 0.5, 0, h - 1).astype(np.int32)
-        gap = np.abs(d - reference.ravel()[row * w + col])
-        np.minimum(gap, TRUNCATE_PX, out=gap)
-        gap[~(inside & np.isfinite(gap))] = HOLE_PX
-        return gap.mean(axis=1)
+        flat = reference.ravel()
+        out = np.empty(len(probes))
+        for start in range(0, len(probes), PROBE_CHUNK):  # a chunk's arrays stay in cache
+            chunk = probes[start:start + PROBE_CHUNK]
+            u, v, d = (base[c] + chunk @ jacobian[c] for c in range(3))  # (chunk, N) each
+            inside = (u > -0.5) & (u < w - 0.5) & (v > -0.5) & (v < h - 0.5)
+            col = np.clip(u + 0.5, 0, w - 1).astype(np.int32)  # the nearest pixel
+            row = np.clip(v + 0.5, 0, h - 1).astype(np.int32)
+            row *= w
+            row += col
+            gap = np.abs(d - flat[row])
+            np.minimum(gap, TRUNCATE_PX, out=gap)
+            gap[~(inside & np.isfinite(gap))] = HOLE_PX
+            out[start:start + PROBE_CHUNK] = gap.mean(axis=1)
+        return out
 
     def _jacobian(self, cam: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The points' (u, v, d) at the calibration, (3, N), and their change per degree of

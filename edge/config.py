@@ -15,8 +15,8 @@
     file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
                                 # calibration, which has no LiDAR extrinsics (then a
                                 # LiDAR model other than "none" is an error)
-    watch_every = 12            # the LiDAR-camera rotation watched (/diagnostics): one
-                                # sample in this many frames with LiDAR; 0 = off
+    watch_every = 13            # the LiDAR-camera rotation and clock watched (/diagnostics):
+                                # one sample's budget in this many frames with LiDAR; 0 = off
 
     [sync]
     mode = "auto"               # "nearest" (spinning 3-D) | "accumulate" (2-D scanner) |

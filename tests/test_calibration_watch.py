@@ -148,7 +148,7 @@ def test_replay_says_it_in_one_line_and_on_diagnostics(small_recording, tmp_path
     assert main(["replay", str(rec), "--calib", str(calibs["yawed"]), "--out", str(out)]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines()
                 if x.startswith("LiDAR-camera calibration watch"))
-    # one sample in twelve frames with LiDAR: 1 of the 8 a verdict needs
+    # one sample in 13 frames with LiDAR: 1 of the 8 a verdict needs
     assert "settling (1 of 8 samples)" in line and "refine" not in line
     with open(out, "rb") as f:
         diagnostics = [json.loads(m.data) for _, _, m in

@@ -122,9 +122,11 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     # calls at 1 iteration per run, the paired ratio one int8 call at 4 per scene, block and run
     assert calls["fp32", 1] == calls["fp32", 4] == 8 and calls["int8", 4] == 12, calls
     assert calls["int8", 1] == 12, calls
+    from edge_depth.calibration_watch import EVERY
+
     watch = result["calibration_watch"]  # a sample on each scene of each block, paired
-    assert watch["every"] == 12 and watch["per_frame_ms"] == pytest.approx(
-        watch["sample_ms"] / 12) and 0 < watch["share_of_frame_pct"] < 100
+    assert watch["every"] == EVERY and watch["per_frame_ms"] == pytest.approx(
+        watch["sample_ms"] / EVERY) and 0 < watch["share_of_frame_pct"] < 100
     assert "calibration watch:" in md.read_text()
     assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
