@@ -195,6 +195,9 @@ class CalibrationWatch:
         # the last two frames seen (stamp, grey at 1/TURN_SCALE): the turn between them
         self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=2)
         self._window: np.ndarray | None = None
+        self.clock_axis = _axis(CLOCK_STEP_S, CLOCK_REACH_S)
+        self._turned_cache: dict[int, tuple[_Sample, np.ndarray]] = {}
+        self._estimate: tuple[tuple, WatchEstimate] | None = None  # (its samples, it)
         self._lock = threading.Lock()  # `add` on the engine's thread, `estimate` on others
 
     def due(self) -> bool:
@@ -348,9 +351,18 @@ class CalibrationWatch:
         return np.array([pitch, yaw, r]), edge or edge_r
 
     def estimate(self) -> WatchEstimate:
-        """The current estimate ("settling" before MIN_SAMPLES samples)."""
+        """The current estimate ("settling" before MIN_SAMPLES samples); computed again only
+        after a new sample (or its turn rate) arrived."""
         with self._lock:
             window = list(self._samples)
+            key = (self.samples, repr(window[-1].turn_dps) if window else "")
+        if self._estimate is not None and self._estimate[0] == key:
+            return self._estimate[1]
+        estimate = self._estimate_from(window)
+        self._estimate = (key, estimate)
+        return estimate
+
+    def _estimate_from(self, window: list[_Sample]) -> WatchEstimate:
         n = len(window)
         if n < MIN_SAMPLES:
             return WatchEstimate((0.0,) * 3, (0.0,) * 3, 0.0, SETTLING, n)
@@ -358,19 +370,22 @@ class CalibrationWatch:
         known = np.isfinite(turn)
         rms_turn = float(np.sqrt(np.mean(turn[known] ** 2))) if known.any() else 0.0
         observed = known.sum() >= MIN_TURN_SAMPLES and rms_turn >= MIN_TURN_DPS
-        offsets = _axis(CLOCK_STEP_S, CLOCK_REACH_S) if observed else np.zeros(1)
+        offsets = self.clock_axis
         # each sample's (pitch, yaw) costs moved along yaw by the turn during its points'
-        # true age at each candidate offset: (samples, offsets, pitch, yaw)
-        age = np.array([x.gap_s for x in window])[:, None] + offsets[None, :]
-        grids = self._turned(np.stack([x.grid for x in window]),
-                             np.where(known, turn, 0.0)[:, None] * age)
+        # true age at each candidate offset: (samples, offsets, pitch, yaw); not observed,
+        # only the offset 0 (the configured clock)
+        grids = np.stack([self._turned_grid(x) for x in window])
+        if not observed:
+            zero = len(offsets) // 2
+            grids, offsets = grids[:, zero:zero + 1], offsets[zero:zero + 1]
         roll = np.stack([x.roll for x in window])
         total, roll_total = grids.sum(axis=0), roll.sum(axis=0)
         best, clock, at_reach = self._joint_minimum(total, roll_total, offsets)
         # the jackknife: the estimate without each sample in turn
-        leave_one = [self._joint_minimum(total - g, roll_total - r, offsets)
-                     for g, r in zip(grids, roll, strict=True)]
-        values = np.array([list(b) + [c] for b, c, _ in leave_one])
+        leave_one = total[None] - grids
+        values = np.array([list(b) + [c] for b, c, _ in
+                           (self._joint_minimum(loo, roll_total - r, offsets)
+                            for loo, r in zip(leave_one, roll, strict=True))])
         sigma = np.sqrt((n - 1) / n * ((values - values.mean(axis=0)) ** 2).sum(axis=0))
         radius = float(np.mean([x.radius_px for x in window]))
         error = -best
@@ -383,6 +398,21 @@ class CalibrationWatch:
         return WatchEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, at_reach,
                              float(clock) if observed else None,
                              float(sigma[3]) if observed else None, rms_turn)
+
+    def _turned_grid(self, sample: _Sample) -> np.ndarray:
+        """The sample's (pitch, yaw) costs at each candidate clock offset, (offsets, pitch,
+        yaw): kept while the sample is in the window."""
+        cached = self._turned_cache.get(id(sample))
+        if cached is None or cached[0] is not sample:
+            turn = sample.turn_dps if np.isfinite(sample.turn_dps) else 0.0
+            moved = turn * (sample.gap_s + self.clock_axis)
+            cached = (sample, self._turned(sample.grid[None], moved[None])[0])
+            self._turned_cache[id(sample)] = cached
+            with self._lock:
+                alive = {id(x) for x in self._samples}
+            for gone in [k for k in self._turned_cache if k not in alive]:
+                del self._turned_cache[gone]
+        return cached[1]
 
     def _turned(self, grids: np.ndarray, turn_deg: np.ndarray) -> np.ndarray:
         """(samples, pitch, yaw) costs, each sample's evaluated at yaw − its turn per offset
@@ -401,10 +431,9 @@ class CalibrationWatch:
                        ) -> tuple[np.ndarray, float, bool]:
         """The (pitch, yaw, roll) probe and the clock offset whose summed costs are lowest
         (`total`: offsets, pitch, yaw)."""
-        k = int(np.argmin(total.reshape(len(offsets), -1).min(axis=1)))
-        clock = 0.0
-        if len(offsets) > 1:
-            clock, _ = parabola_minimum(offsets, total.reshape(len(offsets), -1).min(axis=1))
+        profile = total.reshape(len(offsets), -1).min(axis=1)
+        k = int(np.argmin(profile))
+        clock = parabola_minimum(offsets, profile)[0] if len(offsets) > 1 else 0.0
         best, at_reach = self._minimum(total[k], roll)
         return best, clock, at_reach
 

@@ -256,13 +256,13 @@ class Pipeline:
         if watch is None or self.engine is None:
             return
         t = time.perf_counter()
-        watch.frame(p.frame.stamp_ns, p.left)  # every frame: the turn between frames
-        if p.points is None or not watch.due():
-            return
-        gap_s = 0.0 if p.points_stamp_ns is None else (p.points_stamp_ns - p.frame.stamp_ns) / 1e9
         try:
-            reference = stereo_reference(self.engine)
-            watch.add(reference, p.points, gap_s)
+            watch.frame(p.frame.stamp_ns, p.left)  # every frame: the turn between frames
+            if p.points is None or not watch.due():
+                return
+            gap_s = 0.0 if p.points_stamp_ns is None else \
+                (p.points_stamp_ns - p.frame.stamp_ns) / 1e9
+            watch.add(stereo_reference(self.engine), p.points, gap_s)
         except Exception as exc:  # noqa: BLE001 - the watch must never stop the daemon
             self.stats.count_error("calibration_watch", exc)
         p.timings["watch"] = (time.perf_counter() - t) * 1000

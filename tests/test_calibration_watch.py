@@ -189,3 +189,17 @@ def test_a_turning_robot_shows_the_lidar_clock_offset_and_its_fix(tmp_path, caps
     assert main(["calibrate", "check", str(rec), "--calib", str(fixed)]) == 0
     after = capsys.readouterr().out
     assert abs(float(after.split("clock ")[1].split(" ms")[0])) < 8 and after.count("OK") == 1
+
+
+def test_a_failing_watch_is_counted_and_the_replay_goes_on(small_recording, tmp_path, capsys,
+                                                           monkeypatch):
+    from edge_depth.runtime.engine import Engine
+
+    def broken(self, iters=2):
+        raise RuntimeError("the reference failed")
+
+    monkeypatch.setattr(Engine, "stereo_only", broken)
+    rec, _ = small_recording
+    assert main(["replay", str(rec), "--out", str(tmp_path / "out.mcap")]) == 0
+    out = capsys.readouterr().out
+    assert "10 frames" in out and "'calibration_watch': 1" in out  # one sample due: counted
