@@ -61,6 +61,7 @@ MAX_TURN_GAP_S = 0.5  # ... no further apart than this
 MIN_TURN_RESPONSE = 0.5
 BANK = 8  # samples the budget may hold back for a turn
 TURN_SPACING = 4  # while turning, a sample in this many frames (each a moment of its own)
+JACKKNIFE_GROUPS = 5  # the uncertainty's groups of samples
 WINDOW = 60  # the samples the estimate stands on: older ones are forgotten (a drift shows)
 MIN_SAMPLES = 8
 EVERY = 13  # one sample's budget in this many frames with LiDAR (the daemon's default: < 3 %)
@@ -381,12 +382,17 @@ class CalibrationWatch:
         roll = np.stack([x.roll for x in window])
         total, roll_total = grids.sum(axis=0), roll.sum(axis=0)
         best, clock, at_reach = self._joint_minimum(total, roll_total, offsets)
-        # the jackknife: the estimate without each sample in turn
-        leave_one = total[None] - grids
-        values = np.array([list(b) + [c] for b, c, _ in
-                           (self._joint_minimum(loo, roll_total - r, offsets)
-                            for loo, r in zip(leave_one, roll, strict=True))])
-        sigma = np.sqrt((n - 1) / n * ((values - values.mean(axis=0)) ** 2).sum(axis=0))
+        # the grouped jackknife: the estimate without each of JACKKNIFE_GROUPS interleaved
+        # groups in turn (leaving out one sample moves a lowest probe by a whole step or
+        # none, which the single-sample jackknife blows up by n - 1)
+        values = []
+        for g in range(JACKKNIFE_GROUPS):
+            b, c, _ = self._joint_minimum(total - grids[g::JACKKNIFE_GROUPS].sum(axis=0),
+                                          roll_total - roll[g::JACKKNIFE_GROUPS].sum(axis=0),
+                                          offsets)
+            values.append(list(b) + [c])
+        spread = np.asarray(values) - np.mean(values, axis=0)
+        sigma = np.sqrt((JACKKNIFE_GROUPS - 1) / JACKKNIFE_GROUPS * (spread ** 2).sum(axis=0))
         radius = float(np.mean([x.radius_px for x in window]))
         error = -best
         lever = np.radians([self.calib.focal_px, self.calib.focal_px, radius])  # px per °
