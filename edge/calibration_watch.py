@@ -1,30 +1,35 @@
-"""The calibration watched: the LiDAR–camera rotation error, estimated from the frames the
-daemon already processes, with its uncertainty and a level.
+"""The calibration watched: the LiDAR–camera rotation error and, while the camera turns, the
+LiDAR's clock offset, estimated from the frames the daemon already processes, with their
+uncertainty and a level (docs/calibration.md has the measurements).
 
-Every `every`-th frame with LiDAR points is a sample. Its reference is the engine's network
-run without the LiDAR (`Engine.stereo_only`, two steps): a disparity that never saw the points,
-so it cannot follow them where they are misplaced (the engine's own output does; a block
-matcher's fattened edges moved the estimate by 0.1–0.6°, docs/experiments.md). The points are
-those the left camera sees by the occlusion filter grown by GROW_PX (the exact filter keeps
-LiDAR points the camera cannot see behind edges, and they pull pitch by ~0.1°). For each probe
-rotation of the calibration — a (pitch, yaw) grid and a roll line, about the rectified left
-camera's x (right), y (down) and z (forward) axes — each point's disparity is compared with
-the reference's at the pixel it then lands on: the mean of min(|d − D|, TRUNCATE_PX), HOLE_PX
-where it lands outside the image. Off by a rotation, the points near depth edges land on the
-other surface. The costs are summed over the samples; the lowest probe, refined by a parabola
-per axis, is the rotation that makes the points land best, and its negative the calibration's
-error. The estimate stands on the last WINDOW samples; its uncertainty is the jackknife's
-(the spread of the estimate without each sample in turn).
+A sample's reference is the engine's network run without the LiDAR (`Engine.stereo_only`, two
+steps on the frame's own encoding): a disparity that never saw the points, so it cannot follow
+them where they are misplaced (the engine's own output does; a block matcher's fattened edges
+moved the estimate by 0.1–0.6°). The points are those the left camera sees by the occlusion
+filter grown by GROW_PX (the exact filter keeps LiDAR points the camera cannot see behind
+edges, and they pull pitch by ~0.1°). For each probe rotation of the calibration — a (pitch,
+yaw) grid and a roll line, about the rectified left camera's x (right), y (down) and z
+(forward) axes — each point's disparity is compared with the reference's at the pixel it then
+lands on: the mean of min(|d − D|, TRUNCATE_PX), HOLE_PX where it lands outside the image. Off
+by a rotation, the points near depth edges land on the other surface.
+
+While the camera turns, points stamped at the wrong time land where the turn in the offset's
+time moved them. Each sample keeps the camera's turn rate (`frame`: the images' shift between
+the frames around it) and its points' stamp gap; the estimate moves each sample's costs along
+yaw by rate × (gap + a candidate offset), and the lowest summed cost over the last WINDOW
+samples gives the rotation and the offset together, each refined by a parabola; their
+negatives are the errors. The uncertainty is a grouped jackknife's (the estimate without each
+of JACKKNIFE_GROUPS interleaved groups of samples).
 
 A rotation moves every projected point by about f · angle pixels whatever its depth (about the
-optical axis: the points' distance from the image centre · angle), so the level is in pixels:
-ERROR when the error, less twice its uncertainty, moves the points by more than ERROR_PX, WARN
-beyond WARN_PX once RESOLUTION_DEG more is allowed (what the estimate reads with the right
-calibration on the sim robot's scenes). The uncertainty assumes the samples see different
-scenes: a robot that stands still for the window's length samples one scene, and that
-scene's own bias (up to the resolution) is then read as certain. Nothing here changes the
-calibration: `edge-depth calibrate lidar --refine` writes a new file when the user decides
-to.
+optical axis: the points' distance from the image centre · angle), a clock error by the
+image's speed × the error, so the level is in pixels: ERROR when the errors, less twice their
+uncertainty, move the points by more than ERROR_PX, WARN beyond WARN_PX once the resolution is
+allowed (what the estimate reads with the right calibration on the sim robot's scenes). The
+uncertainty assumes the samples see different scenes: a robot that stands still for the
+window's length samples one scene, and that scene's own bias (up to the resolution) is then
+read as certain. Samples come from a budget (`due`). Nothing here changes the calibration:
+`edge-depth calibrate lidar --refine` writes a new file, the clock offset is the user's to set.
 """
 
 from __future__ import annotations
@@ -167,9 +172,10 @@ def parabola_minimum(xs: np.ndarray, costs: np.ndarray) -> tuple[float, bool]:
 
 
 class CalibrationWatch:
-    """`due()` before a frame with LiDAR points; when True, `add(reference, points)` with the
-    engine's stereo-only disparity and the frame's points (LiDAR frame, metres); read
-    `estimate()` at any time."""
+    """`frame(stamp, left)` on every frame the engine runs; then, on a frame with LiDAR points,
+    `due()`, and when True `add(reference, points, gap_s)` with the engine's stereo-only
+    disparity, the frame's points (LiDAR frame, metres) and their stamp minus the frame's;
+    read `estimate()` at any time (any thread)."""
 
     def __init__(self, calib: StereoCalibration, T_cam_lidar: np.ndarray,
                  every: int = EVERY) -> None:
@@ -184,9 +190,9 @@ class CalibrationWatch:
         self._filter = OcclusionFilterConfig(
             window=(base.window[0] + 2 * GROW_PX, base.window[1] + 2 * GROW_PX),
             slack_px=base.slack_px + GROW_PX, relative=0.08, margin_px=1.0)
-        self.grid_axis = _axis(GRID_STEP_DEG, GRID_REACH_DEG)  # pitch
+        self.pitch_axis = _axis(GRID_STEP_DEG, GRID_REACH_DEG)
         self.yaw_axis = _axis(GRID_STEP_DEG, YAW_REACH_DEG)
-        pitch, yaw = np.meshgrid(self.grid_axis, self.yaw_axis, indexing="ij")
+        pitch, yaw = np.meshgrid(self.pitch_axis, self.yaw_axis, indexing="ij")
         self._grid = np.stack([pitch.ravel(), yaw.ravel(), np.zeros(pitch.size)], 1)
         self.roll_axis = _axis(ROLL_STEP_DEG, ROLL_REACH_DEG)
         # each sample's probe costs: (pitch, yaw) grid, roll line, the points' median
@@ -268,7 +274,7 @@ class CalibrationWatch:
         if len(cam) == 0:
             return False
         moves = self._jacobian(cam)
-        grid = self._costs(moves, reference, self._grid).reshape(len(self.grid_axis), -1)
+        grid = self._costs(moves, reference, self._grid).reshape(len(self.pitch_axis), -1)
         with self._lock:
             total = sum((x.grid for x in self._samples), grid)
         pitch, yaw = self._grid_minimum(total)[0]
@@ -342,7 +348,7 @@ class CalibrationWatch:
 
     def _grid_minimum(self, costs: np.ndarray) -> tuple[tuple[float, float], bool]:
         i, j = np.unravel_index(int(np.argmin(costs)), costs.shape)
-        pitch, edge_p = parabola_minimum(self.grid_axis, costs[:, j])
+        pitch, edge_p = parabola_minimum(self.pitch_axis, costs[:, j])
         yaw, edge_y = parabola_minimum(self.yaw_axis, costs[i, :])
         return (pitch, yaw), edge_p or edge_y
 
