@@ -101,8 +101,8 @@ class Pipeline:
 
     With `engine=None` it is the recorder: frames are checked, rectified and logged with
     the raw scans, and nothing is inferred (`on_frame` returns None). `watch_every`: the
-    calibration watched (`edge.calibration_watch`), one sample in this many frames with LiDAR
-    points; 0 off."""
+    calibration watched (`edge.calibration_watch`), one sample's budget in this many frames
+    with LiDAR points; 0 off."""
 
     def __init__(self, engine: Engine | None, stereo: StereoCalibration,
                  lidar: LidarExtrinsics | None, logger: McapLogger | None = None,
@@ -309,6 +309,7 @@ class Pipeline:
             if metrics is not None:
                 self.stats.metrics.append(metrics)
         return FrameOutput(result, p.sparse, p.left, metrics, p.gt)
+
 
 def watch_summary(pipeline: Pipeline, recording: str | None = None,
                   calibration: str | None = None) -> str | None:
