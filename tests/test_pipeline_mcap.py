@@ -439,3 +439,30 @@ def test_the_watchdog_is_fed_while_no_frame_arrives(engine, notify_server):
         pass
     assert messages[0] == "READY=1" and messages[-1] == "STOPPING=1"
     assert messages.count("WATCHDOG=1") >= 3
+
+
+def test_frames_paired_with_one_scan_project_it_once(engine, rig_sample, monkeypatch):
+    import edge_depth.daemon as daemon
+
+    calls = []
+    real = daemon.project_to_disparity
+
+    def counted(points, *args, **kwargs):
+        calls.append(len(points))
+        return real(points, *args, **kwargs)
+
+    monkeypatch.setattr(daemon, "project_to_disparity", counted)
+    stereo, lidar = SimSource(1).calibration
+    pipeline = Pipeline(engine, stereo, lidar)
+    scan = LidarScan(1_000_000_000, rig_sample.scan.points)
+    pipeline.on_scan(scan)
+    # a fast camera beside a 10 Hz LiDAR: three frames within the sync's window of one scan
+    outs = [pipeline.on_frame(rig_sample.frame(1_000_000_000 + k * 20_000_000, k))
+            for k in range(3)]
+    assert len(calls) == 1 and all(o is not None for o in outs)
+    np.testing.assert_array_equal(outs[0].sparse, outs[2].sparse)
+    assert (outs[0].sparse > 0).sum() > 1000
+    pipeline.on_scan(LidarScan(1_100_000_000, rig_sample.scan.points[::2]))  # the next one
+    later = pipeline.on_frame(rig_sample.frame(1_100_000_000, 3))
+    assert len(calls) == 2 and later is not None
+    assert 0 < (later.sparse > 0).sum() < (outs[0].sparse > 0).sum()
