@@ -14,7 +14,7 @@ from edge_depth.cli import main
 pytest.importorskip("torch")
 
 from edge_depth.tools.adapt import FineTune  # noqa: E402
-from edge_depth.tools.adapt_check import is_better  # noqa: E402
+from edge_depth.tools.adapt_check import decide, is_better  # noqa: E402
 from edge_depth.tools.adapt_frames import Frame, split_by_time  # noqa: E402
 
 
@@ -71,6 +71,17 @@ def test_check_frames_are_each_recordings_last_fifth():
     assert len(adapt_frames) == 10
     with pytest.raises(ValueError, match="at least 2"):
         split_by_time([_frames("c", 1)])
+
+
+def test_the_new_bundle_must_also_beat_the_old_weights_at_the_cameras_size():
+    before = dict(photometric=0.10, held_out_px=0.45)
+    unadapted = dict(photometric=0.08, held_out_px=0.26)  # the resolution's gain alone
+    after = dict(photometric=0.09, held_out_px=0.25)      # better than before, not unadapted
+    better, why = decide(dict(before=before, unadapted=unadapted, after=after))
+    assert not better and 'scale = "native"' in why and "from adaptation 0.260 -> 0.250" in why
+    after = dict(photometric=0.07, held_out_px=0.24)
+    assert decide(dict(before=before, unadapted=unadapted, after=after))[0]
+    assert decide(dict(before=before, after=after))[0]  # no unadapted run: as before
 
 
 def test_better_needs_photometric_and_held_out_lidar_both_lower():

@@ -19,9 +19,10 @@ the recordings' camera size, and a report that says whether it got better.
    (/sim/gt_disparity). Report: --work/report.md, report.json, report.png (check frames,
    before | after).
 5. The new bundle goes to --out only if it is better on the check frames — lower photometric
-   error and lower held-out LiDAR error; a measure that is NaN or missing never passes
-   (without LiDAR on the check frames, --photometric-only decides on the photometric error
-   alone) — unless --force. Exit status 0 when
+   error and lower held-out LiDAR error than the old bundle, and than its weights run at the
+   camera's size where those ran; a measure that is NaN or missing never passes (without
+   LiDAR on the check frames, --photometric-only decides on the photometric error alone) —
+   unless --force. Exit status 0 when
    it was written, 3 when the old one is kept, 2 for bad arguments or recordings.
 
 Python: `adapt(["rec.mcap"], "bundles/robot", minutes=20)` returns an `AdaptResult`.
@@ -42,7 +43,7 @@ import numpy as np
 
 from edge_depth.calibration.atomic import atomic_write
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
-from edge_depth.tools.adapt_check import check, format_report, is_better, picture
+from edge_depth.tools.adapt_check import check, decide, format_report, picture
 from edge_depth.tools.adapt_frames import Frame, load_frames, split_by_time
 
 log = logging.getLogger(__name__)
@@ -279,12 +280,7 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
             engines["unadapted"] = Engine(start_bundle, precision="int8")
     engines["after"] = Engine(candidate, precision="int8")
     means, rows, shown = check(engines, check_frames)
-    better, why = is_better(means["before"], means["after"], photometric_only)
-    if "unadapted" in means:  # the two parts of the change, apart
-        held = [means[k].get("held_out_px", float("nan"))
-                for k in ("before", "unadapted", "after")]
-        why += (f"; held-out LiDAR from the camera's resolution {held[0]:.3f} -> "
-                f"{held[1]:.3f} px, from adaptation {held[1]:.3f} -> {held[2]:.3f} px")
+    better, why = decide(means, photometric_only)
     if not np.isfinite(means["after"].get("held_out_px", np.nan)):
         print("adapt: the check frames have no held-out LiDAR error (no LiDAR paired with "
               "them): " + ("deciding on the photometric error alone (--photometric-only)"

@@ -82,6 +82,24 @@ def is_better(old: dict, new: dict, photometric_only: bool = False) -> tuple[boo
                          "--photometric-only to decide on the photometric error alone)")
 
 
+def decide(means: dict[str, dict], photometric_only: bool = False) -> tuple[bool, str]:
+    """Whether the adapted bundle ("after") is written: better than the old one as it ran
+    ("before") by `is_better`, and, where the old weights were also run at the camera's size
+    ("unadapted"), better than those too: they are the user's other choice (the old bundle
+    with scale = "native"). With the reason, the held-out change split into what the
+    resolution and what the adaptation did."""
+    better, why = is_better(means["before"], means["after"], photometric_only)
+    if "unadapted" not in means:
+        return better, why
+    held = [means[k].get("held_out_px", float("nan")) for k in ("before", "unadapted", "after")]
+    why += (f"; held-out LiDAR from the camera's resolution {held[0]:.3f} -> {held[1]:.3f} px, "
+            f"from adaptation {held[1]:.3f} -> {held[2]:.3f} px")
+    if better and not is_better(means["unadapted"], means["after"], photometric_only)[0]:
+        return False, why + ("; not better than the old weights at the camera's size: run the "
+                             "old bundle with [engine] scale = \"native\" instead")
+    return better, why
+
+
 def colour(disparity: np.ndarray, top: float) -> np.ndarray:
     d = np.clip(np.nan_to_num(disparity) / max(top, 1e-6) * 255, 0, 255).astype(np.uint8)
     return cv2.applyColorMap(d, cv2.COLORMAP_TURBO)
