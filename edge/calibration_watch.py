@@ -67,6 +67,9 @@ MIN_TURN_RESPONSE = 0.5
 BANK = 8  # samples the budget may hold back for a turn
 TURN_SPACING = 4  # while turning, a sample in this many frames (each a moment of its own)
 JACKKNIFE_GROUPS = 5  # the uncertainty's groups of samples
+# a scan whose point directions are this flat (smallest / largest singular value) is one plane:
+# a 2-D LiDAR (LD06, LD19, RPLIDAR) constrains yaw and the clock, not pitch or roll
+PLANAR_RATIO = 0.05
 WINDOW = 60  # the samples the estimate stands on: older ones are forgotten (a drift shows)
 MIN_SAMPLES = 8
 EVERY = 13  # one sample's budget in this many frames with LiDAR (the daemon's default: < 3 %)
@@ -103,6 +106,7 @@ class WatchEstimate:
     clock_s: float | None = None
     clock_sigma_s: float | None = None
     turn_dps: float = 0.0  # the samples' RMS turn rate
+    planar: bool = False  # a 2-D LiDAR: pitch and roll not observed (reported as 0)
 
     def describe(self) -> str:
         """'yaw +0.31° ± 0.02°, pitch −0.01° ± 0.02°, roll +0.05° ± 0.06°, clock −30 ms ± 4 ms
@@ -110,7 +114,10 @@ class WatchEstimate:
         if self.level == SETTLING:
             return f"settling ({self.samples} of {MIN_SAMPLES} samples)"
         parts = [f"{name} {self.error_deg[AXES.index(name)]:+.2f}° ± "
-                 f"{self.sigma_deg[AXES.index(name)]:.2f}°" for name in ("yaw", "pitch", "roll")]
+                 f"{self.sigma_deg[AXES.index(name)]:.2f}°" for name in ("yaw", "pitch", "roll")
+                 if not (self.planar and name != "yaw")]
+        if self.planar:
+            parts.append("pitch and roll not observed (a 2-D LiDAR)")
         if self.clock_s is not None and self.clock_sigma_s is not None:
             parts.append(f"clock {self.clock_s * 1000:+.0f} ms ± "
                          f"{self.clock_sigma_s * 1000:.0f} ms")
@@ -128,7 +135,7 @@ class WatchEstimate:
                     **{f"{axis}_sigma_deg": round(self.sigma_deg[i], 3)
                        for i, axis in enumerate(AXES)},
                     clock_offset_ms=clock, clock_sigma_ms=sigma,
-                    turn_dps=round(self.turn_dps, 2))
+                    turn_dps=round(self.turn_dps, 2), planar=self.planar)
 
 
 def stereo_reference(engine) -> np.ndarray:
@@ -146,6 +153,21 @@ class _Sample:
     turn_dps: float  # the camera's turn about its vertical axis, deg/s (NaN: not measured)
     gap_s: float  # the points' stamp minus the frame's, by the configured clock offset
     stamp_ns: int = -1  # the frame's
+    planar: bool = False  # the scan is one plane (a 2-D LiDAR)
+
+
+def is_planar(points: np.ndarray) -> bool:
+    """Whether a scan's points (LiDAR frame) lie in one plane through the LiDAR: a 2-D
+    scanner's. From their directions' singular values (at most 2 000 of them)."""
+    if len(points) < 3:
+        return False
+    points = points[:: max(1, len(points) // 2000)]
+    norms = np.linalg.norm(points, axis=1, keepdims=True)
+    directions = points[norms[:, 0] > 0] / norms[norms[:, 0] > 0]
+    if len(directions) < 3:
+        return False
+    values = np.linalg.svd(directions, compute_uv=False)
+    return bool(values[-1] < PLANAR_RATIO * values[0])
 
 
 def _axis(step: float, reach: float) -> np.ndarray:
@@ -285,7 +307,8 @@ class CalibrationWatch:
         radius = float(np.median(np.hypot(f * cam[:, 0] / cam[:, 2],
                                           f * cam[:, 1] / cam[:, 2])))
         stamp = self._frames[-1][0] if self._frames else -1
-        sample = _Sample(grid, roll_costs, radius, self.turn_rate(), float(gap_s), stamp)
+        sample = _Sample(grid, roll_costs, radius, self.turn_rate(), float(gap_s), stamp,
+                         is_planar(np.asarray(points, np.float64)))
         with self._lock:
             self._samples.append(sample)
             self.samples += 1
@@ -347,13 +370,22 @@ class CalibrationWatch:
         return base.astype(np.float32), np.stack(columns, axis=1).astype(np.float32)
 
     def _grid_minimum(self, costs: np.ndarray) -> tuple[tuple[float, float], bool]:
+        """(pitch, yaw) of the lowest probe, refined; pitch 0 when `costs` is the
+        calibration's row alone (a 2-D LiDAR)."""
         i, j = np.unravel_index(int(np.argmin(costs)), costs.shape)
+        if costs.shape[0] == 1:
+            yaw, edge_y = parabola_minimum(self.yaw_axis, costs[0])
+            return (0.0, yaw), edge_y
         pitch, edge_p = parabola_minimum(self.pitch_axis, costs[:, j])
         yaw, edge_y = parabola_minimum(self.yaw_axis, costs[i, :])
         return (pitch, yaw), edge_p or edge_y
 
     def _minimum(self, grid: np.ndarray, roll: np.ndarray) -> tuple[np.ndarray, bool]:
+        """(pitch, yaw, roll) of the lowest probes, and whether one is at the probes' edge;
+        with the calibration's pitch row alone (a 2-D LiDAR) pitch and roll stay 0."""
         (pitch, yaw), edge = self._grid_minimum(grid)
+        if grid.shape[0] == 1:
+            return np.array([0.0, yaw, 0.0]), edge
         r, edge_r = parabola_minimum(self.roll_axis, roll)
         return np.array([pitch, yaw, r]), edge or edge_r
 
@@ -382,6 +414,10 @@ class CalibrationWatch:
         # true age at each candidate offset: (samples, offsets, pitch, yaw); not observed,
         # only the offset 0 (the configured clock)
         grids = np.stack([self._turned_grid(x) for x in window])
+        planar = 2 * sum(x.planar for x in window) > n
+        if planar:  # pitch held at the calibration's: the (offset, yaw) costs of its row
+            centre = len(self.pitch_axis) // 2
+            grids = grids[:, :, centre:centre + 1]
         if not observed:
             zero = len(offsets) // 2
             grids, offsets = grids[:, zero:zero + 1], offsets[zero:zero + 1]
@@ -400,6 +436,8 @@ class CalibrationWatch:
         spread = np.asarray(values) - np.mean(values, axis=0)
         sigma = np.sqrt((JACKKNIFE_GROUPS - 1) / JACKKNIFE_GROUPS * (spread ** 2).sum(axis=0))
         radius = float(np.mean([x.radius_px for x in window]))
+        if planar:  # not observed: reported as 0, no part of the level
+            best[[0, 2]], sigma[[0, 2]] = 0.0, 0.0
         error = -best
         lever = np.radians([self.calib.focal_px, self.calib.focal_px, radius])  # px per °
         clock_lever = self.calib.focal_px * np.radians(rms_turn)  # px per second of offset
@@ -409,7 +447,7 @@ class CalibrationWatch:
         e, s = [float(x) for x in error], [float(x) for x in sigma[:3]]
         return WatchEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, at_reach,
                              float(clock) if observed else None,
-                             float(sigma[3]) if observed else None, rms_turn)
+                             float(sigma[3]) if observed else None, rms_turn, planar)
 
     def _turned_grid(self, sample: _Sample) -> np.ndarray:
         """The sample's (pitch, yaw) costs at each candidate clock offset, (offsets, pitch,

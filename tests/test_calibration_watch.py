@@ -203,3 +203,18 @@ def test_a_failing_watch_is_counted_and_the_replay_goes_on(small_recording, tmp_
     assert main(["replay", str(rec), "--out", str(tmp_path / "out.mcap")]) == 0
     out = capsys.readouterr().out
     assert "10 frames" in out and "'calibration_watch': 1" in out  # one sample due: counted
+
+
+def test_a_2d_lidar_observes_yaw_not_pitch_or_roll():
+    from edge_depth.calibration_watch import is_planar
+
+    planar = [make_sample(3_000_000 + i, RIG, "planar") for i in range(8)]
+    assert is_planar(np.asarray(planar[0].scan.points, np.float64))
+    assert not is_planar(np.asarray(make_sample(3_000_000, RIG).scan.points, np.float64))
+    right = watched(planar, (0, 0, 0)).estimate()
+    assert right.planar and right.level == OK  # no false alarm from the unobserved axes
+    assert right.error_deg[0] == right.error_deg[2] == 0.0
+    assert "pitch and roll not observed (a 2-D LiDAR)" in right.describe()
+    assert right.as_dict()["planar"] is True
+    yawed = watched(planar, (0, 0.4, 0)).estimate()
+    assert yawed.error_deg[1] == pytest.approx(0.4, abs=0.1)
