@@ -118,18 +118,15 @@ class DriftWatch:
         self.offered += 1
         if not take or len(points) == 0:
             return False
-        points = np.asarray(points, np.float64)
-        if len(points) > MAX_POINTS:
-            points = points[np.linspace(0, len(points) - 1, MAX_POINTS).astype(int)]
-        cost = PhotometricCost([(left, right, points)], self.calib, self.T, BLUR_PX)
-        if cost.points == 0:
+        cost = thinned_cost(self.calib, self.T, left, right, points, MAX_POINTS, BLUR_PX)
+        if cost is None:
             return False
         try:
             costs = np.array([[cost(T) for T in axis] for axis in self.probes])
         except CalibrationError:  # no point lands in both images at some probe
             return False
         self.samples.append(costs)
-        self.radius_px.append(self._median_radius(cost))
+        self.radius_px.append(median_radius(cost, self.calib, self.T))
         if len(self.samples) >= MIN_SAMPLES:
             minimum, sigma = self._fit(list(self.samples))
             # an axis moves when its minimum is both beyond the probes' inner pair and
@@ -140,13 +137,6 @@ class DriftWatch:
                 self.recentred += 1
                 self._centre(self.centre + np.where(move, minimum, 0.0))
         return True
-
-    def _median_radius(self, cost: PhotometricCost) -> float:
-        """The seen points' median distance from the principal point, px (roll's lever)."""
-        seen = np.vstack([p for p, _, _ in cost.items])
-        u, v, _, _ = _subpixel(seen, self.calib, self.T, 1e-3)
-        cx, cy = self.calib.principal_point
-        return float(np.median(np.hypot(u - cx, v - cy))) if len(u) else 0.0
 
     @staticmethod
     def _fit(samples: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
@@ -173,6 +163,25 @@ class DriftWatch:
         shift, level = verdict(error, sigma, lever, RESOLUTION_DEG)
         e, s = [float(v) for v in error], [float(v) for v in sigma]
         return DriftEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, beyond)
+
+
+def thinned_cost(calib: StereoCalibration, T: np.ndarray, left: np.ndarray, right: np.ndarray,
+                 points: np.ndarray, max_points: int, blur_px: float) -> PhotometricCost | None:
+    """A frame's photometric cost on at most `max_points` of its points, evenly thinned; None
+    when no point lands in both images."""
+    points = np.asarray(points, np.float64)
+    if len(points) > max_points:
+        points = points[np.linspace(0, len(points) - 1, max_points).astype(int)]
+    cost = PhotometricCost([(left, right, points)], calib, T, blur_px)
+    return cost if cost.points else None
+
+
+def median_radius(cost: PhotometricCost, calib: StereoCalibration, T: np.ndarray) -> float:
+    """The seen points' median distance from the principal point, px (roll's lever)."""
+    seen = np.vstack([p for p, _, _ in cost.items])
+    u, v, _, _ = _subpixel(seen, calib, T, 1e-3)
+    cx, cy = calib.principal_point
+    return float(np.median(np.hypot(u - cx, v - cy))) if len(u) else 0.0
 
 
 def verdict(error: np.ndarray, sigma: np.ndarray, lever: np.ndarray,

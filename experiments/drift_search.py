@@ -35,11 +35,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from edge_depth.calibration.errors import CalibrationError
-from edge_depth.calibration.extrinsics import PhotometricCost, _perturb, _subpixel
+from edge_depth.calibration.extrinsics import PhotometricCost, _perturb
 from edge_depth.calibration.model import StereoCalibration
 
 # the levels, the verdict and the cases are the first study's (run from experiments/)
-from drift_probe import SETTLING, run_cases, verdict  # noqa: E402  # isort: skip
+from drift_probe import (  # noqa: E402  # isort: skip
+    SETTLING, median_radius, run_cases, thinned_cost, verdict)
 
 AXES = ("pitch", "yaw", "roll")  # about the left camera's x (right), y (down), z (forward)
 BLUR_PX = 1.0  # the images' blur: a smoother cost for the search
@@ -104,17 +105,11 @@ class DriftWatch:
         self.offered += 1
         if not take or len(points) == 0:
             return False
-        points = np.asarray(points, np.float64)
-        if len(points) > MAX_POINTS:
-            points = points[np.linspace(0, len(points) - 1, MAX_POINTS).astype(int)]
-        cost = PhotometricCost([(left, right, points)], self.calib, self.T, BLUR_PX)
-        if cost.points == 0:
+        cost = thinned_cost(self.calib, self.T, left, right, points, MAX_POINTS, BLUR_PX)
+        if cost is None:
             return False
         self.samples.append(cost)
-        seen = cost.items[0][0]
-        u, v, _, _ = _subpixel(seen, self.calib, self.T, 1e-3)
-        cx, cy = self.calib.principal_point
-        self.radius_px.append(float(np.median(np.hypot(u - cx, v - cy))))
+        self.radius_px.append(median_radius(cost, self.calib, self.T))
         self.since_search += 1
         if len(self.samples) < MIN_SAMPLES:
             self.current = DriftEstimate((0.0,) * 3, (0.0,) * 3, 0.0, SETTLING,
