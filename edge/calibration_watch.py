@@ -49,6 +49,7 @@ from edge_depth.calibration.projection import (
     transform_points,
     visible_points,
 )
+from edge_depth.camera_turn import TurnMeter
 
 AXES = ("pitch", "yaw", "roll")
 # the (pitch, yaw) grid, 9 x 17 probes: yaw reaches further, a turning robot's clock moves it
@@ -59,11 +60,6 @@ GROW_PX = 6
 MAX_POINTS = 6000  # per sample, evenly thinned beyond it: a fixed budget
 PROBE_CHUNK = 16  # probes evaluated together
 MIN_DEPTH_M = 0.2
-TURN_SCALE = 4  # the turn between frames measured on images this many times smaller
-MAX_TURN_GAP_S = 0.5  # ... no further apart than this
-# ... and matching at least this well (phase correlation's peak: 0.83 and more between frames
-# of one scene on the turning sim robot, at most 0.17 between two scenes)
-MIN_TURN_RESPONSE = 0.5
 BANK = 8  # samples the budget may hold back for a turn
 TURN_SPACING = 4  # while turning, a sample in this many frames (each a moment of its own)
 JACKKNIFE_GROUPS = 5  # the uncertainty's groups of samples
@@ -86,7 +82,6 @@ MIN_TURN_DPS = 2.0  # the samples' RMS turn rate below which the offset is not o
 MIN_TURN_SAMPLES = 6  # ... and the samples with a turn rate measured
 CLOCK_RESOLUTION_S = 0.01
 OK, WARN, ERROR, SETTLING = "OK", "WARN", "ERROR", "SETTLING"
-LEVELS = (OK, WARN, ERROR)
 
 
 @dataclass(frozen=True)
@@ -205,7 +200,6 @@ class CalibrationWatch:
             raise ValueError(f"every: >= 1, got {every}")
         self.calib, self.T = calib, np.asarray(T_cam_lidar, np.float64)
         self.every = every
-        self.offered = 0
         self._credit = BANK * every  # the budget (`due`), in frames: `every` a sample
         self._since = 0  # frames offered since the last sample
         base = OcclusionFilterConfig()
@@ -221,9 +215,7 @@ class CalibrationWatch:
         # distance from the image centre (px)
         self._samples: deque[_Sample] = deque(maxlen=WINDOW)
         self.samples = 0  # all samples taken, the forgotten ones too
-        # the last two frames seen (stamp, grey at 1/TURN_SCALE): the turn between them
-        self._frames: deque[tuple[int, np.ndarray]] = deque(maxlen=2)
-        self._window: np.ndarray | None = None
+        self.turn = TurnMeter(calib.focal_px)  # the camera's turn between frames
         self.clock_axis = _axis(CLOCK_STEP_S, CLOCK_REACH_S)
         self._turned_cache: dict[int, tuple[_Sample, np.ndarray]] = {}
         self._estimate: tuple[tuple, WatchEstimate] | None = None  # (its samples, it)
@@ -234,14 +226,13 @@ class CalibrationWatch:
         in `every` frames, banked up to BANK samples: spent one in TURN_SPACING frames while
         the camera turns (the clock offset shows only then), else one in `every` frames. Over
         any stretch of frames the samples are at most its length / `every` + BANK."""
-        self.offered += 1
         self._since += 1
         self._credit = min(self._credit + 1, BANK * self.every)  # in frames
         if self._credit < self.every:
             return False
         take = self._credit >= BANK * self.every
         if not take and self._since >= TURN_SPACING:
-            turn = self.turn_rate()
+            turn = self.turn.rate()
             take = bool(np.isfinite(turn) and abs(turn) >= MIN_TURN_DPS)
         if take:
             self._credit -= self.every
@@ -249,44 +240,21 @@ class CalibrationWatch:
         return take
 
     def frame(self, stamp_ns: int, left: np.ndarray) -> None:
-        """Every frame the engine runs, before `add`: its left image, at 1/TURN_SCALE, for the
-        camera's turn since the frame before (what a clock offset turns into a rotation)."""
-        h, w = left.shape
-        small = cv2.resize(left, (max(8, w // TURN_SCALE), max(8, h // TURN_SCALE)),
-                           interpolation=cv2.INTER_AREA).astype(np.float32)
-        self._frames.append((int(stamp_ns), small))
+        """Every frame the engine runs, before `add`: for the camera's turn since the frame
+        before (`TurnMeter`); the last sample's turn rate, centred, once the frame after it
+        comes."""
+        self.turn.frame(stamp_ns, left)
         with self._lock:
             last = self._samples[-1] if self._samples else None
-            waiting = last is not None and last.stamp_ns == self._frames[0][0]
+            waiting = last is not None and last.stamp_ns == self.turn.frames[0][0]
         if waiting:  # the last sample's frame and this one: its turn rate, centred
             assert last is not None
-            after = self.turn_rate()
+            after = self.turn.rate()
             turn = float(np.nanmean([last.turn_dps, after])) \
                 if np.isfinite([last.turn_dps, after]).any() else float("nan")
             with self._lock:
                 if self._samples and self._samples[-1] is last:
                     self._samples[-1] = dataclasses.replace(last, turn_dps=turn)
-
-    def turn_rate(self) -> float:
-        """The camera's turn about its vertical axis between the last two frames, deg/s, from
-        the images' shift (phase correlation); NaN when they are too far apart in time or do
-        not match (a new scene, a blur)."""
-        if len(self._frames) < 2:
-            return float("nan")
-        (t0, a), (t1, b) = self._frames
-        dt = (t1 - t0) / 1e9
-        if not 0 < dt <= MAX_TURN_GAP_S or a.shape != b.shape:
-            return float("nan")
-        if self._window is None or self._window.shape != a.shape:
-            self._window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
-        (dx, _), response = cv2.phaseCorrelate(a, b, self._window)
-        if response < MIN_TURN_RESPONSE:
-            return float("nan")
-        # a turn by θ moves a pixel at x (in focal lengths from the centre) by f·θ·(1 + x²):
-        # the shift found is about the image's mean, (1 + (w / 2f)² / 3) times the centre's
-        f = self.calib.focal_px
-        spread = 1.0 + (a.shape[1] * TURN_SCALE / (2 * f)) ** 2 / 3
-        return float(np.degrees(dx * TURN_SCALE / f) / dt / spread)
 
     def add(self, reference: np.ndarray, points: np.ndarray, gap_s: float = 0.0) -> bool:
         """A sample: the stereo-only disparity (H, W), the frame's LiDAR points (N, 3) and their
@@ -306,8 +274,8 @@ class CalibrationWatch:
         f = self.calib.focal_px
         radius = float(np.median(np.hypot(f * cam[:, 0] / cam[:, 2],
                                           f * cam[:, 1] / cam[:, 2])))
-        stamp = self._frames[-1][0] if self._frames else -1
-        sample = _Sample(grid, roll_costs, radius, self.turn_rate(), float(gap_s), stamp,
+        stamp = self.turn.frames[-1][0] if self.turn.frames else -1
+        sample = _Sample(grid, roll_costs, radius, self.turn.rate(), float(gap_s), stamp,
                          is_planar(np.asarray(points, np.float64)))
         with self._lock:
             self._samples.append(sample)

@@ -296,10 +296,7 @@ class Engine:
         enc = dict(enc, **{k: np.zeros_like(enc[k]) for k in LIDAR_OUTPUTS if k in enc})
         frame = _Frame(time.perf_counter())
         disparity, hidden = self._iterate(frame, enc, max(1, int(iters)), None, None)
-        feeds = dict(disparity=disparity, hidden=hidden)
-        feeds.update({k: self._inputs[k] for k in self._upsample_inputs})
-        feeds.update({k: enc[k] for k in self._upsample_state})
-        full = self._disparity_upsample().run(feeds)[0]
+        full = self._disparity_upsample().run(self._upsample_feeds(enc, disparity, hidden))[0]
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         return disp if plan.identity else plan.restore(disp, disparity=True)
 
@@ -377,14 +374,20 @@ class Engine:
         frame.timings["step_mean"] = float(np.mean(step_ms))
         return disparity, hidden
 
+    def _upsample_feeds(self, enc: dict, disparity: np.ndarray, hidden: np.ndarray) -> dict:
+        """The upsampling's inputs: the last step's state, the frame's buffers it reads and
+        the encoder's outputs it reads."""
+        feeds = dict(disparity=disparity, hidden=hidden)
+        feeds.update({k: self._inputs[k] for k in self._upsample_inputs})
+        feeds.update({k: enc[k] for k in self._upsample_state})
+        return feeds
+
     def _upsample(self, frame: _Frame, enc: dict, disparity: np.ndarray,
                   hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
         """The convex upsampling to full resolution, and the confidence where the bundle has
         it (resized from the refinement's 1/4 resolution)."""
         t = time.perf_counter()
-        feeds = dict(disparity=disparity, hidden=hidden)
-        feeds.update({k: self._inputs[k] for k in self._upsample_inputs})
-        feeds.update({k: enc[k] for k in self._upsample_state})
+        feeds = self._upsample_feeds(enc, disparity, hidden)
         full, *rest = self.sessions["upsample"].run(frame.feed("upsample", feeds))
         frame.stage("upsample", t)
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)

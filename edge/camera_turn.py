@@ -1,0 +1,56 @@
+"""The camera's turn about its vertical axis between consecutive frames, from the images alone:
+what a LiDAR–camera clock offset turns into a rotation (`edge.calibration_watch`)."""
+
+from __future__ import annotations
+
+from collections import deque
+
+import cv2
+import numpy as np
+
+SCALE = 4  # the turn measured on images this many times smaller
+MAX_GAP_S = 0.5  # ... of frames no further apart than this
+# ... matching at least this well (phase correlation's peak: 0.83 and more between frames of
+# one scene on the turning sim robot, at most 0.17 between two scenes)
+MIN_RESPONSE = 0.5
+
+
+class TurnMeter:
+    """`frame(stamp, left)` on every frame; `rate()`: the turn between the last two, deg/s."""
+
+    def __init__(self, focal_px: float) -> None:
+        self.focal_px = focal_px
+        self.frames: deque[tuple[int, np.ndarray]] = deque(maxlen=2)  # (stamp, grey, 1/SCALE)
+        self._window: np.ndarray | None = None
+        self._rate: tuple[tuple[int, int], float] | None = None  # (the pair's stamps, rate)
+
+    def frame(self, stamp_ns: int, left: np.ndarray) -> None:
+        h, w = left.shape
+        small = cv2.resize(left, (max(8, w // SCALE), max(8, h // SCALE)),
+                           interpolation=cv2.INTER_AREA).astype(np.float32)
+        self.frames.append((int(stamp_ns), small))
+
+    def rate(self) -> float:
+        """The camera's turn about its vertical axis between the last two frames, deg/s, from
+        the images' shift (phase correlation; computed once a pair); NaN when they are too far
+        apart in time or do not match (a new scene, a blur)."""
+        if len(self.frames) < 2:
+            return float("nan")
+        (t0, a), (t1, b) = self.frames
+        if self._rate is None or self._rate[0] != (t0, t1):
+            self._rate = ((t0, t1), self._measure(a, b, (t1 - t0) / 1e9))
+        return self._rate[1]
+
+    def _measure(self, a: np.ndarray, b: np.ndarray, dt: float) -> float:
+        if not 0 < dt <= MAX_GAP_S or a.shape != b.shape:
+            return float("nan")
+        if self._window is None or self._window.shape != a.shape:
+            self._window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
+        (dx, _), response = cv2.phaseCorrelate(a, b, self._window)
+        if response < MIN_RESPONSE:
+            return float("nan")
+        # a turn by θ moves a pixel at x (in focal lengths from the centre) by f·θ·(1 + x²):
+        # the shift found is about the image's mean, (1 + (w / 2f)² / 3) times the centre's
+        f = self.focal_px
+        spread = 1.0 + (a.shape[1] * SCALE / (2 * f)) ** 2 / 3
+        return float(np.degrees(dx * SCALE / f) / dt / spread)
