@@ -455,13 +455,20 @@ class CalibrationWatch:
         best, at_reach = self._minimum(total[k], roll)
         return best, clock, at_reach
 
+def warn_margin(sigma, resolution):
+    """How far an estimate may read from zero before it says anything beyond 0.1 px: twice its
+    uncertainty and its resolution (what it reads with the right calibration), independent
+    errors, added in quadrature."""
+    return np.hypot(2 * np.asarray(sigma), resolution)
+
+
 def verdict(error: np.ndarray, sigma: np.ndarray, lever_px: np.ndarray,
             resolution: np.ndarray = RESOLUTION_DEG) -> tuple[float, str]:
     """(px the points move by beyond twice the standard error, the level): ERROR beyond
-    ERROR_PX, WARN beyond WARN_PX once `resolution` more is allowed, else OK. Per term (the
-    rotation's axes in degrees, the clock offset in seconds): `lever_px`, px per unit (f·π/180
-    for pitch and yaw, the points' distance from the image centre·π/180 for roll, the image's
-    speed in px/s for the clock)."""
+    ERROR_PX, WARN beyond WARN_PX once `resolution` more is allowed (`warn_margin`), else OK.
+    Per term (the rotation's axes in degrees, the clock offset in seconds): `lever_px`, px per
+    unit (f·π/180 for pitch and yaw, the points' distance from the image centre·π/180 for
+    roll, the image's speed in px/s for the clock)."""
     def shift_px(margin) -> float:
         beyond = np.maximum(np.abs(error) - margin, 0.0)
         return float(np.hypot.reduce(beyond * lever_px))
@@ -469,7 +476,7 @@ def verdict(error: np.ndarray, sigma: np.ndarray, lever_px: np.ndarray,
     shift = shift_px(2 * sigma)
     if shift > ERROR_PX:
         return shift, ERROR
-    return shift, WARN if shift_px(2 * sigma + resolution) > WARN_PX else OK
+    return shift, WARN if shift_px(warn_margin(sigma, resolution)) > WARN_PX else OK
 
 
 def fixes(estimate: WatchEstimate, recording: str | None, calibration: str | None,
@@ -480,11 +487,10 @@ def fixes(estimate: WatchEstimate, recording: str | None, calibration: str | Non
         return ""
     todo = []
     sigma = estimate.sigma_deg[:3]
-    if any(abs(e) > 2 * s + r for e, s, r in zip(estimate.error_deg, sigma, RESOLUTION_DEG,
-                                                 strict=True)):
+    if np.any(np.abs(estimate.error_deg) > warn_margin(sigma, RESOLUTION_DEG)):
         todo.append(f"to refine the rotation: {refine_command(recording, calibration)}")
     if estimate.clock_s is not None and estimate.clock_sigma_s is not None and \
-            abs(estimate.clock_s) > 2 * estimate.clock_sigma_s + CLOCK_RESOLUTION_S:
+            abs(estimate.clock_s) > warn_margin(estimate.clock_sigma_s, CLOCK_RESOLUTION_S):
         value = int(round(time_offset_ns + estimate.clock_s * 1e9, -6))
         todo.append(f"the LiDAR's clock: set [lidar] time_offset_ns = {value} in "
                     f"{calibration or 'the calibration'}")

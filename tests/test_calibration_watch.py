@@ -81,6 +81,11 @@ def test_levels_are_pixels_beyond_twice_the_uncertainty_and_the_resolution():
     off = verdict(np.r_[0.0, 0.0, 0.0, 0.03], np.zeros(4), np.r_[lever, 50.0],
                   np.r_[0.1, 0.1, 0.35, 0.01])
     assert clock == (0.0, OK) and off[1] == ERROR and off[0] == pytest.approx(1.5)
+    # 30 +- 10 ms: twice the uncertainty and the 10 ms resolution in quadrature leave 7.6 ms
+    # (0.38 px at 50 px/s): WARN, where adding them (30 ms) would have said nothing
+    unsure = verdict(np.r_[0.0, 0.0, 0.0, 0.03], np.r_[0.0, 0.0, 0.0, 0.01],
+                     np.r_[lever, 50.0], np.r_[0.1, 0.1, 0.35, 0.01])
+    assert unsure[1] == WARN and unsure[0] == pytest.approx(0.5)
 
 
 def test_the_refine_command_is_pre_filled():
