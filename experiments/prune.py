@@ -11,10 +11,11 @@ training from scratch would take the ~50 000 steps the shipped model had to rele
 
 Each group keeps the channels whose weights in the layers that read them have the largest
 L2 norm, in their original order: the GRU state (read by the gates, the Δd head and the mask
-head), the context (the gates), the motion features (the gates; the disparity, the motion
-features' last channel, is always kept), the motion encoder's correlation branch (its output
-convolution), the heads' hidden widths (their last convolution) and the correlation features
-(ranked by their own weights; scaled so that the correlation's 1/√C keeps its size). A size
+head; the confidence head reads the kept ones), the context (the gates), the motion features
+(the gates; the disparity, the motion features' last channel, is always kept), the motion
+encoder's correlation branch (its output convolution), the heads' hidden widths (their last
+convolution) and the correlation features (ranked by their own weights; scaled so that the
+correlation's 1/√C keeps its size). A size
 equal to the checkpoint's keeps that group as it is, so the full sizes give back the same
 network.
 """
@@ -97,6 +98,9 @@ def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tupl
         cols(f"update.{head}.0", keep_h)
         rows(f"update.{head}.0", keep_k)
         cols(f"update.{head}.2", keep_k)
+    if "refine.head.0.weight" in s:  # the confidence head reads the state and the spread
+        spread = torch.arange(h, s["refine.head.0.weight"].shape[1])
+        cols("refine.head.0", torch.cat([keep_h, spread]))
     pruned = ModelConfig.from_dict({**config.to_dict(), "hidden_dim": new["hidden"],
                                     "context_dim": new["context"], "motion_dim": new["motion"],
                                     "head_dim": new["head"], "feature_dim": new["feature"]})
