@@ -107,7 +107,7 @@ class WatchEstimate:
         """'yaw +0.31° ± 0.02°, pitch −0.01° ± 0.02°, roll +0.05° ± 0.06°, clock −30 ms ± 4 ms
         (2.4 px): ERROR'."""
         if self.level == SETTLING:
-            return f"settling ({self.samples} of {MIN_SAMPLES} samples)"
+            return f"settling ({self.samples} of {MIN_SAMPLES} samples, each of a view of its own)"
         parts = [f"{name} {self.error_deg[AXES.index(name)]:+.2f}° ± "
                  f"{self.sigma_deg[AXES.index(name)]:.2f}°" for name in ("yaw", "pitch", "roll")
                  if not (self.planar and name != "yaw")]
@@ -149,6 +149,7 @@ class _Sample:
     gap_s: float  # the points' stamp minus the frame's, by the configured clock offset
     stamp_ns: int = -1  # the frame's
     planar: bool = False  # the scan is one plane (a 2-D LiDAR)
+    view: np.ndarray | None = None  # the frame, small (`TurnMeter.view`)
 
 
 def is_planar(points: np.ndarray) -> bool:
@@ -276,8 +277,15 @@ class CalibrationWatch:
                                           f * cam[:, 1] / cam[:, 2])))
         stamp = self.turn.frames[-1][0] if self.turn.frames else -1
         sample = _Sample(grid, roll_costs, radius, self.turn.rate(), float(gap_s), stamp,
-                         is_planar(np.asarray(points, np.float64)))
+                         is_planar(np.asarray(points, np.float64)), self.turn.view())
         with self._lock:
+            last = self._samples[-1] if self._samples else None
+        # a robot standing still: the same view again replaces the last sample rather than
+        # counting twice (its bias would read as certain); the newest points still count
+        again = last is not None and self.turn.same_view(last.view, sample.view)
+        with self._lock:
+            if again and self._samples and self._samples[-1] is last:
+                self._samples.pop()
             self._samples.append(sample)
             self.samples += 1
         return True

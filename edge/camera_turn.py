@@ -13,6 +13,9 @@ MAX_GAP_S = 0.5  # ... of frames no further apart than this
 # ... matching at least this well (phase correlation's peak: 0.83 and more between frames of
 # one scene on the turning sim robot, at most 0.17 between two scenes)
 MIN_RESPONSE = 0.5
+# two frames match and are this close (px at 1/SCALE): the camera sees the same view (a robot
+# standing still), and a sample of it says nothing the last one did not
+SAME_VIEW_PX = 0.5
 
 
 class TurnMeter:
@@ -30,6 +33,23 @@ class TurnMeter:
                            interpolation=cv2.INTER_AREA).astype(np.float32)
         self.frames.append((int(stamp_ns), small))
 
+    def view(self) -> np.ndarray | None:
+        """The last frame, small (what `same_view` compares)."""
+        return self.frames[-1][1] if self.frames else None
+
+    def same_view(self, a: np.ndarray | None, b: np.ndarray | None) -> bool:
+        """Whether two frames' small copies (`view`) show the same view: they match and
+        neither shifted by SAME_VIEW_PX."""
+        if a is None or b is None or a.shape != b.shape:
+            return False
+        (dx, dy), response = cv2.phaseCorrelate(a, b, self._hanning(a.shape))
+        return response >= MIN_RESPONSE and float(np.hypot(dx, dy)) < SAME_VIEW_PX
+
+    def _hanning(self, shape: tuple[int, ...]) -> np.ndarray:
+        if self._window is None or self._window.shape != shape:
+            self._window = cv2.createHanningWindow(shape[::-1], cv2.CV_32F)
+        return self._window
+
     def rate(self) -> float:
         """The camera's turn about its vertical axis between the last two frames, deg/s, from
         the images' shift (phase correlation; computed once a pair); NaN when they are too far
@@ -44,9 +64,7 @@ class TurnMeter:
     def _measure(self, a: np.ndarray, b: np.ndarray, dt: float) -> float:
         if not 0 < dt <= MAX_GAP_S or a.shape != b.shape:
             return float("nan")
-        if self._window is None or self._window.shape != a.shape:
-            self._window = cv2.createHanningWindow(a.shape[::-1], cv2.CV_32F)
-        (dx, _), response = cv2.phaseCorrelate(a, b, self._window)
+        (dx, _), response = cv2.phaseCorrelate(a, b, self._hanning(a.shape))
         if response < MIN_RESPONSE:
             return float("nan")
         # a turn by θ moves a pixel at x (in focal lengths from the centre) by f·θ·(1 + x²):

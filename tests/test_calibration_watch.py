@@ -59,6 +59,24 @@ def test_the_right_calibration_is_ok_and_settles_first(frames):
     assert estimate.as_dict()["level"] == OK and estimate.as_dict()["samples"] == 8
 
 
+def test_a_robot_standing_still_counts_its_one_view_once(frames):
+    """The same view sampled again replaces the last sample (its bias would read as certain);
+    a different view adds one."""
+    watch = CalibrationWatch(frames[0].calibration(), default_T_cam_lidar(), 1)
+    still = frames[0]
+    reference = np.nan_to_num(still.disp_left).astype(np.float32)
+    for i in range(9):
+        watch.frame(i * 100_000_000, still.left)
+        assert watch.due() and watch.add(reference, still.scan.points)
+    assert watch.samples == 9 and watch.estimate().samples == 1
+    assert watch.estimate().level == SETTLING
+    for i, s in enumerate(frames[1:8], start=9):
+        watch.frame(i * 100_000_000, s.left)
+        watch.due()
+        watch.add(np.nan_to_num(s.disp_left).astype(np.float32), s.scan.points)
+    assert watch.estimate().samples == 8 and watch.estimate().level == OK
+
+
 def test_every_nth_frame_is_a_sample_and_a_frame_without_seen_points_is_none():
     watch = CalibrationWatch(make_sample(1, RIG).calibration(), default_T_cam_lidar(), every=3)
     assert [watch.due() for _ in range(7)] == [True, False, False, True, False, False, True]
@@ -154,7 +172,7 @@ def test_replay_says_it_in_one_line_and_on_diagnostics(small_recording, tmp_path
     line = next(x for x in capsys.readouterr().out.splitlines()
                 if x.startswith("LiDAR-camera calibration watch"))
     # one sample in 13 frames with LiDAR: 1 of the 8 a verdict needs
-    assert "settling (1 of 8 samples)" in line and "refine" not in line
+    assert "settling (1 of 8 samples, each of a view of its own)" in line and "refine" not in line
     with open(out, "rb") as f:
         diagnostics = [json.loads(m.data) for _, _, m in
                        make_reader(f).iter_messages(topics=["/diagnostics"])]
