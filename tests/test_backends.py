@@ -148,3 +148,30 @@ def test_the_engine_resolves_auto_precision_once_and_says_which(monkeypatch):
     engine = Engine(runtime="onnxruntime", threads=1)
     assert engine.options.precision == "auto" and engine.precision == "fp32"
     assert engine.describe().startswith("fp32 on onnxruntime")
+
+
+def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys):
+    """A CPU that reports bf16 and cannot compile it (OpenVINO's kernels limited to AVX2, a
+    hypervisor hiding the instructions) costs a line, not the daemon."""
+    pytest.importorskip("openvino")
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    session = backends.OpenVinoSession(DEFAULT_BUNDLE / "upsample.onnx", 1, bf16=True)
+    compile_model = session._core.compile_model
+    asked = []
+
+    class RefusesBf16:
+        def compile_model(self, model, device, config):
+            asked.append(config["INFERENCE_PRECISION_HINT"])
+            if config["INFERENCE_PRECISION_HINT"] == "bf16":
+                raise RuntimeError("Exception from src/inference\nobject is not initialized")
+            return compile_model(model, device, config)
+
+    session._core = RefusesBf16()
+    feeds = {i.get_any_name(): np.zeros([d.get_length() if d.is_static else 8
+                                         for d in i.get_partial_shape()], np.float32)
+             for i in session._model.inputs}
+    outputs = session.run(feeds)
+    assert asked == ["bf16", "f32"] and not session.bf16 and outputs
+    assert "could not compile upsample.onnx in bf16 (object is not initialized)" in \
+        capsys.readouterr().err

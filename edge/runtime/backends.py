@@ -16,6 +16,7 @@ to tolerate it (`BF16_GRAPHS`: the encoder, whose outputs agree within the int8 
 from __future__ import annotations
 
 import platform
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -143,6 +144,7 @@ class OpenVinoSession:
         self._config = {"INFERENCE_NUM_THREADS": int(threads), "PERFORMANCE_HINT": "LATENCY",
                         "INFERENCE_PRECISION_HINT": "bf16" if bf16 else "f32"}
         self._core = ov.Core()
+        self.path = Path(path)
         self._model = self._core.read_model(str(path))
         if outputs is not None:
             for result in list(self._model.get_results()):
@@ -159,7 +161,19 @@ class OpenVinoSession:
             self._compile()
 
     def _compile(self) -> None:
-        compiled = self._core.compile_model(self._model, "CPU", self._config)
+        try:
+            compiled = self._core.compile_model(self._model, "CPU", self._config)
+        except RuntimeError as exc:
+            if not self.bf16:
+                raise
+            # a CPU that reports bf16 and cannot compile it (kernels limited by
+            # ONEDNN_MAX_CPU_ISA, a hypervisor that hides the instructions): f32, said once
+            first = str(exc).strip().splitlines()[-1][:120] if str(exc).strip() else ""
+            print(f"edge-depth: OpenVINO could not compile {self.path.name} in bf16 ({first}); "
+                  "running it in f32", file=sys.stderr)
+            self.bf16 = False
+            self._config["INFERENCE_PRECISION_HINT"] = "f32"
+            compiled = self._core.compile_model(self._model, "CPU", self._config)
         self._request = compiled.create_infer_request()
         self._outputs = list(compiled.outputs)
 
