@@ -12,6 +12,7 @@ from edge_depth.cli import main
 pytest.importorskip("ray")
 
 THREADS = ["--threads", "1"]
+COUNT = 3  # good recordings, beside one damaged
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -31,7 +32,7 @@ def ray_session():
 def recordings(tmp_path_factory):
     folder = tmp_path_factory.mktemp("fleet") / "recordings"
     folder.mkdir()
-    for i in range(5):
+    for i in range(COUNT):
         assert main(["synth", "--mcap", str(folder / f"rec{i}.mcap"), "--frames", "2",
                      "--seed", str(1_000_000 + 7 * i), "--size", "320x200"]) == 0
     good = (folder / "rec0.mcap").read_bytes()
@@ -52,11 +53,11 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
                  *THREADS]) == 1  # one recording failed
     summary = _summary(golden)
     by_name = {r["name"]: r for r in summary["recordings"]}
-    assert sorted(by_name) == ["damaged", *(f"rec{i}" for i in range(5))]
+    assert sorted(by_name) == ["damaged", *(f"rec{i}" for i in range(COUNT))]
     assert summary["failed"] == ["damaged"] and by_name["damaged"]["reason"]
     assert "damaged" in (golden / "summary.md").read_text()
     assert ray_session.is_initialized()  # the caller's session: used, not shut down
-    for i in range(5):
+    for i in range(COUNT):
         single = tmp_path / f"single{i}.mcap"
         assert main(["replay", str(recordings / f"rec{i}.mcap"), "--out", str(single),
                      *THREADS]) == 0
@@ -70,7 +71,7 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
 
     stamps = {p.name: p.stat().st_mtime_ns for p in golden.iterdir()}
     assert main(["fleet", "replay", str(recordings), "--out", str(golden), *THREADS]) == 1
-    assert "0 run, 6 skipped (unchanged), 1 failed" in capsys.readouterr().out
+    assert f"0 run, {COUNT + 1} skipped (unchanged), 1 failed" in capsys.readouterr().out
     assert {p.name: p.stat().st_mtime_ns for p in golden.iterdir()
             if not p.name.startswith("summary")} == {
         k: v for k, v in stamps.items() if not k.startswith("summary")}
@@ -79,7 +80,7 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
     assert main(["fleet", "compare", str(recordings), "--base", str(golden), "--out", str(new),
                  *THREADS]) == 1  # the damaged one still fails
     verdicts = {r["name"]: r.get("verdict") for r in _summary(new)["recordings"]}
-    for i in range(5):
+    for i in range(COUNT):
         single = compare(golden / f"rec{i}.mcap", new / f"rec{i}.mcap")
         assert verdicts[f"rec{i}"] == ("REGRESSION" if single["regressions"] else "OK")
     assert verdicts["damaged"] is None
@@ -87,7 +88,7 @@ def test_fleet_replay_and_compare_give_the_single_file_commands_results(recordin
     scores = tmp_path / "scores"      # evaluate: the same numbers, no output files
     assert main(["fleet", "evaluate", str(recordings), "--out", str(scores), *THREADS]) == 1
     evaluated = {r["name"]: r for r in _summary(scores)["recordings"]}
-    for i in range(5):
+    for i in range(COUNT):
         assert evaluated[f"rec{i}"]["epe"] == pytest.approx(by_name[f"rec{i}"]["epe"])
     assert not list(scores.glob("*.mcap"))
 
