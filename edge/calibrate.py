@@ -196,13 +196,8 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
     (`edge.calibration_watch`) over a recording's frames with LiDAR; prints the estimate, its
     uncertainty and the level, and the command that refines it. 1 on ERROR, else 0."""
     from edge_depth.calibration.projection import project_to_disparity
-    from edge_depth.calibration_watch import (
-        ERROR,
-        MIN_SAMPLES,
-        CalibrationWatch,
-        fixes,
-        stereo_reference,
-    )
+    from edge_depth.calibration_verdict import ERROR, MIN_SAMPLES, fixes
+    from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
     from edge_depth.capture.synced import stamped_frames
     from edge_depth.runtime.engine import Engine
 

@@ -22,7 +22,8 @@ import numpy as np
 
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
-from edge_depth.calibration_watch import CalibrationWatch, fixes, stereo_reference
+from edge_depth.calibration_verdict import fixes
+from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame

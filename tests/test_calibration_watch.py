@@ -8,15 +8,8 @@ import numpy as np
 import pytest
 
 from edge_depth.calibration.extrinsics import _perturb
-from edge_depth.calibration_watch import (
-    ERROR,
-    OK,
-    SETTLING,
-    WARN,
-    CalibrationWatch,
-    refine_command,
-    verdict,
-)
+from edge_depth.calibration_verdict import ERROR, OK, SETTLING, WARN, refine_command, verdict
+from edge_depth.calibration_watch import CalibrationWatch
 from edge_depth.cli import main
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.sim.lidar import default_T_cam_lidar
