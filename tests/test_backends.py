@@ -25,7 +25,7 @@ def test_auto_takes_openvino_on_x86_when_installed_and_onnxruntime_elsewhere(
 
 
 def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monkeypatch):
-    from edge_depth.tools.bench import host_line, machine_line
+    from edge_depth.tools.bench_report import host_line, machine_line
 
     entry = "processor\t: {n}\nmodel name\t: {model}\nflags\t\t: fpu sse2 avx2 {extra}\n\n"
     epyc = entry.format(n=0, model="AMD EPYC 7B13", extra="fma") * 2

@@ -49,6 +49,7 @@ from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.runtime.backends import cpu_description
 from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
+from edge_depth.tools.bench_report import BUSY_SHARE, host_line, machine_line, markdown
 from edge_depth.types import LidarScan
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,7 +81,6 @@ def replay_peak_rss_mb(frames: int, size: tuple[int, int], bundle: Path) -> floa
     return int(line.split()[1]) / 1024
 
 
-BUSY_SHARE = 0.10  # other processes' share of the CPU above which a run is flagged busy
 
 
 def _cpu_jiffies() -> tuple[float, float] | None:
@@ -338,95 +338,6 @@ def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[floa
         if "watch" in timings:
             out.append((timings["watch"] + estimate_ms, timings["frame"] - timings["watch"]))
     return out
-
-
-def markdown(summary: dict) -> str:
-    w, h = summary["size"]
-    st = summary["stages"]
-    lines = [f"| stage ({w}x{h}, {summary['threads']} threads, {summary['runtime']}"
-             f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}) | median ms | p95 ms |",
-             "|---|---|---|"]
-    names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm",
-             "edge_match", "edge_median"]
-    names += sorted(k for k in st if k.startswith("engine_"))
-    for name in names:
-        if name in st:
-            lines.append(f"| {name} | {st[name]['median_ms']:.1f} | {st[name]['p95_ms']:.1f} |")
-    if "ratios" in summary:
-        r = summary["ratios"]
-        lines.append("")
-        lines.append(f"int8 engine / SGBM: **{r['int8_vs_sgbm']:.2f}x** (fp32 "
-                     f"{r['fp32_vs_sgbm']:.2f}x; int8 speed-up x{r['int8_speedup']:.2f}); "
-                     f"daemon frame / engine: {r['frame_vs_engine']:.2f}x")
-        if "int8_vs_sgbm_paired" in r:
-            lo, hi = r["int8_vs_sgbm_paired_p10_p90"]
-            lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
-                         f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
-        if "edge_match_vs_sgbm" in r:
-            lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
-                         "(inside the engine rows)")
-    if "match_starts" in summary:
-        early, again = summary["match_starts"]["early"], summary["match_starts"]["again"]
-        lines.append(f"the int8 engine's matching started before its last step in {early} "
-                     f"frames, {again} of them matched again with the final count"
-                     if early else "the int8 engine's matching started after its graphs "
-                     "(they use every core)")
-    if "calibration_watch" in summary:
-        c = summary["calibration_watch"]
-        lines.append(f"calibration watch: {c['sample_ms']:.1f} ms a sample, one in {c['every']} "
-                     f"frames with LiDAR: {c['per_frame_ms']:.2f} ms a frame, "
-                     f"{c['share_of_frame_pct']:.1f} % of the daemon's frame")
-    if "replay_peak_rss_mb" in summary:
-        lines.append(f"peak RSS of `edge-depth replay`: {summary['replay_peak_rss_mb']:.0f} MB")
-    if "engine" in summary:
-        lines.append(f"engine: {summary['engine']}")
-    lines.append(f"(project_filter: 64-beam scans, {summary['points_64_beams']} points; "
-                 f"{summary['scenes']} test scenes)")
-    lines.append(machine_line(summary["machine"]))
-    if "runs" in summary:
-        ratios = [r["int8_vs_sgbm"] for r in summary["runs"]]
-        busy = [i + 1 for i, r in enumerate(summary["runs"]) if r["busy"]]
-        lines.append("")
-        lines.append(f"{len(ratios)} runs: int8 engine / SGBM per run "
-                     f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
-                     f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
-                     f"{max(ratios):.2f}x)")
-        paired = [r["int8_vs_sgbm_paired"] for r in summary["runs"]
-                  if "int8_vs_sgbm_paired" in r]
-        if paired:
-            lines.append(f"paired per run {', '.join(f'{r:.2f}x' for r in paired)}; median "
-                         f"{float(np.median(paired)):.2f}x")
-        matched = [r["edge_match_vs_sgbm"] for r in summary["runs"] if "edge_match_vs_sgbm" in r]
-        if matched:
-            lines.append(f"the engine's edge_match stage / SGBM per run "
-                         f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
-                         f"{float(np.median(matched)):.2f}x")
-        if busy:
-            lines.append(f"**busy machine in run(s) {busy}: other processes took over "
-                         f"{BUSY_SHARE:.0%} of the CPU; do not trust this ratio, rerun on a "
-                         "quiet machine**")
-    return "\n".join(lines)
-
-
-def host_line(cpu: dict) -> str:
-    """'host: AMD EPYC 7B13; ISA AVX2, AVX-512, AVX512-VNNI; int8 dot product: yes': the
-    benchmark's first line."""
-    dot = {True: "yes", False: "no", None: "unknown"}[cpu["int8_dot_product"]]
-    return (f"host: {cpu['model']}; ISA {', '.join(cpu['isa']) or 'unknown'}; int8 dot "
-            f"product: {dot}; {os.cpu_count()} cores")
-
-
-def machine_line(m: dict) -> str:
-    others = "n/a" if m["others_cpu_share"] is None else f"{m['others_cpu_share']:.0%}"
-    load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.2f}"
-    flag = " — BUSY" if m["busy"] else ""
-    line = (f"machine: other processes {others} of the CPU during the run, load average "
-            f"{load} before it, SGBM p90/p10 {m['sgbm_p90_over_p10']:.2f}{flag}")
-    if "cpu" in m:  # ratios from CPUs with and without int8 dot products differ ~2x
-        dot = {True: "yes", False: "no", None: "unknown"}[m["cpu"]["int8_dot_product"]]
-        isa = ", ".join(m["cpu"].get("isa") or []) or "unknown"
-        line += f"; CPU {m['cpu']['model']} ({isa}), int8 dot product (VNNI/AMX): {dot}"
-    return line
 
 
 def main(argv: list[str] | None = None) -> int:
