@@ -1,8 +1,11 @@
-"""A lighter update block from a trained checkpoint: its channels cut to the ones the next
-layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`).
+"""A lighter update block (and backbone) from a trained checkpoint: its channels cut to the
+ones the next layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`).
 
     python experiments/prune.py edge/models/sparse_stereo.pt --out runs/prune/h48.pt \
-        --hidden 48 --context 32 --motion 48 --head 32 --feature 48
+        --hidden 48 --context 32 --motion 48 --head 32 --feature 48 [--quarter 24]
+
+`--quarter`: the backbone's 1/4-resolution block, the encoder's most expensive layer
+(`prune_backbone`).
 
 The step graph's cost is mostly the GRU's gates, whose convolutions scale with (hidden +
 motion) × hidden; at 4 iterations it is ~40 % of the int8 engine (`docs/experiments.md`).
@@ -107,6 +110,40 @@ def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tupl
     return s, pruned
 
 
+def prune_backbone(state: dict, config: ModelConfig, quarter: int) -> tuple[dict, ModelConfig]:
+    """The backbone's 1/4-resolution block (`layer2`, the encoder's most expensive layer)
+    cut to `quarter` channels: its inner channels ranked by its second convolution's input
+    weights, its output (the second convolution's and the skip's, added) by the next block's
+    (`layer3`'s convolution and skip). Batch-norm statistics follow their channels."""
+    s = dict(state)
+    b = "encoders.backbone."
+    if b + "layer3.skip.0.weight" not in s:
+        raise SystemExit("--quarter needs the 1/8 block's strided skip (downsample 8)")
+
+    def keep(n_score: torch.Tensor) -> torch.Tensor:
+        return _keep(n_score, quarter)
+
+    def rows(name: str, index: torch.Tensor) -> None:
+        for suffix in ("weight", "bias", "running_mean", "running_var"):
+            if f"{name}.{suffix}" in s:
+                s[f"{name}.{suffix}"] = s[f"{name}.{suffix}"][index]
+
+    def cols(name: str, index: torch.Tensor) -> None:
+        s[name + ".weight"] = s[name + ".weight"][:, index]
+
+    inner = keep(_col_norm(s[b + "layer2.conv2.weight"]))
+    out = keep(_col_norm(s[b + "layer3.conv1.weight"], s[b + "layer3.skip.0.weight"]))
+    for name in ("layer2.conv1", "layer2.norm1"):
+        rows(b + name, inner)
+    cols(b + "layer2.conv2", inner)
+    for name in ("layer2.conv2", "layer2.norm2", "layer2.skip.0", "layer2.skip.1"):
+        rows(b + name, out)
+    for name in ("layer3.conv1", "layer3.skip.0"):
+        cols(b + name, out)
+    widths = (config.widths[0], quarter, *config.widths[2:])
+    return s, ModelConfig.from_dict({**config.to_dict(), "widths": widths})
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     p.add_argument("checkpoint", type=Path)
@@ -114,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
     for key in SIZES:
         p.add_argument(f"--{key}", type=int, default=None,
                        help=f"channels to keep (default: the checkpoint's {SIZES[key]})")
+    p.add_argument("--quarter", type=int, default=None,
+                   help="the backbone's 1/4-resolution block's channels (default: as it is)")
     args = p.parse_args(argv)
     ckpt = torch.load(args.checkpoint, weights_only=False, map_location="cpu")
     config = ModelConfig.from_dict(ckpt["config"])
@@ -122,6 +161,11 @@ def main(argv: list[str] | None = None) -> int:
         if v < 1:
             p.error(f"--{k} must be at least 1, got {v}")
     state, pruned = prune_state(ckpt["model"], config, sizes)
+    if args.quarter is not None:
+        if not 1 <= args.quarter <= config.widths[1]:
+            p.error(f"--quarter: 1 to {config.widths[1]} (a prune only cuts), got "
+                    f"{args.quarter}")
+        state, pruned = prune_backbone(state, pruned, args.quarter)
     before = sum(v.numel() for v in ckpt["model"].values())
     after = sum(v.numel() for v in state.values())
     args.out.parent.mkdir(parents=True, exist_ok=True)
@@ -130,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
                 "pruned": {k: getattr(pruned, f) for k, f in SIZES.items()}}, args.out)
     print(f"{args.out}: {before:,} -> {after:,} parameters "
           + ", ".join(f"{SIZES[k]} {getattr(config, SIZES[k])} -> {getattr(pruned, SIZES[k])}"
-                      for k in SIZES))
+                      for k in SIZES) + f", widths {config.widths} -> {pruned.widths}")
     return 0
 
 

@@ -1,0 +1,62 @@
+#!/usr/bin/env bash
+# A trained checkpoint judged as a candidate for the shipped network, by the numbers the speed
+# issue's bars and docs/experiments.md's rules name: exported and quantized as `make bundle`
+# does, its selections fitted (or carried from the shipped bundle), then the real pairs (16
+# and 8 LiDAR rows, and stereo only) and the rig's test split at 4 and 3 iterations, then its
+# engine against the shipped one, alternated frame by frame, on this host's kernels and with
+# OpenVINO's limited to AVX2.
+#     bash experiments/judge_candidate.sh CHECKPOINT OUT_DIR [fit|carry]
+set -euo pipefail
+CKPT=$1
+OUT=$2
+SELECTIONS=${3:-fit}
+BIN=${BIN:-.venv/bin}
+BUNDLE="$OUT/bundle"
+mkdir -p "$OUT"
+echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16\|amx_tile' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores)"
+[ -d data/aloe ] || "$BIN/python" tools/real_pairs.py
+[ -d data/motorcycle ] || "$BIN/python" tools/real_pairs.py --motorcycle
+[ -d data/aloe_r8 ] || "$BIN/python" tools/real_pairs.py --rows 8 --out data/aloe_r8
+[ -d data/motorcycle_r8 ] || "$BIN/python" tools/real_pairs.py --motorcycle --rows 8 --out data/motorcycle_r8
+[ -d data/test16 ] || "$BIN/edge-depth" synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
+[ -d data/calib_mix ] || { "$BIN/edge-depth" synth --out data/calib_mix --count 8 --seed 500000 \
+  && "$BIN/edge-depth" synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000; }
+rm -rf "$BUNDLE"
+"$BIN/python" tools/export.py "$CKPT" --out "$BUNDLE" --size 640x400
+"$BIN/python" tools/quantize.py "$BUNDLE" --calib data/calib_mix --eval data/test16
+if [ "$SELECTIONS" = carry ]; then
+  "$BIN/python" tools/carry_selections.py edge/models/default/model.json "$BUNDLE"
+else
+  [ -d data/things_select ] || "$BIN/edge-depth" synth --world things --out data/things_select \
+    --count 260 --seed 400000 --workers 2
+  "$BIN/python" tools/fit_select.py "$BUNDLE" --data data/things_select
+  "$BIN/python" tools/fit_edge_select.py "$BUNDLE" --data data/things_select
+fi
+for iters in 4 3; do
+  for data in aloe motorcycle aloe_r8 motorcycle_r8 test16; do
+    for model in edge/models/default "$BUNDLE"; do
+      tag=$(basename "$(dirname "$model")")_$(basename "$model")
+      "$BIN/python" tools/evaluate.py "data/$data" --model "$model" --methods net --no-lidar \
+        --runtime onnxruntime --precision int8 --iters "$iters" \
+        --json "$OUT/eval_${data}_${iters}_${tag}.json" > /dev/null
+    done
+  done
+done
+"$BIN/python" - "$OUT" <<'EOF'
+import json, sys
+from pathlib import Path
+out = Path(sys.argv[1])
+print("| data | iters | shipped EPE / bad-3 | stereo only | candidate EPE / bad-3 | stereo only |")
+print("|---|---|---|---|---|---|")
+for iters in (4, 3):
+    for data in ("aloe", "motorcycle", "aloe_r8", "motorcycle_r8", "test16"):
+        cells = []
+        for tag in ("models_default", f"{out.name}_bundle"):
+            r = json.loads((out / f"eval_{data}_{iters}_{tag}.json").read_text())
+            for key in ("net", "net-nolidar"):
+                cells.append(f"{r[key]['epe']:.3f} / {r[key]['bad3']:.2f}" if key in r else "—")
+        print(f"| {data} | {iters} | " + " | ".join(cells) + " |")
+EOF
+"$BIN/python" experiments/bundle_engine_ab.py edge/models/default "$BUNDLE" --frames 40
+ONEDNN_MAX_CPU_ISA=AVX2 "$BIN/python" experiments/bundle_engine_ab.py edge/models/default \
+  "$BUNDLE" --frames 40 --bf16 off
