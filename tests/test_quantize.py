@@ -181,3 +181,18 @@ def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
                                  node_search=False, max_total_px=10.0)
     assert all(g["int8"] for g in q["graphs"].values())
     assert 0.0 < q["mean_abs_px_vs_fp32"] <= 10.0
+
+
+def test_the_printout_says_why_a_graph_stayed_float():
+    from edge_depth.tools.quantize import graph_line
+
+    base = dict(int8=False, mean_abs_px_alone=0.23, engine_ms_fp32=87.8,
+                engine_ms_with_this_int8=72.5, int8_to_fp32_ratio=0.89)
+    # a graph every convolution of which moved the disparity: no int8 graph was tried
+    every = graph_line("encoder", dict(base, float_nodes=["/a/Conv", "/b/Conv"]))
+    assert every.startswith("encoder: float (alone: moves disparity 0.2300 px")
+    assert "kept float: /a/Conv, /b/Conv (every convolution: no int8 graph)" in every
+    some = graph_line("step", dict(base, int8=True, float_nodes=["/a/Conv"],
+                                   mean_abs_px_with_float_nodes=0.05))
+    assert "step: int8" in some and "kept float: /a/Conv -> moves 0.0500 px" in some
+    assert "kept float" not in graph_line("upsample", dict(base, float_nodes=[]))

@@ -365,6 +365,24 @@ def evaluate_precisions(fp32: Engine, int8: Engine, eval_dir: Path, iters: int) 
     return res
 
 
+def graph_line(part: str, g: dict) -> str:
+    """One graph's choice, for the printout: int8 or float, and why."""
+    kept = ""
+    if g["float_nodes"]:
+        moved = g.get("mean_abs_px_with_float_nodes")
+        kept = (f"; kept float: {', '.join(g['float_nodes'])}"
+                + (f" -> moves {moved:.4f} px" if moved is not None
+                   else " (every convolution: no int8 graph)"))
+    return (f"{part}: {'int8' if g['int8'] else 'float'} (alone: moves disparity "
+            f"{g['mean_abs_px_alone']:.4f} px, engine {g['engine_ms_fp32']:.1f} -> "
+            f"{g['engine_ms_with_this_int8']:.1f} ms median, int8/float "
+            f"{g['int8_to_fp32_ratio']:.2f} median of paired calls)" + kept
+            + ("; back to float: the int8 graphs together moved the disparity or the "
+               "confidence too much" if g.get("float_for_the_total") else "")
+            + "".join(f"; {rt}: {a['px']:.4f} px, confidence {a['confidence']:.4f}"
+                      for rt, a in g.get("alone", {}).items()))
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("bundle", type=Path)
@@ -399,16 +417,7 @@ def main(argv: list[str] | None = None) -> int:
                         timing_runtime=args.timing_runtime, min_gain=args.min_gain,
                         max_confidence=args.max_confidence)
     for part, g in q["graphs"].items():
-        print(f"{part}: {'int8' if g['int8'] else 'float'} (alone: moves disparity "
-              f"{g['mean_abs_px_alone']:.4f} px, engine {g['engine_ms_fp32']:.1f} -> "
-              f"{g['engine_ms_with_this_int8']:.1f} ms median, int8/float "
-              f"{g['int8_to_fp32_ratio']:.2f} median of paired calls)"
-              + (f"; kept float: {', '.join(g['float_nodes'])} -> moves "
-                 f"{g['mean_abs_px_with_float_nodes']:.4f} px" if g["float_nodes"] else "")
-              + ("; back to float: the int8 graphs together moved the disparity or the "
-                 "confidence too much" if g.get("float_for_the_total") else "")
-              + "".join(f"; {rt}: {a['px']:.4f} px, confidence {a['confidence']:.4f}"
-                        for rt, a in g.get("alone", {}).items()))
+        print(graph_line(part, g))
     for rt, t in q["vs_fp32"].items():
         print(f"int8 vs fp32 on the calibration frames, {rt}: disparity {t['px']:.4f} px, "
               f"confidence {t['confidence']:.4f} (mean |difference|)")
