@@ -32,10 +32,12 @@ SHIPPED = json.loads(Path("edge/models/default/model.json").read_text())["config
 CANDIDATES = {
     "shipped": {},
     "update 32": dict(hidden_dim=32, motion_dim=32, head_dim=24, context_dim=24),
-    "update 32, features 32": dict(hidden_dim=32, motion_dim=32, head_dim=24, context_dim=24,
+    "update 32 + features 32": dict(hidden_dim=32, motion_dim=32, head_dim=24, context_dim=24,
                                    feature_dim=32),
     "backbone 16/24/40": dict(widths=(16, 24, 40)),
-    "backbone 12/24/32, update 32, features 32": dict(
+    "update 32 + quarter 24": dict(widths=(16, 24, 48), hidden_dim=32, motion_dim=32,
+                                  head_dim=24, context_dim=24),
+    "backbone 12/24/32 + update 32 + features 32": dict(
         widths=(12, 24, 32), hidden_dim=32, motion_dim=32, head_dim=24, context_dim=24,
         feature_dim=32),
 }
@@ -75,7 +77,7 @@ def main() -> None:
     p.add_argument("--runtime", default="openvino", choices=("openvino", "onnxruntime"))
     p.add_argument("--iters", default="4,2", help="GRU iterations to time, comma-separated")
     p.add_argument("--frames", type=int, default=20)
-    p.add_argument("--only", default=None, help="one candidate's name")
+    p.add_argument("--only", default=None, help="candidates' names, comma-separated")
     args = p.parse_args()
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}; {args.runtime}, fp32, 2 threads, "
@@ -84,7 +86,7 @@ def main() -> None:
     print("| candidate | params | GFLOP @4 | " + " | ".join(f"ms @{i}" for i in iters) + " |")
     print("|---|---|---|" + "---|" * len(iters))
     for name, change in CANDIDATES.items():
-        if args.only and name != args.only:
+        if args.only and name not in args.only.split(","):
             continue
         with tempfile.TemporaryDirectory() as tmp:
             bundle = bundle_for({**SHIPPED, **change}, Path(tmp))
