@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
-# A trained checkpoint judged as a candidate for the shipped network, by the numbers the speed
-# issue's bars and docs/experiments.md's rules name: exported and quantized as `make bundle`
+# A trained checkpoint judged as a candidate for the shipped network, by the numbers the shipped
+# network is held to (docs/experiments.md's rules): exported and quantized as `make bundle`
 # does, its selections fitted (or carried from the shipped bundle), then the real pairs (16
 # and 8 LiDAR rows, and stereo only) and the rig's test split at 4 and 3 iterations, then its
 # engine against the shipped one, alternated frame by frame, on this host's kernels and with
