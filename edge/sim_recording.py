@@ -98,6 +98,20 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
         yaw = np.radians(amplitude_deg) * np.sin(2 * np.pi * t_s / turn_period_s)
         return cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
 
+    def scan_points(scan, forward_ns: int) -> np.ndarray:
+        """The scene's points as the LiDAR saw each at its own time: X_cam -> R(t)^T X_cam,
+        back to the LiDAR. The revolution's forward middle (what the camera sees) was swept
+        `lidar_clock_ms` before its stamp, `forward_ns`, says."""
+        offsets = scan.point_stamps_ns - scan.stamp_ns
+        start_ns = forward_ns - int(lidar_clock_ms * 1e6) - int(np.median(offsets))
+        yaw = np.radians(amplitude_deg) * np.sin(
+            2 * np.pi * (start_ns + offsets - 1_000_000_000) / 1e9 / turn_period_s)
+        cam = transform_points(T, scan.points)
+        c, s_ = np.cos(yaw), np.sin(yaw)
+        turned = np.stack([c * cam[:, 0] - s_ * cam[:, 2], cam[:, 1],
+                           s_ * cam[:, 0] + c * cam[:, 2]], 1)
+        return transform_points(np.linalg.inv(T), turned).astype(np.float32)
+
     with McapLogger(path, topics=RAW_TOPICS) as logger:
         logger.set_calibration(stereo, extrinsics)
         sample = None
@@ -106,21 +120,9 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
                 sample = make_sample(seed + i // hold, rig, lidar)
             assert sample is not None
             stamp = 1_000_000_000 + int(i * period_ms * 1e6)
-            # the revolution that sweeps forward (its middle) `lidar_lag_ms` before the frame;
-            # each point as seen at its own time: X_cam -> R(t)^T X_cam, back to the LiDAR
-            offsets = sample.scan.point_stamps_ns - sample.scan.stamp_ns
-            # stamped `lidar_lag_ms` before its frame by the revolution's forward middle (what
-            # the camera sees), which the LiDAR swept `lidar_clock_ms` before its stamp says
+            # the revolution stamped `lidar_lag_ms` before its frame
             forward_ns = stamp - int(lidar_lag_ms * 1e6)
-            start_ns = forward_ns - int(lidar_clock_ms * 1e6) - int(np.median(offsets))
-            yaw = np.radians(amplitude_deg) * np.sin(
-                2 * np.pi * (start_ns + offsets - 1_000_000_000) / 1e9 / turn_period_s)
-            cam = transform_points(T, sample.scan.points)
-            c, s_ = np.cos(yaw), np.sin(yaw)
-            turned = np.stack([c * cam[:, 0] - s_ * cam[:, 2], cam[:, 1],
-                               s_ * cam[:, 0] + c * cam[:, 2]], 1)
-            points = transform_points(np.linalg.inv(T), turned)
-            logger.log_scan(LidarScan(forward_ns, points.astype(np.float32)))
+            logger.log_scan(LidarScan(forward_ns, scan_points(sample.scan, forward_ns)))
             H = K @ rotation(i * period_ms / 1000).T @ np.linalg.inv(K)
             size = (rig.width, rig.height)
             left, right = (cv2.warpPerspective(im, H, size, flags=cv2.INTER_LINEAR,
