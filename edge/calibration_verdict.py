@@ -45,6 +45,9 @@ class WatchEstimate:
     clock_sigma_s: float | None = None
     turn_dps: float = 0.0  # the samples' RMS turn rate
     planar: bool = False  # a 2-D LiDAR: pitch and roll not observed (reported as 0)
+    # px the rotation and the clock each move the points by beyond the WARN margin
+    rotation_px: float = 0.0
+    clock_px: float = 0.0
 
     def describe(self) -> str:
         """'yaw +0.31° ± 0.02°, pitch −0.01° ± 0.02°, roll +0.05° ± 0.06°, clock −30 ms ± 4 ms
@@ -83,6 +86,11 @@ def warn_margin(sigma, resolution):
     return np.hypot(2 * np.asarray(sigma), resolution)
 
 
+def beyond_px(error: np.ndarray, margin: np.ndarray, lever_px: np.ndarray) -> np.ndarray:
+    """Per term, the px the points move by beyond `margin` (the error's own units)."""
+    return np.maximum(np.abs(error) - margin, 0.0) * lever_px
+
+
 def verdict(error: np.ndarray, sigma: np.ndarray, lever_px: np.ndarray,
             resolution: np.ndarray = RESOLUTION_DEG) -> tuple[float, str]:
     """(px the points move by beyond twice the standard error, the level): ERROR beyond
@@ -90,28 +98,27 @@ def verdict(error: np.ndarray, sigma: np.ndarray, lever_px: np.ndarray,
     Per term (the rotation's axes in degrees, the clock offset in seconds): `lever_px`, px per
     unit (f·π/180 for pitch and yaw, the points' distance from the image centre·π/180 for
     roll, the image's speed in px/s for the clock)."""
-    def shift_px(margin) -> float:
-        beyond = np.maximum(np.abs(error) - margin, 0.0)
-        return float(np.hypot.reduce(beyond * lever_px))
-
-    shift = shift_px(2 * sigma)
+    shift = float(np.hypot.reduce(beyond_px(error, 2 * sigma, lever_px)))
     if shift > ERROR_PX:
         return shift, ERROR
-    return shift, WARN if shift_px(warn_margin(sigma, resolution)) > WARN_PX else OK
+    warn = np.hypot.reduce(beyond_px(error, warn_margin(sigma, resolution), lever_px))
+    return shift, WARN if warn > WARN_PX else OK
 
 
 def fixes(estimate: WatchEstimate, recording: str | None, calibration: str | None,
           time_offset_ns: int = 0) -> str:
     """What to do about a WARN or ERROR (empty otherwise): the rotation's refine command, and
-    the clock offset's value where the clock is off beyond its uncertainty and resolution."""
+    the clock offset's value to set — each that alone moves the points beyond WARN_PX, or
+    both where neither does alone."""
     if estimate.level not in (WARN, ERROR):
         return ""
     todo = []
-    sigma = estimate.sigma_deg[:3]
-    if np.any(np.abs(estimate.error_deg) > warn_margin(sigma, RESOLUTION_DEG)):
+    alone = [px > WARN_PX for px in (estimate.rotation_px, estimate.clock_px)]
+    rotation, clock = alone if any(alone) else [px > 0 for px in (estimate.rotation_px,
+                                                                   estimate.clock_px)]
+    if rotation:
         todo.append(f"to refine the rotation: {refine_command(recording, calibration)}")
-    if estimate.clock_s is not None and estimate.clock_sigma_s is not None and \
-            abs(estimate.clock_s) > warn_margin(estimate.clock_sigma_s, CLOCK_RESOLUTION_S):
+    if clock and estimate.clock_s is not None:
         value = int(round(time_offset_ns + estimate.clock_s * 1e9, -6))
         todo.append(f"the LiDAR's clock: set [lidar] time_offset_ns = {value} in "
                     f"{calibration or 'the calibration'}")

@@ -50,7 +50,9 @@ from edge_depth.calibration_verdict import (
     RESOLUTION_DEG,
     SETTLING,
     WatchEstimate,
+    beyond_px,
     verdict,
+    warn_margin,
 )
 from edge_depth.camera_turn import TurnMeter
 
@@ -362,13 +364,16 @@ class CalibrationWatch:
         error = -best
         lever = np.radians([self.calib.focal_px, self.calib.focal_px, radius])  # px per °
         clock_lever = self.calib.focal_px * np.radians(rms_turn)  # px per second of offset
-        shift, level = verdict(np.r_[error, clock if observed else 0.0], sigma,
-                               np.r_[lever, clock_lever], np.r_[RESOLUTION_DEG,
-                                                                CLOCK_RESOLUTION_S])
+        errors = np.r_[error, clock if observed else 0.0]
+        levers = np.r_[lever, clock_lever]
+        resolution = np.r_[RESOLUTION_DEG, CLOCK_RESOLUTION_S]
+        shift, level = verdict(errors, sigma, levers, resolution)
+        parts = beyond_px(errors, warn_margin(sigma, resolution), levers)
         e, s = [float(x) for x in error], [float(x) for x in sigma[:3]]
         return WatchEstimate((e[0], e[1], e[2]), (s[0], s[1], s[2]), shift, level, n, at_reach,
                              float(clock) if observed else None,
-                             float(sigma[3]) if observed else None, rms_turn, planar)
+                             float(sigma[3]) if observed else None, rms_turn, planar,
+                             float(np.hypot.reduce(parts[:3])), float(parts[3]))
 
     def _turned_grid(self, sample: _Sample) -> np.ndarray:
         """The sample's (pitch, yaw) costs at each candidate clock offset, (offsets, pitch,

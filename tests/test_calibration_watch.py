@@ -8,7 +8,16 @@ import numpy as np
 import pytest
 
 from edge_depth.calibration.extrinsics import _perturb
-from edge_depth.calibration_verdict import ERROR, OK, SETTLING, WARN, refine_command, verdict
+from edge_depth.calibration_verdict import (
+    ERROR,
+    OK,
+    SETTLING,
+    WARN,
+    WatchEstimate,
+    fixes,
+    refine_command,
+    verdict,
+)
 from edge_depth.calibration_watch import CalibrationWatch
 from edge_depth.cli import main
 from edge_depth.sim import RigConfig, make_sample
@@ -104,6 +113,22 @@ def test_the_refine_command_is_pre_filled():
         "edge-depth calibrate lidar --recording rec.mcap --refine --calib robot.toml "
         "--out robot_refined.toml")
     assert refine_command("rec.mcap", None).endswith("--refine --out refined.toml")
+
+
+def test_the_fix_names_what_alone_moves_the_points_beyond_warn():
+    def estimate(rotation_px, clock_px, level=WARN):
+        return WatchEstimate((0.0, -0.11, 0.0), (0.02,) * 3, 0.7, level, 15, clock_s=-0.03,
+                             clock_sigma_s=0.01, rotation_px=rotation_px, clock_px=clock_px)
+
+    # a right rotation a hair beyond its margin beside a clock 30 ms off: the clock alone
+    clock_only = fixes(estimate(0.02, 0.4), "rec.mcap", "robot.toml", 5_000_000)
+    assert clock_only == "the LiDAR's clock: set [lidar] time_offset_ns = -25000000 in robot.toml"
+    both = fixes(estimate(0.5, 0.4), "rec.mcap", "robot.toml")
+    assert both.startswith("to refine the rotation: edge-depth calibrate lidar") and "clock" in both
+    # neither alone beyond 0.1 px, together WARN: both named
+    assert "rotation" in fixes(estimate(0.08, 0.08), None, None) and \
+        "clock" in fixes(estimate(0.08, 0.08), None, None)
+    assert fixes(estimate(0.02, 0.4, OK), "rec.mcap", None) == ""
 
 
 def test_the_stereo_only_reference_never_sees_the_lidar(engine, noiseless_samples):
