@@ -2,8 +2,8 @@
 weights exported to a float bundle, then the network alone (encoder + N steps + upsampling;
 no selection, no matching) timed on the frame the export check uses, median of F frames.
 
-    ONEDNN_MAX_CPU_ISA=AVX2 PYTHONPATH=. python experiments/light_network_speed.py
-    PYTHONPATH=. python experiments/light_network_speed.py --runtime onnxruntime
+    ONEDNN_MAX_CPU_ISA=AVX2 python experiments/light_network_speed.py
+    python experiments/light_network_speed.py --runtime onnxruntime
 
 `ONEDNN_MAX_CPU_ISA=AVX2` limits OpenVINO's kernels to AVX2 on an AVX-512 host (the kernels
 an AVX2-only CPU runs, not that CPU's speed). The configurations change only sizes the
@@ -26,9 +26,9 @@ import torch
 from edge_depth.model.config import ModelConfig
 from edge_depth.model.network import SparseStereoNet
 from edge_depth.runtime.backends import cpu_description
-from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
 
-SHIPPED = json.loads(Path("edge/models/default/model.json").read_text())["config"]
+SHIPPED = json.loads((DEFAULT_BUNDLE / "model.json").read_text())["config"]
 CANDIDATES = {
     "shipped": {},
     "update 32": dict(hidden_dim=32, motion_dim=32, head_dim=24, context_dim=24),
@@ -44,7 +44,7 @@ CANDIDATES = {
 
 
 def bundle_for(config: dict, folder: Path) -> Path:
-    from tools.export import export
+    from edge_depth.tools.export import export
 
     torch.manual_seed(0)
     net = SparseStereoNet(ModelConfig.from_dict(config))
@@ -55,7 +55,7 @@ def bundle_for(config: dict, folder: Path) -> Path:
 
 
 def network_ms(bundle: Path, runtime: str, iters: int, frames: int) -> float:
-    from tools.export import reference_inputs
+    from edge_depth.tools.export import reference_inputs
 
     engine = Engine(bundle, precision="fp32", runtime=runtime, threads=2, edge_match=0,
                     lidar_select=False, edge_select=False, bf16="off")

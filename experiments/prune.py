@@ -48,6 +48,19 @@ def _col_norm(*weights: torch.Tensor) -> torch.Tensor:
     return sum(w.pow(2).sum((0, 2, 3)) for w in weights)
 
 
+def _rows(s: dict, name: str, index: torch.Tensor) -> None:
+    """Layer `name`'s output channels cut to `index`: its weight and bias, and a batch norm's
+    running statistics."""
+    for suffix in ("weight", "bias", "running_mean", "running_var"):
+        if f"{name}.{suffix}" in s:
+            s[f"{name}.{suffix}"] = s[f"{name}.{suffix}"][index]
+
+
+def _cols(s: dict, name: str, index: torch.Tensor) -> None:
+    """Layer `name`'s input channels cut to `index`."""
+    s[name + ".weight"] = s[name + ".weight"][:, index]
+
+
 def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tuple[dict,
                                                                                 ModelConfig]:
     """`state` (a SparseStereoNet state dict of `config`, gru_levels 1) cut to `sizes` (keys
@@ -76,12 +89,10 @@ def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tupl
     keep_f = _keep(feat.pow(2).sum((1, 2, 3)), new["feature"])
 
     def rows(name: str, index: torch.Tensor) -> None:
-        s[name + ".weight"] = s[name + ".weight"][index]
-        if name + ".bias" in s:
-            s[name + ".bias"] = s[name + ".bias"][index]
+        _rows(s, name, index)
 
     def cols(name: str, index: torch.Tensor) -> None:
-        s[name + ".weight"] = s[name + ".weight"][:, index]
+        _cols(s, name, index)
 
     scale = (new["feature"] / config.feature_dim) ** 0.25  # each side: √ of the 1/√C change
     rows("encoders.feature_head", keep_f)
@@ -120,26 +131,16 @@ def prune_backbone(state: dict, config: ModelConfig, quarter: int) -> tuple[dict
     if b + "layer3.skip.0.weight" not in s:
         raise SystemExit("--quarter needs the 1/8 block's strided skip (downsample 8)")
 
-    def keep(n_score: torch.Tensor) -> torch.Tensor:
-        return _keep(n_score, quarter)
-
-    def rows(name: str, index: torch.Tensor) -> None:
-        for suffix in ("weight", "bias", "running_mean", "running_var"):
-            if f"{name}.{suffix}" in s:
-                s[f"{name}.{suffix}"] = s[f"{name}.{suffix}"][index]
-
-    def cols(name: str, index: torch.Tensor) -> None:
-        s[name + ".weight"] = s[name + ".weight"][:, index]
-
-    inner = keep(_col_norm(s[b + "layer2.conv2.weight"]))
-    out = keep(_col_norm(s[b + "layer3.conv1.weight"], s[b + "layer3.skip.0.weight"]))
+    inner = _keep(_col_norm(s[b + "layer2.conv2.weight"]), quarter)
+    out = _keep(_col_norm(s[b + "layer3.conv1.weight"], s[b + "layer3.skip.0.weight"]),
+                quarter)
     for name in ("layer2.conv1", "layer2.norm1"):
-        rows(b + name, inner)
-    cols(b + "layer2.conv2", inner)
+        _rows(s, b + name, inner)
+    _cols(s, b + "layer2.conv2", inner)
     for name in ("layer2.conv2", "layer2.norm2", "layer2.skip.0", "layer2.skip.1"):
-        rows(b + name, out)
+        _rows(s, b + name, out)
     for name in ("layer3.conv1", "layer3.skip.0"):
-        cols(b + name, out)
+        _cols(s, b + name, out)
     widths = (config.widths[0], quarter, *config.widths[2:])
     return s, ModelConfig.from_dict({**config.to_dict(), "widths": widths})
 
