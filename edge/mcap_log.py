@@ -61,8 +61,10 @@ def image_message(image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME
 
 
 def point_cloud_message(points: np.ndarray, stamp_ns: int, frame_id: str,
-                        intensity: np.ndarray | None = None):
-    """(N, 3) float32 metres (+ optional (N,) intensity) -> PointCloud, 16 bytes per point."""
+                        intensity: np.ndarray | None = None,
+                        point_stamps_ns: np.ndarray | None = None):
+    """(N, 3) float32 metres (+ optional (N,) intensity) -> PointCloud, 16 bytes per point;
+    with `point_stamps_ns`, 20: each point's time as "time", float32 seconds after the stamp."""
     from foxglove.messages import (
         PackedElementField,
         PackedElementFieldNumericType,
@@ -72,17 +74,29 @@ def point_cloud_message(points: np.ndarray, stamp_ns: int, frame_id: str,
         Vector3,
     )
 
-    n = len(points)
-    packed = np.zeros((n, 4), "<f4")
+    names, packed = packed_points(points, stamp_ns, intensity, point_stamps_ns)
+    f32 = PackedElementFieldNumericType.Float32
+    fields = [PackedElementField(name=name, offset=4 * i, type=f32)
+              for i, name in enumerate(names)]
+    pose = Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1))
+    return PointCloud(timestamp=_stamp(stamp_ns), frame_id=frame_id, pose=pose,
+                      point_stride=4 * len(names), fields=fields, data=packed.tobytes())
+
+
+def packed_points(points: np.ndarray, stamp_ns: int, intensity: np.ndarray | None = None,
+                  point_stamps_ns: np.ndarray | None = None) -> tuple[tuple[str, ...],
+                                                                     np.ndarray]:
+    """A point cloud's float32 fields, x y z intensity (0 where none) and, with per-point
+    stamps, "time" (seconds after `stamp_ns`, the Velodyne drivers' convention): (names, (N,
+    4 or 5) little-endian float32)."""
+    names = ("x", "y", "z", "intensity") + (("time",) if point_stamps_ns is not None else ())
+    packed = np.zeros((len(points), len(names)), "<f4")
     packed[:, :3] = points
     if intensity is not None:
         packed[:, 3] = intensity
-    f32 = PackedElementFieldNumericType.Float32
-    fields = [PackedElementField(name=name, offset=4 * i, type=f32)
-              for i, name in enumerate(("x", "y", "z", "intensity"))]
-    pose = Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1))
-    return PointCloud(timestamp=_stamp(stamp_ns), frame_id=frame_id, pose=pose,
-                      point_stride=16, fields=fields, data=packed.tobytes())
+    if point_stamps_ns is not None:
+        packed[:, 4] = (point_stamps_ns - stamp_ns) / 1e9
+    return names, packed
 
 
 def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
@@ -389,8 +403,9 @@ class McapLogger:
     def _image(self, image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME):
         return image_message(image, stamp_ns, frame_id)
 
-    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None):
-        return point_cloud_message(points, stamp_ns, frame_id, intensity)
+    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None,
+               point_stamps_ns=None):
+        return point_cloud_message(points, stamp_ns, frame_id, intensity, point_stamps_ns)
 
     def _disparity(self, result: DepthResult):
         return image_message(result.disparity, result.stamp_ns)
@@ -427,8 +442,8 @@ class McapLogger:
 
     def log_scan(self, scan: LidarScan) -> None:
         self._maybe_rotate(scan.stamp_ns)
-        self._log("lidar", self._cloud(scan.points, scan.stamp_ns, LIDAR_FRAME, scan.intensity),
-                  scan.stamp_ns)
+        self._log("lidar", self._cloud(scan.points, scan.stamp_ns, LIDAR_FRAME, scan.intensity,
+                                       scan.point_stamps_ns), scan.stamp_ns)
 
     def log_gt(self, stamp_ns: int, disparity: np.ndarray) -> None:
         self._log("gt_disparity", self._image(disparity.astype(np.float32, copy=False),

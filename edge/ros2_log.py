@@ -11,7 +11,8 @@ Topics (`ROS2_TOPICS`, under a configurable prefix):
     stereo/confidence       sensor_msgs/Image 32FC1 0-1 (models with the refinement stage)
     stereo/sparse_disparity sensor_msgs/Image 32FC1 (the LiDAR projected, 0 = none)
     stereo/points           sensor_msgs/PointCloud2 x y z intensity (depth back-projected)
-    lidar/points            sensor_msgs/PointCloud2 x y z intensity, as received
+    lidar/points            sensor_msgs/PointCloud2 x y z intensity (+ time: each point's, in s
+                            after the stamp, where the LiDAR gives one), as received
     /tf_static              tf2_msgs/TFMessage: parent → camera_left → camera_right, lidar
     /diagnostics            diagnostic_msgs/DiagnosticArray (the foxglove profile's counters;
                             WARN on errors or an edge_match count short of the scene)
@@ -28,7 +29,7 @@ from typing import IO
 
 import numpy as np
 
-from edge_depth.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger
+from edge_depth.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger, packed_points
 from edge_depth.ros2_msgs import MSGDEFS, header, transform
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.topics import ros2_topic
@@ -54,16 +55,14 @@ def image_msg(image: np.ndarray, stamp_ns: int, frame_id: str) -> dict:
 
 
 def cloud_msg(points: np.ndarray, stamp_ns: int, frame_id: str,
-              intensity: np.ndarray | None = None) -> dict:
-    n = len(points)
-    packed = np.zeros((n, 4), "<f4")
-    packed[:, :3] = points
-    if intensity is not None:
-        packed[:, 3] = intensity
+              intensity: np.ndarray | None = None,
+              point_stamps_ns: np.ndarray | None = None) -> dict:
+    names, packed = packed_points(points, stamp_ns, intensity, point_stamps_ns)
+    n, step = len(points), 4 * len(names)
     fields = [{"name": name, "offset": 4 * i, "datatype": 7, "count": 1}  # 7 = FLOAT32
-              for i, name in enumerate(("x", "y", "z", "intensity"))]
+              for i, name in enumerate(names)]
     return {"header": header(stamp_ns, frame_id), "height": 1, "width": n, "fields": fields,
-            "is_bigendian": False, "point_step": 16, "row_step": 16 * n,
+            "is_bigendian": False, "point_step": step, "row_step": step * n,
             "data": packed.tobytes(), "is_dense": True}
 
 
@@ -137,8 +136,9 @@ class Ros2Logger(McapLogger):
     def _image(self, image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME) -> dict:
         return image_msg(image, stamp_ns, frame_id)
 
-    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None) -> dict:
-        return cloud_msg(points, stamp_ns, frame_id, intensity)
+    def _cloud(self, points: np.ndarray, stamp_ns: int, frame_id: str, intensity=None,
+               point_stamps_ns=None) -> dict:
+        return cloud_msg(points, stamp_ns, frame_id, intensity, point_stamps_ns)
 
     def _disparity(self, result: DepthResult) -> dict:
         f = baseline = 0.0

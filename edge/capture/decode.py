@@ -81,11 +81,24 @@ def decode_image(msg) -> np.ndarray:
 # datatype codes: sensor_msgs/PointField and foxglove NumericType agree on 7 = float32 and
 # 8 = float64 and disagree on the integer codes, which are not used for coordinates here
 _FLOAT_TYPES = {7: "f4", 8: "f8"}
+# a point's own time, relative to the message's stamp: "time", float seconds (the Velodyne
+# drivers' field, and what edge-depth writes), or "t", uint32 nanoseconds (Ouster's); the
+# uint32 code is 6 in sensor_msgs/PointField and 5 in foxglove's NumericType
+_TIME_FIELDS = {("time", 7): ("f4", 1e9), ("time", 8): ("f8", 1e9), ("t", "uint32"): ("u4", 1.0)}
 
 
-def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
-    """PointCloud / PointCloud2 / LaserScan -> (N, 3) float32 metres, (N,) intensity or None;
-    non-finite points dropped."""
+def _point_time_field(f) -> tuple[str, float] | None:
+    """A point cloud field's (dtype, to-nanoseconds scale) if it holds the point's own time."""
+    ros = getattr(f, "datatype", None)
+    code = int(ros if ros is not None else getattr(f, "type", 0) or 0)
+    uint32 = 6 if ros is not None else 5
+    return _TIME_FIELDS.get((f.name, "uint32" if code == uint32 else code))
+
+
+def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """PointCloud / PointCloud2 / LaserScan -> (N, 3) float32 metres, (N,) intensity or None,
+    (N,) int64 each point's time in ns after the message's stamp or None (a "time" or "t"
+    field, `_TIME_FIELDS`); non-finite points dropped."""
     if hasattr(msg, "ranges"):  # LaserScan
         ranges = np.asarray(msg.ranges, np.float32)
         angles = msg.angle_min + msg.angle_increment * np.arange(len(ranges), dtype=np.float32)
@@ -93,7 +106,12 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
         pts = np.stack([ranges * np.cos(angles), ranges * np.sin(angles),
                         np.zeros_like(ranges)], 1)[keep]
         inten = np.asarray(msg.intensities, np.float32)
-        return pts.astype(np.float32), (inten[keep] if inten.size == ranges.size else None)
+        offsets = None
+        if float(getattr(msg, "time_increment", 0.0) or 0.0) > 0:  # REP: the beam's time
+            offsets = np.round(np.arange(len(ranges)) * float(msg.time_increment)
+                               * 1e9).astype(np.int64)[keep]
+        return pts.astype(np.float32), (inten[keep] if inten.size == ranges.size else None), \
+            offsets
     stride = int(getattr(msg, "point_stride", 0) or getattr(msg, "point_step", 0))
     big = bool(getattr(msg, "is_bigendian", False))
     data = bytes(msg.data)
@@ -101,20 +119,31 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None]:
         raise ValueError(f"point data of {len(data)} bytes is not a multiple of {stride}")
     n = len(data) // stride
     raw = np.frombuffer(data, np.uint8).reshape(n, stride)
+
+    def column(offset: int, dtype: str) -> np.ndarray:
+        t = np.dtype(dtype).newbyteorder(">" if big else "<")
+        if offset + t.itemsize > stride:
+            raise ValueError(f"a point field at byte {offset} runs past the {stride}-byte point")
+        return raw[:, offset:offset + t.itemsize].copy().view(t)[:, 0]
+
     columns: dict[str, np.ndarray] = {}
+    offsets = None
     for f in msg.fields:
         code = int(getattr(f, "datatype", None) or getattr(f, "type", 0) or 0)
         if f.name in ("x", "y", "z", "intensity") and code in _FLOAT_TYPES:
-            t = np.dtype(_FLOAT_TYPES[code]).newbyteorder(">" if big else "<")
-            off = int(f.offset)
-            columns[f.name] = raw[:, off:off + t.itemsize].copy().view(t)[:, 0].astype(
-                np.float32)
+            columns[f.name] = column(int(f.offset), _FLOAT_TYPES[code]).astype(np.float32)
+        elif (time_field := _point_time_field(f)) is not None:
+            dtype, scale = time_field
+            offsets = np.round(column(int(f.offset), dtype).astype(np.float64) * scale)
     if not {"x", "y", "z"} <= set(columns):
         raise ValueError("point cloud lacks float x, y, z fields")
     pts = np.stack([columns["x"], columns["y"], columns["z"]], 1)
     keep = np.isfinite(pts).all(1)
+    if offsets is not None:
+        keep &= np.isfinite(offsets)
     intensity = columns.get("intensity")
-    return pts[keep], (intensity[keep] if intensity is not None else None)
+    return pts[keep], (intensity[keep] if intensity is not None else None), \
+        (offsets[keep].astype(np.int64) if offsets is not None else None)
 
 
 def camera_info(msg) -> tuple[float, float, float, float, tuple[int, int]]:

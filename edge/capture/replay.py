@@ -388,11 +388,12 @@ class McapSource(Source):
         elif topic == t.gt:
             yield GroundTruth(self._stamp(decoded, log_time), decode_image(decoded))
         elif topic == t.lidar:
-            pts, inten = decode_points(decoded)
+            pts, inten, offsets = decode_points(decoded)
             self.stats.scans += 1
             stamp = self._stamp(decoded, log_time)
             self._check_order("scan", stamp)
-            yield LidarScan(stamp, pts, inten)
+            yield LidarScan(stamp, pts, inten,
+                            None if offsets is None else stamp + offsets)
         else:  # left or right image
             stamp = self._stamp(decoded, log_time)
             image = decode_image(decoded)
