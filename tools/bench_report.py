@@ -82,8 +82,12 @@ def host_line(cpu: dict) -> str:
     """'host: AMD EPYC 7B13; ISA AVX2, AVX-512, AVX512-VNNI; int8 dot product: yes': the
     benchmark's first line."""
     dot = {True: "yes", False: "no", None: "unknown"}[cpu["int8_dot_product"]]
-    return (f"host: {cpu['model']}; ISA {', '.join(cpu['isa']) or 'unknown'}; int8 dot "
+    line = (f"host: {cpu['model']}; ISA {', '.join(cpu['isa']) or 'unknown'}; int8 dot "
             f"product: {dot}; {os.cpu_count()} cores")
+    limit = os.environ.get("ONEDNN_MAX_CPU_ISA")
+    if limit:  # an AVX2 CPU's kernels on this one: the graphs' share, not that CPU's times
+        line += f"; OpenVINO's kernels limited to {limit} (ONEDNN_MAX_CPU_ISA)"
+    return line
 
 
 def machine_line(m: dict) -> str:
