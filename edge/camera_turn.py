@@ -1,5 +1,6 @@
 """The camera's turn about its vertical axis between consecutive frames, from the images alone:
-what a LiDAR–camera clock offset turns into a rotation (`edge.calibration_watch`)."""
+what a LiDAR–camera clock offset turns into a rotation (`edge.calibration_watch`), and what
+moves a LiDAR point between its own time and the frame's (`deskew`)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,8 @@ from collections import deque
 
 import cv2
 import numpy as np
+
+from edge_depth.calibration.projection import transform_points
 
 SCALE = 4  # the turn measured on images this many times smaller
 MAX_GAP_S = 0.5  # ... of frames no further apart than this
@@ -72,3 +75,24 @@ class TurnMeter:
         f = self.focal_px
         spread = 1.0 + (a.shape[1] * SCALE / (2 * f)) ** 2 / 3
         return float(np.degrees(dx * SCALE / f) / dt / spread)
+
+
+def turned_points(points: np.ndarray, T_cam_lidar: np.ndarray, yaw_rad) -> np.ndarray:
+    """LiDAR points (N, 3) as the camera sees them after it turned by `yaw_rad` (a scalar or
+    one per point) about its vertical axis: X_cam -> R_y(yaw)^T X_cam; LiDAR frame in and
+    out, float32."""
+    cam = transform_points(T_cam_lidar, points)
+    c, s = np.cos(yaw_rad), np.sin(yaw_rad)
+    turned = np.stack([c * cam[:, 0] - s * cam[:, 2], cam[:, 1], s * cam[:, 0] + c * cam[:, 2]],
+                      1)
+    return transform_points(np.linalg.inv(T_cam_lidar), turned).astype(np.float32)
+
+
+def deskew(points: np.ndarray, times_ns: np.ndarray, frame_ns: int, turn_dps: float,
+           T_cam_lidar: np.ndarray) -> np.ndarray:
+    """LiDAR points moved to where the camera sees them at the frame's time: each turned by
+    the camera's turn between the point's own time and the frame's (`TurnMeter.rate`, deg/s;
+    a positive rate moves the image's content right). `times_ns`: (N,) or one stamp, in the
+    camera's clock."""
+    gap_s = (frame_ns - np.asarray(times_ns, np.int64)) / 1e9
+    return turned_points(points, T_cam_lidar, -np.radians(turn_dps) * gap_s)

@@ -314,7 +314,8 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
             pipeline = Pipeline(engine, stereo, lidar, logger, e.iters or None,
                                 e.deadline_ms or None,
                                 SyncConfig(mode, config.sync.window_ms,
-                                           max_wait_ms=config.sync.max_wait_ms),
+                                           max_wait_ms=config.sync.max_wait_ms,
+                                           deskew=config.sync.deskew),
                                 log_raw=lg.raw, watch_every=config.calibration.watch_every)
             print(f"edge-depth run: {config.camera.source} camera, LiDAR {config.lidar.model}"
                   f" (sync {mode}{' by the model' if config.sync.mode == 'auto' else ''}),"

@@ -23,6 +23,8 @@
                                 # "auto": by lidar.model (sim: nearest; the others: accumulate)
     window_ms = 100.0
     max_wait_ms = 200.0         # a frame waits this long for the scans that cover it
+    deskew = true               # each point moved by the camera's turn (from the frames)
+                                # between its own time and the frame's
 
     [engine]                    # every key of edge.runtime.options.EngineOptions, with its
     iters = 4                   # default and doc (docs/configuration.md's table is made
@@ -84,6 +86,7 @@ class SyncSection:
     mode: str = "auto"
     window_ms: float = 100.0
     max_wait_ms: float = 200.0  # how long a frame waits for the scans that cover it
+    deskew: bool = True  # the points moved by the camera's turn (edge.camera_turn.deskew)
 
 
 # sync.mode "auto": the sim LiDAR is a spinning 3-D one with a revolution per frame; the

@@ -12,6 +12,7 @@ the live runner overlaps them in threads. The commands that wire this up (`run`,
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import threading
 import time
@@ -24,6 +25,7 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_verdict import fixes
 from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
+from edge_depth.camera_turn import TurnMeter, deskew
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
@@ -67,6 +69,8 @@ class Prepared:
 
 
 HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
+# the least a point must move by the camera's turn for the frame's points to be deskewed
+DESKEW_MIN_PX = 0.25
 
 
 @dataclass
@@ -82,6 +86,8 @@ class PipelineStats:
     window: list[dict] = field(default_factory=list)
     metrics: list[dict] = field(default_factory=list)
     done: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # monotonic s
+    # the frames whose points were deskewed: the most a point moved, px
+    deskewed: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     source_failed: bool = False
     fatal: str | None = None  # why the run stopped early (FatalInputError), if it did
 
@@ -125,9 +131,10 @@ class Pipeline:
         self.set_calibration(stereo, lidar)
         sync = sync or SyncConfig()
         if lidar is not None and sync.time_offset_ns == 0:
-            sync = SyncConfig(sync.mode, sync.window_ms, lidar.time_offset_ns, sync.keep_s,
-                              sync.max_wait_ms)
+            sync = dataclasses.replace(sync, time_offset_ns=lidar.time_offset_ns)
         self.sync = LidarSync(sync)
+        # the camera's turn between the frames prepared, for deskewing the points
+        self.turn = TurnMeter(stereo.focal_px) if sync.deskew and engine is not None else None
         self.stats = PipelineStats()
         self.health = OutputHealth()
         self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
@@ -228,10 +235,15 @@ class Pipeline:
         with self._lock:
             points = self.sync.points_for(frame.stamp_ns)
             points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
+            times = self.sync.last_points_times_ns
         if self.lidar is not None:
             self._check_pairing(frame.stamp_ns, len(points) > 0)
+        if self.turn is not None and self.lidar is not None:
+            self.turn.frame(frame.stamp_ns, left)
         if len(points) and self.lidar is not None:
-            sparse = self._project(points)
+            assert points_stamp_ns is not None
+            sparse = self._project(points, frame.stamp_ns,
+                                   points_stamp_ns if times is None else times)
         else:
             sparse = np.zeros(left.shape, np.float32)
         t2 = time.perf_counter()
@@ -239,14 +251,26 @@ class Pipeline:
             rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
             points=points if len(points) else None, points_stamp_ns=points_stamp_ns)
 
-    def _project(self, points: np.ndarray) -> np.ndarray:
-        """The points' sparse disparity, projected once per scan: frames paired with the same
-        scan (a 10 Hz LiDAR beside a 30 Hz camera) reuse its map (read-only downstream)."""
+    def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
+        """The points' sparse disparity. While the camera turns, each point is first moved by
+        the turn between its own time (`times_ns`: (N,) or the scan's stamp, camera clock)
+        and the frame's, where that moves one by DESKEW_MIN_PX or more; otherwise projected
+        once per scan: frames paired with the same scan (a 10 Hz LiDAR beside a 30 Hz
+        camera) reuse its map (read-only downstream)."""
+        assert self.lidar is not None
+        T = self.lidar.T_cam_lidar
+        rate = self.turn.rate() if self.turn is not None else float("nan")
+        if np.isfinite(rate):
+            gap_s = np.max(np.abs(frame_ns - np.asarray(times_ns, np.int64))) / 1e9
+            moved_px = np.radians(abs(rate)) * gap_s * self.focal_px
+            if moved_px >= DESKEW_MIN_PX:
+                self.stats.deskewed.append(moved_px)
+                return project_to_disparity(deskew(points, times_ns, frame_ns, rate, T),
+                                            self.stereo, T)[0]
         last = self._projected
         if last is not None and last[0] is points:
             return last[1]
-        assert self.lidar is not None
-        sparse, _ = project_to_disparity(points, self.stereo, self.lidar.T_cam_lidar)
+        sparse, _ = project_to_disparity(points, self.stereo, T)
         self._projected = (points, sparse)
         return sparse
 
@@ -358,6 +382,9 @@ def lidar_summary(pipeline: Pipeline) -> str:
                  f"{pipeline.sync.median_gap_ms():+.0f} ms)")
     if counters["frames_gone_before_their_scans"]:
         line += f"; {counters['frames_gone_before_their_scans']} went on before their scans arrived"
+    if stats.deskewed:
+        line += (f"; deskewed by the camera's turn in {len(stats.deskewed)} frames (points "
+                 f"moved up to a median {np.median(stats.deskewed):.1f} px)")
     return line
 
 

@@ -73,15 +73,16 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
     vertical axis, a new scene every `hold` frames. Each frame is the scene's pair rotated by
     θ at the frame's time (a rotation about a camera's centre is a homography of its image;
     both views get the same one, which leaves the pair rectified to within 0.7 px at 3°); each
-    scan holds the scene's points as the LiDAR saw each at its own time, is stamped by its
-    forward middle (what the camera sees) `lidar_lag_ms` before its frame, and swept that
+    scan holds the scene's points as the LiDAR saw each at its own time (with each point's
+    stamp), is stamped by its forward middle (what the camera sees) `lidar_lag_ms` before its
+    frame, and swept that
     middle `lidar_clock_ms` before its stamp says: stamps that run late (a USB adapter's
     latency) by an offset the calibration's `time_offset_ns` does not know of, whose right
     value is then −lidar_clock_ms. No ground truth. Returns the number of messages."""
     import cv2
     import numpy as np
 
-    from edge_depth.calibration.projection import transform_points
+    from edge_depth.camera_turn import turned_points
     from edge_depth.mcap_log import RAW_TOPICS, McapLogger
     from edge_depth.sim import make_sample
     from edge_depth.types import LidarScan, StereoFrame
@@ -106,11 +107,7 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
         start_ns = forward_ns - int(lidar_clock_ms * 1e6) - int(np.median(offsets))
         yaw = np.radians(amplitude_deg) * np.sin(
             2 * np.pi * (start_ns + offsets - 1_000_000_000) / 1e9 / turn_period_s)
-        cam = transform_points(T, scan.points)
-        c, s_ = np.cos(yaw), np.sin(yaw)
-        turned = np.stack([c * cam[:, 0] - s_ * cam[:, 2], cam[:, 1],
-                           s_ * cam[:, 0] + c * cam[:, 2]], 1)
-        return transform_points(np.linalg.inv(T), turned).astype(np.float32)
+        return turned_points(scan.points, T, yaw)
 
     with McapLogger(path, topics=RAW_TOPICS) as logger:
         logger.set_calibration(stereo, extrinsics)
@@ -122,7 +119,11 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
             stamp = 1_000_000_000 + int(i * period_ms * 1e6)
             # the revolution stamped `lidar_lag_ms` before its frame
             forward_ns = stamp - int(lidar_lag_ms * 1e6)
-            logger.log_scan(LidarScan(forward_ns, scan_points(sample.scan, forward_ns)))
+            # each point's own stamp, off by the scan's clock error as its stamp is
+            offsets = sample.scan.point_stamps_ns - sample.scan.stamp_ns
+            stamps = forward_ns + offsets - int(np.median(offsets))
+            logger.log_scan(LidarScan(forward_ns, scan_points(sample.scan, forward_ns), None,
+                                      stamps.astype(np.int64)))
             H = K @ rotation(i * period_ms / 1000).T @ np.linalg.inv(K)
             size = (rig.width, rig.height)
             left, right = (cv2.warpPerspective(im, H, size, flags=cv2.INTER_LINEAR,

@@ -233,7 +233,7 @@ def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_proces
                                                  frames_gone_before_their_scans=0),
                            median_gap_ms=lambda: 40.0)
     pipeline = SimpleNamespace(sync=sync, lidar=object(),
-                               stats=SimpleNamespace(frames=135, scans=300))
+                               stats=SimpleNamespace(frames=135, scans=300, deskewed=[]))
     line = lidar_summary(pipeline)
     assert line.startswith("frames with LiDAR: 293 of 300 paired (165 of them dropped before "
                            "the engine)")

@@ -33,6 +33,9 @@ class SyncConfig:
     time_offset_ns: int = 0
     keep_s: float = 2.0
     max_wait_ms: float | None = None  # None: twice the window (about two LiDAR periods)
+    # each point moved by the camera's turn between its own time and the frame's, where the
+    # frames show one (`edge.camera_turn.deskew`; the daemon and replay)
+    deskew: bool = True
 
     def __post_init__(self) -> None:
         if self.mode not in ("nearest", "accumulate"):
@@ -57,8 +60,9 @@ class LidarSync:
         self._newest_ns: int | None = None  # latest stamp covered by any scan (LiDAR clock)
         self._gaps_ns: deque[int] = deque(maxlen=50)  # unmatched: nearest scan − frame
         self._stamps: deque[int] = deque(maxlen=16)   # recent scan stamps, for the period
-        # the last points returned: their (median) stamp in the camera's clock
+        # the last points returned: their (median) stamp and each one's, in the camera's clock
         self.last_points_stamp_ns: int | None = None
+        self.last_points_times_ns: np.ndarray | None = None
 
     def add(self, scan: LidarScan) -> None:
         """Keep a scan (non-finite points dropped); forget scans older than keep_s."""
@@ -128,6 +132,8 @@ class LidarSync:
             if best is not None and abs(best.stamp_ns + offset - stamp_ns) <= half \
                     and len(best):
                 self.last_points_stamp_ns = best.stamp_ns + offset
+                self.last_points_times_ns = None if best.point_stamps_ns is None \
+                    else best.point_stamps_ns + offset
                 return best.points
         else:
             chunks, times = [], []
@@ -139,6 +145,7 @@ class LidarSync:
                     chunks.append(scan.points[keep])
                     times.append(stamps[keep])
             if chunks:
-                self.last_points_stamp_ns = int(np.median(np.concatenate(times)))
+                self.last_points_times_ns = np.concatenate(times)
+                self.last_points_stamp_ns = int(np.median(self.last_points_times_ns))
                 return np.concatenate(chunks)
         return np.zeros((0, 3), np.float32)

@@ -1,0 +1,70 @@
+"""LiDAR points deskewed by the camera's turn: each point moved by the turn between its own
+time and the frame's, the turn measured from the frames themselves (`edge.camera_turn`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge_depth.calibration.projection import project_to_disparity
+from edge_depth.camera_turn import deskew, turned_points
+from edge_depth.capture.replay import McapSource
+from edge_depth.capture.sim import SimSource
+from edge_depth.capture.sync import SyncConfig
+from edge_depth.daemon import Pipeline
+from edge_depth.sim import RigConfig, make_sample
+from edge_depth.sim_recording import write_turning_recording
+from edge_depth.types import LidarScan, StereoFrame
+
+T0 = 1_000_000_000
+
+
+def test_deskew_turns_each_point_by_the_turn_since_its_own_time():
+    rng = np.random.default_rng(0)
+    T = SimSource(1, 0).calibration[1].T_cam_lidar
+    scene = rng.uniform([-3, -1, 2], [3, 1, 9], (200, 3)).astype(np.float32)  # LiDAR frame
+    omega = np.radians(30.0)  # the robot's yaw rate, rad/s
+    times = T0 + rng.integers(-100_000_000, 0, 200)  # swept over the 100 ms before
+    frame_ns = T0 + 20_000_000
+    seen = turned_points(scene, T, omega * (times - T0) / 1e9)
+    truth = turned_points(scene, T, omega * (frame_ns - T0) / 1e9)
+    # the turn meter reads a turn that moves the image's content right as positive: -omega
+    fixed = deskew(seen, times, frame_ns, -np.degrees(omega), T)
+    assert np.abs(seen - truth).max() > 0.05  # metres: the skew is there
+    np.testing.assert_allclose(fixed, truth, atol=1e-4)
+    # one stamp for the whole scan: every point turned by the same angle
+    one = deskew(seen[:1], np.int64(times[0]), frame_ns, -np.degrees(omega), T)
+    np.testing.assert_allclose(one, truth[:1], atol=1e-4)
+
+
+def sparse_misses(tmp_path, engine, deskewed: bool) -> tuple[float, int]:
+    """On a robot turning at up to ~30 deg/s whose LiDAR points are 40 ms older than their
+    frames: the share of the true sparse map's points the pipeline's map misses (no point
+    within 0.5 px of the same disparity at that pixel), and the frames deskewed."""
+    rig = RigConfig(width=320, height=200, focal_px=225.0, max_disparity_px=30.0)
+    path = tmp_path / "turning.mcap"
+    write_turning_recording(path, 8, 1_000_000, rig, period_ms=1000 / 30, lidar_lag_ms=40.0,
+                            amplitude_deg=10.0, turn_period_s=2.0, hold=8)
+    stereo, extrinsics = SimSource(1, 1_000_000, rig).calibration
+    T = extrinsics.T_cam_lidar
+    truth_points = make_sample(1_000_000, rig, "beams16").scan.points
+    pipeline = Pipeline(engine, stereo, extrinsics, sync=SyncConfig(deskew=deskewed))
+    misses = []
+    for event in McapSource(path):
+        if isinstance(event, LidarScan):
+            pipeline.on_scan(event)
+        if not isinstance(event, StereoFrame):
+            continue
+        prepared = pipeline.prepare(event)
+        assert prepared is not None
+        yaw = np.radians(10.0) * np.sin(2 * np.pi * (event.stamp_ns - T0) / 1e9 / 2.0)
+        truth, valid = project_to_disparity(turned_points(truth_points, T, yaw), stereo, T)
+        near = np.abs(prepared.sparse - truth) < 0.5
+        misses.append(1.0 - near[valid].mean())
+    return float(np.median(misses[1:])), len(pipeline.stats.deskewed)  # from the 2nd: a turn
+
+
+def test_the_pipeline_deskews_a_turning_robots_points(tmp_path, engine):
+    raw, none = sparse_misses(tmp_path, engine, deskewed=False)
+    fixed, frames = sparse_misses(tmp_path, engine, deskewed=True)
+    assert none == 0 and frames >= 6
+    assert raw > 0.3 and fixed < 0.2, (raw, fixed)  # measured: 0.38 and 0.13
