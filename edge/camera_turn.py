@@ -19,6 +19,8 @@ MIN_RESPONSE = 0.5
 # two frames match and are this close (px at 1/SCALE): the camera sees the same view (a robot
 # standing still), and a sample of it says nothing the last one did not
 SAME_VIEW_PX = 0.5
+# the least a point must move by the camera's turn for a frame's points to be deskewed
+DESKEW_MIN_PX = 0.25
 
 
 class TurnMeter:
@@ -96,3 +98,21 @@ def deskew(points: np.ndarray, times_ns: np.ndarray, frame_ns: int, turn_dps: fl
     camera's clock."""
     gap_s = (frame_ns - np.asarray(times_ns, np.int64)) / 1e9
     return turned_points(points, T_cam_lidar, -np.radians(turn_dps) * gap_s)
+
+
+def deskew_shift_px(times_ns, frame_ns: int, turn_dps: float, focal_px: float) -> float:
+    """The most the camera's turn moves one of the points (px at the image centre); 0 where
+    the turn is not measured."""
+    if not np.isfinite(turn_dps):
+        return 0.0
+    gap_s = np.max(np.abs(frame_ns - np.asarray(times_ns, np.int64))) / 1e9
+    return float(np.radians(abs(turn_dps)) * gap_s * focal_px)
+
+
+def deskewed(points: np.ndarray, times_ns, frame_ns: int, turn_dps: float, focal_px: float,
+             T_cam_lidar: np.ndarray) -> np.ndarray:
+    """`deskew` where the turn moves a point by DESKEW_MIN_PX or more, else the points as
+    they are."""
+    if deskew_shift_px(times_ns, frame_ns, turn_dps, focal_px) < DESKEW_MIN_PX:
+        return points
+    return deskew(points, times_ns, frame_ns, turn_dps, T_cam_lidar)

@@ -25,7 +25,7 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_verdict import fixes
 from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
-from edge_depth.camera_turn import TurnMeter, deskew
+from edge_depth.camera_turn import DESKEW_MIN_PX, TurnMeter, deskew, deskew_shift_px
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
@@ -69,8 +69,6 @@ class Prepared:
 
 
 HISTORY = 10_000  # frames of timings kept for summaries: a daemon runs for days
-# the least a point must move by the camera's turn for the frame's points to be deskewed
-DESKEW_MIN_PX = 0.25
 
 
 @dataclass
@@ -260,13 +258,11 @@ class Pipeline:
         assert self.lidar is not None
         T = self.lidar.T_cam_lidar
         rate = self.turn.rate() if self.turn is not None else float("nan")
-        if np.isfinite(rate):
-            gap_s = np.max(np.abs(frame_ns - np.asarray(times_ns, np.int64))) / 1e9
-            moved_px = np.radians(abs(rate)) * gap_s * self.focal_px
-            if moved_px >= DESKEW_MIN_PX:
-                self.stats.deskewed.append(moved_px)
-                return project_to_disparity(deskew(points, times_ns, frame_ns, rate, T),
-                                            self.stereo, T)[0]
+        moved_px = deskew_shift_px(times_ns, frame_ns, rate, self.focal_px)
+        if moved_px >= DESKEW_MIN_PX:
+            self.stats.deskewed.append(moved_px)
+            return project_to_disparity(deskew(points, times_ns, frame_ns, rate, T),
+                                        self.stereo, T)[0]
         last = self._projected
         if last is not None and last[0] is points:
             return last[1]

@@ -81,7 +81,8 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
     stride = 1
     counts: dict[str, int] = {}
     for i, (event, left, right, points, gt) in enumerate(
-            synced_frames(recording, stereo, offset, topics=topic_map, counters=counts)):
+            synced_frames(recording, stereo, offset, topics=topic_map, counters=counts,
+                          deskew_with=None if lidar is None else lidar.T_cam_lidar)):
         if i % stride:
             continue
         sparse = {side: np.zeros(left.shape, np.float32) for side in ("left", "right")}

@@ -7,6 +7,9 @@ from __future__ import annotations
 from collections import deque
 from pathlib import Path
 
+import numpy as np
+
+from edge_depth.camera_turn import TurnMeter, deskewed
 from edge_depth.capture.replay import McapSource, TopicMap
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.types import GroundTruth, LidarScan, StereoFrame
@@ -14,7 +17,7 @@ from edge_depth.types import GroundTruth, LidarScan, StereoFrame
 
 def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
                   topics: TopicMap | None = None, counters: dict | None = None,
-                  max_wait_ms: float | None = None):
+                  max_wait_ms: float | None = None, deskew_with: np.ndarray | None = None):
     """Each frame of a recording with its LiDAR and ground truth, for offline use (training,
     adapt, the extrinsics check): yields (frame as recorded, rectified left, rectified right,
     points (N, 3) of the revolution nearest in time (0 rows if none), GT disparity or None).
@@ -26,18 +29,33 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
     stores them before. `stereo` rectifies frames the recording did not store rectified;
     `time_offset_ns` moves LiDAR stamps into the camera clock; `topics` maps a ROS 2 bag's.
     `counters`, if given, receives the sync's counts when the recording ends
-    (frames_with_lidar, frames_without_lidar, ...)."""
-    for frame, left, right, points, _, gt in stamped_frames(path, stereo, time_offset_ns,
-                                                            window_ms, topics, counters,
-                                                            max_wait_ms):
+    (frames_with_lidar, frames_without_lidar, ...). `deskew_with`: the calibration's
+    T_cam_lidar, to deskew the points by the camera's turn as the daemon does
+    (`edge.camera_turn.deskew`; where a point would move by DESKEW_MIN_PX or more)."""
+    turn = None if deskew_with is None else TurnMeter(stereo.focal_px)
+    for frame, left, right, points, stamp, times, gt in _paired_frames(
+            path, stereo, time_offset_ns, window_ms, topics, counters, max_wait_ms):
+        if turn is not None:
+            turn.frame(frame.stamp_ns, left)
+            if len(points) and stamp is not None:
+                points = deskewed(points, stamp if times is None else times, frame.stamp_ns,
+                                  turn.rate(), stereo.focal_px, deskew_with)
         yield frame, left, right, points, gt
 
 
 def stamped_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
                    topics: TopicMap | None = None, counters: dict | None = None,
                    max_wait_ms: float | None = None):
-    """`synced_frames` with the points' stamp in the camera's clock (None without points):
-    yields (frame, left, right, points, points' stamp, GT or None)."""
+    """`synced_frames` with the points' stamp in the camera's clock (None without points),
+    never deskewed: yields (frame, left, right, points, points' stamp, GT or None)."""
+    for frame, left, right, points, stamp, _, gt in _paired_frames(
+            path, stereo, time_offset_ns, window_ms, topics, counters, max_wait_ms):
+        yield frame, left, right, points, stamp, gt
+
+
+def _paired_frames(path: str | Path, stereo, time_offset_ns: int, window_ms: float,
+                   topics: TopicMap | None, counters: dict | None, max_wait_ms: float | None):
+    """(frame, left, right, points, points' stamp, each point's time or None, GT or None)."""
     sync = LidarSync(SyncConfig("nearest", window_ms, time_offset_ns, max_wait_ms=max_wait_ms))
     wait_ns = sync.config.wait_ms * 1e6
     rectifier = stereo.rectifier()
@@ -57,7 +75,8 @@ def stamped_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms:
             left, right = rectifier.pair(frame)
             points = sync.points_for(stamp)
             yield (frame, left, right, points,
-                   sync.last_points_stamp_ns if len(points) else None, gt)
+                   sync.last_points_stamp_ns if len(points) else None,
+                   sync.last_points_times_ns if len(points) else None, gt)
 
     for event in McapSource(path, topics):
         if isinstance(event, GroundTruth):  # joins its frame; never moves the stream on

@@ -81,7 +81,8 @@ def mcap_arrays(path: Path):
                           "a CameraInfo pair)", str(path))
     stereo, lidar, _ = found
     offset = lidar.time_offset_ns if lidar else 0
-    for _, left, right, points, gt in synced_frames(path, stereo, offset):
+    T = None if lidar is None else lidar.T_cam_lidar
+    for _, left, right, points, gt in synced_frames(path, stereo, offset, deskew_with=T):
         sparse = sparse_right = None
         if lidar is not None and len(points):
             sparse, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar, "left")
