@@ -84,6 +84,7 @@ class PipelineStats:
     window: list[dict] = field(default_factory=list)
     metrics: list[dict] = field(default_factory=list)
     done: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # monotonic s
+    watch_ms: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # each sample's
     # the frames whose points were deskewed: the most a point moved, px
     deskewed: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     source_failed: bool = False
@@ -205,11 +206,13 @@ class Pipeline:
 
     def on_frame(self, frame: StereoFrame, gt: np.ndarray | None = None,
                  sync_wait_ms: float = 0.0) -> FrameOutput | None:
-        """The three stages in a row (replay, the demo, tests)."""
+        """The three stages in a row (replay, the demo, tests), then the watch's sample."""
         prepared = self.prepare(frame, gt, sync_wait_ms)
         if prepared is None:
             return None
-        return self.finish(prepared, self.infer(prepared))
+        out = self.finish(prepared, self.infer(prepared))
+        self.watch_sample(prepared)
+        return out
 
     def prepare(self, frame: StereoFrame, gt: np.ndarray | None = None,
                 sync_wait_ms: float = 0.0) -> Prepared | None:
@@ -279,12 +282,12 @@ class Pipeline:
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,
                                    baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,
                                    started=p.t0)
-        self._watch(p)
         return result
 
-    def _watch(self, p: Prepared) -> None:
-        """A sample of the calibration watch when one is due: after the frame's inference, on
-        the engine's thread; its ms go in the frame's timings as "watch"."""
+    def watch_sample(self, p: Prepared) -> None:
+        """The calibration watch's turn meter, and a sample when one is due: after the frame's
+        inference on the engine's thread (its network is the reference), once the result is
+        handed on, so no frame's latency carries it; a sample's ms go in `stats.watch_ms`."""
         watch = self.watch
         if watch is None or self.engine is None:
             return
@@ -298,7 +301,7 @@ class Pipeline:
             watch.add(stereo_reference(self.engine), p.points, gap_s)
         except Exception as exc:  # noqa: BLE001 - the watch must never stop the daemon
             self.stats.count_error("calibration_watch", exc)
-        p.timings["watch"] = (time.perf_counter() - t) * 1000
+        self.stats.watch_ms.append((time.perf_counter() - t) * 1000)
 
     def finish(self, p: Prepared, result: DepthResult) -> FrameOutput:
         """Stage 3: log, count, score against ground truth. `frame` in the timings is the
@@ -353,6 +356,9 @@ def watch_summary(pipeline: Pipeline, recording: str | None = None,
         return None
     estimate = watch.estimate()
     line = f"LiDAR-camera calibration watch: {estimate.describe()}"
+    if samples := pipeline.stats.watch_ms:
+        line += (f" ({len(samples)} samples, median {np.median(samples):.0f} ms each, between "
+                 "frames)")
     offset = 0 if pipeline.lidar is None else pipeline.lidar.time_offset_ns
     if todo := fixes(estimate, recording, calibration, offset):
         line += f"; {todo}"

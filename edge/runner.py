@@ -155,6 +155,8 @@ class Runner:
         if prepared is not None:
             result = self._infer(prepared)
             out = None if result is None else self._finish(prepared, result)
+            if result is not None:
+                self._guarded(self.pipeline.watch_sample, prepared)
         self._after(frame, out)
 
     def _prepare(self, frame: StereoFrame, sync_wait_ms: float = 0.0):
@@ -317,6 +319,8 @@ class Runner:
                 to_log.put(None if result is None else (item, result))
                 if result is None:
                     self._after(item.frame, None)  # skipped: still counts for the stops
+                else:  # the frame is on its way: the watch's sample delays none
+                    self._guarded(self.pipeline.watch_sample, item)
             to_log.put(StopIteration)
 
         def log_loop() -> None:

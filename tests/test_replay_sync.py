@@ -306,3 +306,39 @@ def test_native_replays_a_1242x375_recording_at_its_size_without_torch(tmp_path)
 
     images = foxglove_images(out, TOPICS["disparity"])
     assert [image.shape for image in images] == [(375, 1242)] * 2
+
+
+def test_the_watchs_sample_runs_after_its_frame_is_handed_to_the_logging_thread(engine):
+    """Pipelined, a frame's latency must not carry the calibration watch's sample (20–60 ms
+    of the engine's thread): the sample waits until its own frame is being finished, which
+    it could not if it ran before the hand-off (it would wait out its timeout)."""
+    import threading
+
+    from edge_depth.runner import Runner
+
+    moments = sim_events(3, 5.0)
+    pipeline = Pipeline(engine, *SimSource(1).calibration, watch_every=1)
+    finishing: dict[int, threading.Event] = {}
+    order = []
+    finish = pipeline.finish
+
+    def finish_noting(p, result):
+        finishing.setdefault(p.frame.stamp_ns, threading.Event()).set()
+        return finish(p, result)
+
+    def sample_after_its_frame(p):
+        seen = finishing.setdefault(p.frame.stamp_ns, threading.Event()).wait(timeout=20)
+        order.append((p.frame.stamp_ns, seen))
+
+    pipeline.finish = finish_noting
+    pipeline.watch_sample = sample_after_its_frame
+    class Source:
+        def __iter__(self):
+            return (e for scan, frame, gt in moments for e in (scan, frame, gt))
+
+        def close(self) -> None:
+            pass
+
+    stats = Runner(Source(), pipeline, threaded=True, pipelined=True).run()
+    assert stats.frames >= 1 and len(order) == stats.frames  # live: some may drop
+    assert all(seen for _, seen in order), order
