@@ -52,8 +52,9 @@ def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monk
     assert host_line(backends.cpu_description(xeon)).startswith(
         "host: Intel Xeon; ISA AVX2, AVX-512, AVX512-VNNI; int8 dot product: yes")
     monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")  # an AVX2 CPU's kernels, emulated
+    monkeypatch.setenv("OPENCV_CPU_DISABLE", "AVX512-SKX")
     assert host_line(backends.cpu_description(xeon)).endswith(
-        "; OpenVINO's kernels limited to AVX2 (ONEDNN_MAX_CPU_ISA)")
+        "; kernels limited: OpenVINO/oneDNN up to AVX2, OpenCV without AVX512-SKX")
 
 
 def test_an_unknown_or_missing_runtime_is_one_clear_error(monkeypatch):

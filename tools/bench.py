@@ -334,9 +334,9 @@ def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[floa
         assert pipeline.watch is not None
         pipeline.watch.estimate()  # the runner's /diagnostics asks after each new sample
         estimate_ms = (time.perf_counter() - t) * 1000
-        timings, samples = pipeline.stats.timings[-1], pipeline.stats.watch_ms
-        if len(samples) > len(out):  # a sample was taken on this frame
-            out.append((samples[-1] + estimate_ms, timings["frame"]))
+        taken = pipeline.stats.watch_ms
+        if len(taken) > len(out):  # a sample was taken on this frame
+            out.append((taken[-1] + estimate_ms, pipeline.stats.timings[-1]["frame"]))
     return out
 
 

@@ -84,10 +84,19 @@ def host_line(cpu: dict) -> str:
     dot = {True: "yes", False: "no", None: "unknown"}[cpu["int8_dot_product"]]
     line = (f"host: {cpu['model']}; ISA {', '.join(cpu['isa']) or 'unknown'}; int8 dot "
             f"product: {dot}; {os.cpu_count()} cores")
-    limit = os.environ.get("ONEDNN_MAX_CPU_ISA")
-    if limit:  # an AVX2 CPU's kernels on this one: the graphs' share, not that CPU's times
-        line += f"; OpenVINO's kernels limited to {limit} (ONEDNN_MAX_CPU_ISA)"
+    # another CPU's instruction sets emulated here: its kernels' share, not that CPU's times
+    limits = [f"{name} {os.environ[var]}" for var, name in KERNEL_LIMITS if os.environ.get(var)]
+    if limits:
+        line += f"; kernels limited: {', '.join(limits)}"
     return line
+
+
+# the environment variables that keep a library's kernels off instruction sets this CPU has
+# (`experiments/avx2_kernels.sh` sets them all: an AVX2-only CPU's kernels, docs/speed.md)
+KERNEL_LIMITS = (("ONEDNN_MAX_CPU_ISA", "OpenVINO/oneDNN up to"),
+                 ("OPENCV_CPU_DISABLE", "OpenCV without"),
+                 ("NPY_DISABLE_CPU_FEATURES", "NumPy without"),
+                 ("OPENBLAS_CORETYPE", "OpenBLAS as"))
 
 
 def machine_line(m: dict) -> str:
