@@ -153,6 +153,8 @@ class Pipeline:
         self._projected: tuple[np.ndarray, np.ndarray] | None = None  # (points, their map)
         self.watch = None if lidar is None or self.watch_every < 1 else \
             CalibrationWatch(stereo, lidar.T_cam_lidar, self.watch_every)
+        if getattr(self, "turn", None) is not None:  # a recording's own calibration, later
+            self.turn = TurnMeter(stereo.focal_px)
         if self.logger is not None:
             self.logger.set_calibration(stereo, lidar)
 
