@@ -127,13 +127,15 @@ class Pipeline:
         self.engine, self.logger = engine, logger
         self.iters, self.deadline_ms, self.log_raw = iters, deadline_ms, log_raw
         self.watch_every = watch_every if engine is not None else 0
+        # the camera's turn between the frames prepared, for deskewing the points
+        self.turn: TurnMeter | None = None
         self.set_calibration(stereo, lidar)
         sync = sync or SyncConfig()
         if lidar is not None and sync.time_offset_ns == 0:
             sync = dataclasses.replace(sync, time_offset_ns=lidar.time_offset_ns)
         self.sync = LidarSync(sync)
-        # the camera's turn between the frames prepared, for deskewing the points
-        self.turn = TurnMeter(stereo.focal_px) if sync.deskew and engine is not None else None
+        if sync.deskew and engine is not None:
+            self.turn = TurnMeter(stereo.focal_px)
         self.stats = PipelineStats()
         self.health = OutputHealth()
         self._unpaired_since_ns: int | None = None  # first frame of a run without LiDAR
@@ -153,7 +155,7 @@ class Pipeline:
         self._projected: tuple[np.ndarray, np.ndarray] | None = None  # (points, their map)
         self.watch = None if lidar is None or self.watch_every < 1 else \
             CalibrationWatch(stereo, lidar.T_cam_lidar, self.watch_every)
-        if getattr(self, "turn", None) is not None:  # a recording's own calibration, later
+        if self.turn is not None:  # a recording's own calibration, later
             self.turn = TurnMeter(stereo.focal_px)
         if self.logger is not None:
             self.logger.set_calibration(stereo, lidar)
