@@ -6,6 +6,8 @@
 # engine against the shipped one, alternated frame by frame, on this host's kernels and with
 # OpenVINO's limited to AVX2.
 #     bash experiments/judge_candidate.sh CHECKPOINT OUT_DIR [fit|carry]
+# SHIPPED_FROM=runs/judge_X: the shipped bundle's evaluations taken from an earlier judgement
+# (the same data and commands) instead of run again.
 set -euo pipefail
 CKPT=$1
 OUT=$2
@@ -36,6 +38,11 @@ for iters in 4 3; do
   for data in aloe motorcycle aloe_r8 motorcycle_r8 test16; do
     for model in edge/models/default "$BUNDLE"; do
       tag=$(basename "$(dirname "$model")")_$(basename "$model")
+      kept="${SHIPPED_FROM:-}/eval_${data}_${iters}_${tag}.json"
+      if [ "$model" = edge/models/default ] && [ -n "${SHIPPED_FROM:-}" ] && [ -f "$kept" ]; then
+        cp "$kept" "$OUT/"
+        continue
+      fi
       "$BIN/python" tools/evaluate.py "data/$data" --model "$model" --methods net --no-lidar \
         --runtime onnxruntime --precision int8 --iters "$iters" \
         --json "$OUT/eval_${data}_${iters}_${tag}.json" > /dev/null
