@@ -179,3 +179,13 @@ def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys
     assert asked == ["bf16", "f32"] and not session.bf16 and outputs
     assert "could not compile upsample.onnx in bf16 (object is not initialized)" in \
         capsys.readouterr().err
+    # an engine whose encoder fell back so no longer says "bf16 encoder" (its first line, the
+    # bench's header and JSON)
+    from types import SimpleNamespace
+
+    from edge_depth.runtime.engine import Engine
+
+    engine = SimpleNamespace(bf16=True, sessions={"encoder": session})
+    assert Engine.bf16_encoder.fget(engine) is False  # type: ignore[attr-defined]
+    session.bf16 = True
+    assert Engine.bf16_encoder.fget(engine) is True  # type: ignore[attr-defined]

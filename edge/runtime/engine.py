@@ -224,10 +224,17 @@ class Engine:
         blank = np.zeros((h, w), np.uint8)
         self.infer(blank, blank, np.zeros((h, w), np.float32), iters=iters)
 
+    @property
+    def bf16_encoder(self) -> bool:
+        """Whether the encoder runs in bf16: asked for, and compiled so (a CPU that reports
+        bf16 but cannot compile it runs f32, `backends.OpenVinoSession`)."""
+        return self.bf16 and bool(getattr(self.sessions["encoder"], "bf16", False))
+
     def describe(self) -> str:
         """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
         median 9x9/2 (the bundle's)': what runs, for the first log line."""
-        text = f"{self.precision} on {self.runtime}" + (" (bf16 encoder)" if self.bf16 else "")
+        text = f"{self.precision} on {self.runtime}" + \
+            (" (bf16 encoder)" if self.bf16_encoder else "")
         if self.scale == NATIVE:  # the default ("budget") goes without saying
             text += ", at the camera's own size"
         m = self.edge_match
