@@ -81,6 +81,10 @@ def test_a_float_time_field_and_none_at_all():
     assert offsets.tolist() == [-100_000_000, -25_000_000]
     _, _, none = decode_points(cloud2([("x", 0, 7), ("y", 4, 7), ("z", 8, 7)], rows))
     assert none is None
+    rows["time"] = [np.nan, 1e30]  # a corrupt time field: ignored, the points kept
+    points, _, ignored = decode_points(
+        cloud2([("x", 0, 7), ("y", 4, 7), ("z", 8, 7), ("time", 12, 8)], rows))
+    assert len(points) == 2 and ignored is None
 
 
 def test_a_laserscans_time_increment_times_each_beam():

@@ -85,6 +85,7 @@ _FLOAT_TYPES = {7: "f4", 8: "f8"}
 # drivers' field, and what edge-depth writes), or "t", uint32 nanoseconds (Ouster's); the
 # uint32 code is 6 in sensor_msgs/PointField and 5 in foxglove's NumericType
 _TIME_FIELDS = {("time", 7): ("f4", 1e9), ("time", 8): ("f8", 1e9), ("t", "uint32"): ("u4", 1.0)}
+MAX_POINT_TIME_NS = 60e9  # a point's time further than this from its message's stamp is corrupt
 
 
 def _point_time_field(f) -> tuple[str, float] | None:
@@ -139,8 +140,8 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None
         raise ValueError("point cloud lacks float x, y, z fields")
     pts = np.stack([columns["x"], columns["y"], columns["z"]], 1)
     keep = np.isfinite(pts).all(1)
-    if offsets is not None:
-        keep &= np.isfinite(offsets)
+    if offsets is not None and not (np.abs(offsets) < MAX_POINT_TIME_NS).all():
+        offsets = None  # a time field that is no time (NaN, years): the points keep the stamp
     intensity = columns.get("intensity")
     return pts[keep], (intensity[keep] if intensity is not None else None), \
         (offsets[keep].astype(np.int64) if offsets is not None else None)
