@@ -75,10 +75,10 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
     both views get the same one, which leaves the pair rectified to within 0.7 px at 3°); each
     scan holds the scene's points as the LiDAR saw each at its own time (with each point's
     stamp), is stamped by its forward middle (what the camera sees) `lidar_lag_ms` before its
-    frame, and swept that
-    middle `lidar_clock_ms` before its stamp says: stamps that run late (a USB adapter's
-    latency) by an offset the calibration's `time_offset_ns` does not know of, whose right
-    value is then −lidar_clock_ms. No ground truth. Returns the number of messages."""
+    frame, and swept that middle `lidar_clock_ms` before its stamps say: stamps that run late
+    (a USB adapter's latency) by an offset the calibration's `time_offset_ns` does not know
+    of, whose right value is then −lidar_clock_ms. No ground truth. Returns the number of
+    messages."""
     import cv2
     import numpy as np
 
@@ -99,15 +99,16 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
         yaw = np.radians(amplitude_deg) * np.sin(2 * np.pi * t_s / turn_period_s)
         return cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
 
-    def scan_points(scan, forward_ns: int) -> np.ndarray:
-        """The scene's points as the LiDAR saw each at its own time: X_cam -> R(t)^T X_cam,
-        back to the LiDAR. The revolution's forward middle (what the camera sees) was swept
-        `lidar_clock_ms` before its stamp, `forward_ns`, says."""
+    def turning_scan(scan, forward_ns: int) -> LidarScan:
+        """The scene's points as the LiDAR saw each at its own time (X_cam -> R(t)^T X_cam,
+        back to the LiDAR), stamped by its forward middle (what the camera sees), `forward_ns`,
+        with each point's stamp; every point was swept `lidar_clock_ms` before its stamp."""
         offsets = scan.point_stamps_ns - scan.stamp_ns
-        start_ns = forward_ns - int(lidar_clock_ms * 1e6) - int(np.median(offsets))
+        stamps = (forward_ns + offsets - int(np.median(offsets))).astype(np.int64)
         yaw = np.radians(amplitude_deg) * np.sin(
-            2 * np.pi * (start_ns + offsets - 1_000_000_000) / 1e9 / turn_period_s)
-        return turned_points(scan.points, T, yaw)
+            2 * np.pi * (stamps - int(lidar_clock_ms * 1e6) - 1_000_000_000) / 1e9
+            / turn_period_s)
+        return LidarScan(forward_ns, turned_points(scan.points, T, yaw), None, stamps)
 
     with McapLogger(path, topics=RAW_TOPICS) as logger:
         logger.set_calibration(stereo, extrinsics)
@@ -119,11 +120,7 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
             stamp = 1_000_000_000 + int(i * period_ms * 1e6)
             # the revolution stamped `lidar_lag_ms` before its frame
             forward_ns = stamp - int(lidar_lag_ms * 1e6)
-            # each point's own stamp, off by the scan's clock error as its stamp is
-            offsets = sample.scan.point_stamps_ns - sample.scan.stamp_ns
-            stamps = forward_ns + offsets - int(np.median(offsets))
-            logger.log_scan(LidarScan(forward_ns, scan_points(sample.scan, forward_ns), None,
-                                      stamps.astype(np.int64)))
+            logger.log_scan(turning_scan(sample.scan, forward_ns))
             H = K @ rotation(i * period_ms / 1000).T @ np.linalg.inv(K)
             size = (rig.width, rig.height)
             left, right = (cv2.warpPerspective(im, H, size, flags=cv2.INTER_LINEAR,
