@@ -88,12 +88,11 @@ _TIME_FIELDS = {("time", 7): ("f4", 1e9), ("time", 8): ("f8", 1e9), ("t", "uint3
 MAX_POINT_TIME_NS = 60e9  # a point's time further than this from its message's stamp is corrupt
 
 
-def _point_time_field(f) -> tuple[str, float] | None:
-    """A point cloud field's (dtype, to-nanoseconds scale) if it holds the point's own time."""
-    ros = getattr(f, "datatype", None)
-    code = int(ros if ros is not None else getattr(f, "type", 0) or 0)
-    uint32 = 6 if ros is not None else 5
-    return _TIME_FIELDS.get((f.name, "uint32" if code == uint32 else code))
+def _point_time_field(name: str, code: int, ros: bool) -> tuple[str, float] | None:
+    """A point cloud field's (dtype, to-nanoseconds scale) if it holds the point's own time;
+    `code` its datatype, `ros`: sensor_msgs/PointField's codes, else foxglove's."""
+    uint32 = 6 if ros else 5
+    return _TIME_FIELDS.get((name, "uint32" if code == uint32 else code))
 
 
 def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
@@ -130,10 +129,11 @@ def decode_points(msg) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None
     columns: dict[str, np.ndarray] = {}
     offsets = None
     for f in msg.fields:
-        code = int(getattr(f, "datatype", None) or getattr(f, "type", 0) or 0)
+        ros = getattr(f, "datatype", None)
+        code = int(ros if ros is not None else getattr(f, "type", 0) or 0)
         if f.name in ("x", "y", "z", "intensity") and code in _FLOAT_TYPES:
             columns[f.name] = column(int(f.offset), _FLOAT_TYPES[code]).astype(np.float32)
-        elif (time_field := _point_time_field(f)) is not None:
+        elif (time_field := _point_time_field(f.name, code, ros is not None)) is not None:
             dtype, scale = time_field
             offsets = np.round(column(int(f.offset), dtype).astype(np.float64) * scale)
     if not {"x", "y", "z"} <= set(columns):
