@@ -110,9 +110,10 @@ def deskew_shift_px(times_ns, frame_ns: int, turn_dps: float, focal_px: float) -
 
 
 def deskewed(points: np.ndarray, times_ns, frame_ns: int, turn_dps: float, focal_px: float,
-             T_cam_lidar: np.ndarray) -> np.ndarray:
+             T_cam_lidar: np.ndarray) -> tuple[np.ndarray, float]:
     """`deskew` where the turn moves a point by DESKEW_MIN_PX or more, else the points as
-    they are."""
-    if deskew_shift_px(times_ns, frame_ns, turn_dps, focal_px) < DESKEW_MIN_PX:
-        return points
-    return deskew(points, times_ns, frame_ns, turn_dps, T_cam_lidar)
+    they are; with the most the turn moved one (px; 0 where they are as they were)."""
+    moved_px = deskew_shift_px(times_ns, frame_ns, turn_dps, focal_px)
+    if moved_px < DESKEW_MIN_PX:
+        return points, 0.0
+    return deskew(points, times_ns, frame_ns, turn_dps, T_cam_lidar), moved_px

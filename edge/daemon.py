@@ -25,7 +25,7 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_verdict import fixes
 from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
-from edge_depth.camera_turn import DESKEW_MIN_PX, TurnMeter, deskew, deskew_shift_px
+from edge_depth.camera_turn import TurnMeter, deskewed
 from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
@@ -259,17 +259,17 @@ class Pipeline:
     def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
         """The points' sparse disparity. While the camera turns, each point is first moved by
         the turn between its own time (`times_ns`: (N,) or the scan's stamp, camera clock)
-        and the frame's, where that moves one by DESKEW_MIN_PX or more; otherwise projected
-        once per scan: frames paired with the same scan (a 10 Hz LiDAR beside a 30 Hz
-        camera) reuse its map (read-only downstream)."""
+        and the frame's, where that moves one by `camera_turn.DESKEW_MIN_PX` or more;
+        otherwise projected once per scan: frames paired with the same scan (a 10 Hz LiDAR
+        beside a 30 Hz camera) reuse its map (read-only downstream)."""
         assert self.lidar is not None
         T = self.lidar.T_cam_lidar
-        rate = self.turn.rate() if self.turn is not None else float("nan")
-        moved_px = deskew_shift_px(times_ns, frame_ns, rate, self.focal_px)
-        if moved_px >= DESKEW_MIN_PX:
-            self.stats.deskewed.append(moved_px)
-            return project_to_disparity(deskew(points, times_ns, frame_ns, rate, T),
-                                        self.stereo, T)[0]
+        if self.turn is not None:
+            moved, moved_px = deskewed(points, times_ns, frame_ns, self.turn.rate(),
+                                       self.focal_px, T)
+            if moved_px:
+                self.stats.deskewed.append(moved_px)
+                return project_to_disparity(moved, self.stereo, T)[0]
         last = self._projected
         if last is not None and last[0] is points:
             return last[1]

@@ -38,8 +38,8 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
         if turn is not None:
             turn.frame(frame.stamp_ns, left)
             if len(points) and stamp is not None:
-                points = deskewed(points, stamp if times is None else times, frame.stamp_ns,
-                                  turn.rate(), stereo.focal_px, deskew_with)
+                points, _ = deskewed(points, stamp if times is None else times,
+                                     frame.stamp_ns, turn.rate(), stereo.focal_px, deskew_with)
         yield frame, left, right, points, gt
 
 
