@@ -25,6 +25,15 @@ from typing import Any
 
 import numpy as np
 
+from edge_depth.foxglove_msgs import (
+    CAMERA_FRAME,
+    LIDAR_FRAME,
+    RIGHT_FRAME,
+    depth_to_points,
+    image_message,
+    point_cloud_message,
+    timestamp,
+)
 from edge_depth.topics import LATCHED, RAW_TOPICS, RESULT_TOPICS, TOPICS  # noqa: F401 - re-exported
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
@@ -33,86 +42,6 @@ log = logging.getLogger(__name__)
 # float images barely compress: zstd saved 13 % of a result frame's 3 MB for 9 ms of CPU,
 # lz4 nothing for 3.5 ms (measured on 640x400 disparities); lz4 is the default
 COMPRESSIONS = ("lz4", "zstd", "none")
-CAMERA_FRAME = "camera_left"
-RIGHT_FRAME = "camera_right"
-LIDAR_FRAME = "lidar"
-
-
-def _stamp(ns: int):
-    from foxglove.messages import Timestamp
-
-    return Timestamp(int(ns) // 1_000_000_000, int(ns) % 1_000_000_000)
-
-
-def image_message(image: np.ndarray, stamp_ns: int, frame_id: str = CAMERA_FRAME):
-    """uint8 (H, W) -> RawImage mono8; float32 (H, W) -> RawImage 32FC1 (little endian)."""
-    from foxglove.messages import RawImage
-
-    h, w = image.shape
-    if image.dtype == np.uint8:
-        encoding, step = "mono8", w
-    elif image.dtype == np.float32:
-        encoding, step = "32FC1", 4 * w
-        image = image.astype("<f4", copy=False)
-    else:
-        raise TypeError(f"image dtype {image.dtype}: expected uint8 or float32")
-    return RawImage(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w, height=h,
-                    encoding=encoding, step=step, data=np.ascontiguousarray(image).tobytes())
-
-
-def point_cloud_message(points: np.ndarray, stamp_ns: int, frame_id: str,
-                        intensity: np.ndarray | None = None,
-                        point_stamps_ns: np.ndarray | None = None):
-    """(N, 3) float32 metres (+ optional (N,) intensity) -> PointCloud, 16 bytes per point;
-    with `point_stamps_ns`, 20: each point's time as "time", float32 seconds after the stamp."""
-    from foxglove.messages import (
-        PackedElementField,
-        PackedElementFieldNumericType,
-        PointCloud,
-        Pose,
-        Quaternion,
-        Vector3,
-    )
-
-    names, packed = packed_points(points, stamp_ns, intensity, point_stamps_ns)
-    f32 = PackedElementFieldNumericType.Float32
-    fields = [PackedElementField(name=name, offset=4 * i, type=f32)
-              for i, name in enumerate(names)]
-    pose = Pose(position=Vector3(x=0, y=0, z=0), orientation=Quaternion(x=0, y=0, z=0, w=1))
-    return PointCloud(timestamp=_stamp(stamp_ns), frame_id=frame_id, pose=pose,
-                      point_stride=4 * len(names), fields=fields, data=packed.tobytes())
-
-
-def packed_points(points: np.ndarray, stamp_ns: int, intensity: np.ndarray | None = None,
-                  point_stamps_ns: np.ndarray | None = None) -> tuple[tuple[str, ...],
-                                                                     np.ndarray]:
-    """A point cloud's float32 fields, x y z intensity (0 where none) and, with per-point
-    stamps, "time" (seconds after `stamp_ns`, the Velodyne drivers' convention): (names, (N,
-    4 or 5) little-endian float32)."""
-    names = ("x", "y", "z", "intensity") + (("time",) if point_stamps_ns is not None else ())
-    packed = np.zeros((len(points), len(names)), "<f4")
-    packed[:, :3] = points
-    if intensity is not None:
-        packed[:, 3] = intensity
-    if point_stamps_ns is not None:
-        packed[:, 4] = (point_stamps_ns - stamp_ns) / 1e9
-    return names, packed
-
-
-def depth_to_points(depth: np.ndarray, valid: np.ndarray, focal_px: float,
-                    principal_point: tuple[float, float], stride: int = 4,
-                    image: np.ndarray | None = None):
-    """Back-project every `stride`-th valid depth pixel to (N, 3) float32 camera points;
-    with `image` (the rectified left), also each point's intensity: (points, (N,))."""
-    cx, cy = principal_point
-    ys, xs = np.nonzero(valid[::stride, ::stride])
-    ys, xs = ys * stride, xs * stride
-    z = depth[ys, xs]
-    points = np.stack([(xs - cx) * z / focal_px, (ys - cy) * z / focal_px, z], 1).astype(
-        np.float32)
-    if image is None:
-        return points
-    return points, image[ys, xs].astype(np.float32)
 
 
 MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
@@ -383,7 +312,7 @@ class McapLogger:
         for parent, child, T in self.frame_tree():
             x, y, z, w = (float(v) for v in Rotation.from_matrix(T[:3, :3]).as_quat())
             out.append(FrameTransform(
-                timestamp=_stamp(stamp_ns), parent_frame_id=parent, child_frame_id=child,
+                timestamp=timestamp(stamp_ns), parent_frame_id=parent, child_frame_id=child,
                 translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]), z=float(T[2, 3])),
                 rotation=Quaternion(x=x, y=y, z=z, w=w)))
         return FrameTransforms(transforms=out)
@@ -435,7 +364,7 @@ class McapLogger:
         for key, tx, frame_id in (("left_calibration", 0.0, CAMERA_FRAME),
                                   ("right_calibration", -focal_px * baseline_m, RIGHT_FRAME)):
             P = [focal_px, 0, cx, tx, 0, focal_px, cy, 0, 0, 0, 1, 0]
-            msg = CameraCalibration(timestamp=_stamp(stamp_ns), frame_id=frame_id, width=w,
+            msg = CameraCalibration(timestamp=timestamp(stamp_ns), frame_id=frame_id, width=w,
                                     height=h, distortion_model="plumb_bob", D=[0.0] * 5, K=K,
                                     R=R, P=P)
             self._log(key, msg, stamp_ns)

@@ -29,7 +29,8 @@ from typing import IO
 
 import numpy as np
 
-from edge_depth.mcap_log import CAMERA_FRAME, RIGHT_FRAME, McapLogger, packed_points
+from edge_depth.foxglove_msgs import CAMERA_FRAME, RIGHT_FRAME, packed_points
+from edge_depth.mcap_log import McapLogger
 from edge_depth.ros2_msgs import MSGDEFS, header, transform
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.topics import ros2_topic

@@ -202,7 +202,7 @@ def test_two_hundred_dropped_frames_leave_nothing_behind(engine, pipelined, boun
 
 def test_duplicated_stamps_and_a_missing_partner_are_counted_not_silent(tmp_path, caplog):
     from edge_depth.capture.replay import McapSource
-    from edge_depth.mcap_log import image_message
+    from edge_depth.foxglove_msgs import image_message
 
     (scan, frame, _), = sim_events(1, 5.0)
     path = tmp_path / "odd.mcap"
