@@ -154,7 +154,9 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
     if source.stats.truncated:
         print(f"the input was cut off: replayed its first {source.stats.messages} messages")
     if lat:
-        print("latency median / p95 ms: " + format_latency(lat))
+        fps = stats.throughput()
+        print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s; latency median / "
+              "p95 ms: " + format_latency(lat))
     if stats.metrics:
         print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
