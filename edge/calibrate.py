@@ -72,6 +72,10 @@ def add_parsers(sub) -> None:
                      help="draw the LiDAR points over a left image (before | refined)")
     lid.add_argument("--max-frames", type=int, default=20,
                      help="frames taken from the recording (default 20)")
+    lid.add_argument("--no-deskew", dest="deskew", action="store_false",
+                     help="a recording's points as recorded, not moved by the camera's turn "
+                          "between their own time and the frame's (the daemon's [sync] "
+                          "deskew)")
 
     chk = csub.add_parser("check", help="estimate the LiDAR-camera rotation error of a "
                           "recording (exit status 1 on ERROR)")
@@ -116,7 +120,7 @@ def run(args: argparse.Namespace) -> int:
 
             topics = TopicMap.from_dict(load_topic_map(args.topics)) if args.topics else None
             return lidar_command(args.recording, args.calib, args.out, args.refine,
-                                 args.overlay, args.max_frames, topics)
+                                 args.overlay, args.max_frames, topics, args.deskew)
         if args.calib_command == "check":
             from edge_depth.arguments import load_topic_map
             from edge_depth.capture.replay import TopicMap
@@ -167,15 +171,20 @@ def make_frame(left: np.ndarray, right: np.ndarray, points: np.ndarray) -> Extri
 
 
 def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
-                max_frames: int = 20, topics=None
+                max_frames: int = 20, topics=None, deskew_with: np.ndarray | None = None
                 ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Up to `max_frames` (left, right, points) of a recording, each with the LiDAR revolution
-    nearest in time (images rectified with `stereo` unless the recording's already are)."""
+    nearest in time (images rectified with `stereo` unless the recording's already are).
+    `deskew_with`: the initial T_cam_lidar, to deskew the points by the camera's turn as the
+    daemon does (a turn about the camera's own axis: the extrinsics' error moves it by second
+    order only)."""
     from edge_depth.capture.synced import synced_frames
 
     frames, seen = [], 0
+    counts: dict[str, int] = {}
     for frame, left, right, points, _ in synced_frames(path, stereo, time_offset_ns,
-                                                       topics=topics):
+                                                       topics=topics, counters=counts,
+                                                       deskew_with=deskew_with):
         if frame.size != tuple(stereo.image_size):
             raise CalibrationError(f"image size {frame.size} differs from the "
                                    f"calibration's {stereo.image_size}", path=str(path))
@@ -184,7 +193,10 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
             frames.append((left, right, points))
             if len(frames) >= max_frames:
                 break
-    print(f"{path}: frames with LiDAR: {len(frames)} of {seen} read", flush=True)
+    deskewed = counts.get("frames_deskewed", 0)
+    print(f"{path}: frames with LiDAR: {len(frames)} of {seen} read"
+          + (f"; the points of {deskewed} deskewed by the camera's turn" if deskewed else ""),
+          flush=True)
     if not frames:
         raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))
     return frames
@@ -277,11 +289,12 @@ def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool
 
 def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
                   refine: bool = False, overlay_path: Path | None = None,
-                  max_frames: int = 20, topics=None) -> int:
+                  max_frames: int = 20, topics=None, deskew: bool = True) -> int:
     """`edge-depth calibrate lidar`: report the disagreement of LiDAR and SGBM disparities,
     optionally refine T_cam_lidar (`refine_extrinsics`) and draw the LiDAR over the image.
     Without `calib_path`, a recording's own calibration is used (ours, or a ROS 2 bag's
-    CameraInfo pair and /tf_static; `topics` maps the bag's topics)."""
+    CameraInfo pair and /tf_static; `topics` maps the bag's topics). `deskew`: a recording's
+    points moved by the camera's turn as the daemon moves them (`[sync] deskew`)."""
     from edge_depth.calibration.io import save_calibration
     from edge_depth.calibration.model import LidarExtrinsics
     from edge_depth.sim.folder import list_scene_folders, read_scene_folder
@@ -297,7 +310,8 @@ def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
     print(f"calibration: {origin}")
     data = []  # (left, right, points)
     if is_mcap:
-        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics)
+        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics,
+                           lidar.T_cam_lidar if deskew else None)
         folders = []
     else:
         folders = list_scene_folders(recording)

@@ -31,15 +31,19 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
     `counters`, if given, receives the sync's counts when the recording ends
     (frames_with_lidar, frames_without_lidar, ...). `deskew_with`: the calibration's
     T_cam_lidar, to deskew the points by the camera's turn as the daemon does
-    (`edge.camera_turn.deskew`; where a point would move by DESKEW_MIN_PX or more)."""
+    (`edge.camera_turn.deskew`; where a point would move by DESKEW_MIN_PX or more); the
+    frames deskewed so far are counted in `counters["frames_deskewed"]` as they go."""
     turn = None if deskew_with is None else TurnMeter(stereo.focal_px)
     for frame, left, right, points, stamp, times, gt in _paired_frames(
             path, stereo, time_offset_ns, window_ms, topics, counters, max_wait_ms):
         if turn is not None:
             turn.frame(frame.stamp_ns, left)
             if len(points) and stamp is not None:
-                points, _ = deskewed(points, stamp if times is None else times,
-                                     frame.stamp_ns, turn.rate(), stereo.focal_px, deskew_with)
+                points, moved_px = deskewed(points, stamp if times is None else times,
+                                            frame.stamp_ns, turn.rate(), stereo.focal_px,
+                                            deskew_with)
+                if moved_px and counters is not None:
+                    counters["frames_deskewed"] = counters.get("frames_deskewed", 0) + 1
         yield frame, left, right, points, gt
 
 
