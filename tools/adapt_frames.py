@@ -94,10 +94,12 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
                             None if gt is None else np.asarray(gt, np.float32)))
         if len(frames) > max_frames:
             frames, stride = frames[::2], stride * 2
-    paired = counts.get("frames_with_lidar", 0)
+    paired, deskewed = counts.get("frames_with_lidar", 0), counts.get("frames_deskewed", 0)
     print(f"{recording}: frames with LiDAR: {paired} of "
           f"{paired + counts.get('frames_without_lidar', 0)}"
-          + ("" if lidar is not None else " (no LiDAR extrinsics: stereo only)"), flush=True)
+          + ("" if lidar is not None else " (no LiDAR extrinsics: stereo only)")
+          + (f"; the points of {deskewed} deskewed by the camera's turn" if deskewed else ""),
+          flush=True)
     return sorted(frames, key=lambda f: f.stamp_ns)
 
 
