@@ -7,11 +7,13 @@
 # OpenVINO's limited to AVX2.
 #     bash experiments/judge_candidate.sh CHECKPOINT OUT_DIR [fit|carry]
 # SHIPPED_FROM=runs/judge_X: the shipped bundle's evaluations taken from an earlier judgement
-# (the same data and commands) instead of run again.
+# (the same data and commands) instead of run again. ITERS=N: the candidate bundle's default
+# iterations (exported and quantized at N; default 4), which its engine A/B runs at.
 set -euo pipefail
 CKPT=$1
 OUT=$2
 SELECTIONS=${3:-fit}
+ITERS=${ITERS:-4}
 BIN=${BIN:-.venv/bin}
 BUNDLE="$OUT/bundle"
 mkdir -p "$OUT"
@@ -24,8 +26,8 @@ echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16\|amx
 [ -d data/calib_mix ] || { "$BIN/edge-depth" synth --out data/calib_mix --count 8 --seed 500000 \
   && "$BIN/edge-depth" synth --world things --scene-folders --out data/calib_mix --count 8 --seed 900000; }
 rm -rf "$BUNDLE"
-"$BIN/python" tools/export.py "$CKPT" --out "$BUNDLE" --size 640x400
-"$BIN/python" tools/quantize.py "$BUNDLE" --calib data/calib_mix --eval data/test16
+"$BIN/python" tools/export.py "$CKPT" --out "$BUNDLE" --size 640x400 --iters "$ITERS"
+"$BIN/python" tools/quantize.py "$BUNDLE" --calib data/calib_mix --eval data/test16 --iters "$ITERS"
 if [ "$SELECTIONS" = carry ]; then
   "$BIN/python" tools/carry_selections.py edge/models/default/model.json "$BUNDLE"
 else
