@@ -9,11 +9,15 @@
 # SHIPPED_FROM=runs/judge_X: the shipped bundle's evaluations taken from an earlier judgement
 # (the same data and commands) instead of run again. ITERS=N: the candidate bundle's default
 # iterations (exported and quantized at N; default 4), which its engine A/B runs at.
+# JUDGE_ITERS="4": the iteration counts evaluated (default "4 3"); SPEED=0: no engine A/B
+# (a control run of the shipped architecture and count, judged on accuracy only).
 set -euo pipefail
 CKPT=$1
 OUT=$2
 SELECTIONS=${3:-fit}
 ITERS=${ITERS:-4}
+JUDGE_ITERS=${JUDGE_ITERS:-4 3}
+SPEED=${SPEED:-1}
 BIN=${BIN:-.venv/bin}
 BUNDLE="$OUT/bundle"
 mkdir -p "$OUT"
@@ -36,7 +40,7 @@ else
   "$BIN/python" tools/fit_select.py "$BUNDLE" --data data/things_select
   "$BIN/python" tools/fit_edge_select.py "$BUNDLE" --data data/things_select
 fi
-for iters in 4 3; do
+for iters in $JUDGE_ITERS; do
   for data in aloe motorcycle aloe_r8 motorcycle_r8 test16; do
     for model in edge/models/default "$BUNDLE"; do
       tag=$(basename "$(dirname "$model")")_$(basename "$model")
@@ -51,13 +55,13 @@ for iters in 4 3; do
     done
   done
 done
-"$BIN/python" - "$OUT" <<'EOF'
+"$BIN/python" - "$OUT" $JUDGE_ITERS <<'EOF'
 import json, sys
 from pathlib import Path
 out = Path(sys.argv[1])
 print("| data | iters | shipped EPE / bad-3 | stereo only | candidate EPE / bad-3 | stereo only |")
 print("|---|---|---|---|---|---|")
-for iters in (4, 3):
+for iters in map(int, sys.argv[2:]):
     for data in ("aloe", "motorcycle", "aloe_r8", "motorcycle_r8", "test16"):
         cells = []
         for tag in ("models_default", f"{out.name}_bundle"):
@@ -66,6 +70,7 @@ for iters in (4, 3):
                 cells.append(f"{r[key]['epe']:.3f} / {r[key]['bad3']:.2f}" if key in r else "—")
         print(f"| {data} | {iters} | " + " | ".join(cells) + " |")
 EOF
+[ "$SPEED" = 0 ] && exit 0
 "$BIN/python" experiments/bundle_engine_ab.py edge/models/default "$BUNDLE" --frames 40
 ONEDNN_MAX_CPU_ISA=AVX2 "$BIN/python" experiments/bundle_engine_ab.py edge/models/default \
   "$BUNDLE" --frames 40 --bf16 off
