@@ -178,7 +178,7 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
     `deskew_with`: the initial T_cam_lidar, to deskew the points by the camera's turn as the
     daemon does (a turn about the camera's own axis: the extrinsics' error moves it by second
     order only)."""
-    from edge_depth.capture.synced import synced_frames
+    from edge_depth.capture.synced import deskewed_note, synced_frames
 
     frames, seen = [], 0
     counts: dict[str, int] = {}
@@ -193,9 +193,7 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
             frames.append((left, right, points))
             if len(frames) >= max_frames:
                 break
-    deskewed = counts.get("frames_deskewed", 0)
-    print(f"{path}: frames with LiDAR: {len(frames)} of {seen} read"
-          + (f"; the points of {deskewed} deskewed by the camera's turn" if deskewed else ""),
+    print(f"{path}: frames with LiDAR: {len(frames)} of {seen} read" + deskewed_note(counts),
           flush=True)
     if not frames:
         raise CalibrationError("no frame with LiDAR points in the recording", path=str(path))

@@ -67,7 +67,7 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
     directory is read as scene folders (`folder_frames`)."""
     from edge_depth.calibration.projection import project_to_disparity
     from edge_depth.capture.replay import McapSource, TopicMap
-    from edge_depth.capture.synced import synced_frames
+    from edge_depth.capture.synced import deskewed_note, synced_frames
     from edge_depth.commands import replay_calibration
 
     if Path(recording).is_dir():
@@ -94,12 +94,11 @@ def load_frames(recording: Path, calib: Path | None = None, topics: dict | None 
                             None if gt is None else np.asarray(gt, np.float32)))
         if len(frames) > max_frames:
             frames, stride = frames[::2], stride * 2
-    paired, deskewed = counts.get("frames_with_lidar", 0), counts.get("frames_deskewed", 0)
+    paired = counts.get("frames_with_lidar", 0)
     print(f"{recording}: frames with LiDAR: {paired} of "
           f"{paired + counts.get('frames_without_lidar', 0)}"
           + ("" if lidar is not None else " (no LiDAR extrinsics: stereo only)")
-          + (f"; the points of {deskewed} deskewed by the camera's turn" if deskewed else ""),
-          flush=True)
+          + deskewed_note(counts), flush=True)
     return sorted(frames, key=lambda f: f.stamp_ns)
 
 

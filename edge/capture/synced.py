@@ -47,6 +47,13 @@ def synced_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: 
         yield frame, left, right, points, gt
 
 
+def deskewed_note(counters: dict) -> str:
+    """The reading's summary addition for `synced_frames(..., counters=...)`: how many frames'
+    points the camera's turn moved ("" for none)."""
+    count = counters.get("frames_deskewed", 0)
+    return f"; the points of {count} deskewed by the camera's turn" if count else ""
+
+
 def stamped_frames(path: str | Path, stereo, time_offset_ns: int = 0, window_ms: float = 100.0,
                    topics: TopicMap | None = None, counters: dict | None = None,
                    max_wait_ms: float | None = None):
