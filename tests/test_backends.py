@@ -193,3 +193,55 @@ def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys
     assert Engine.bf16_encoder.fget(engine) is False  # type: ignore[attr-defined]
     session.bf16 = True
     assert Engine.bf16_encoder.fget(engine) is True  # type: ignore[attr-defined]
+
+
+@pytest.mark.parametrize("choice, precision, bf16, dot, expected", [
+    ("auto", "int8", False, False, True),   # AVX2-only x86: the float encoder would run f32
+    ("auto", "int8", True, False, False),   # bf16 runs the float encoder faster and closer
+    ("auto", "int8", False, True, False),   # VNNI: judged on the pairs, not taken
+    ("auto", "int8", False, None, False),   # instructions unknown
+    ("auto", "fp32", False, False, False),  # only the int8 precision has it
+    ("on", "int8", True, True, True), ("off", "int8", False, False, False)])
+def test_the_int8_encoder_runs_where_the_float_one_would_run_in_f32_without_dot_products(
+        choice, precision, bf16, dot, expected):
+    cpu = dict(model="x", int8_dot_product=dot, isa=[])
+    assert backends.resolve_int8_encoder(choice, precision, True, bf16, cpu) is expected
+    assert backends.resolve_int8_encoder(choice if choice != "on" else "auto", precision,
+                                         False, bf16, cpu) is False  # a bundle without one
+    with pytest.raises(ConfigError, match="int8_encoder"):
+        backends.resolve_int8_encoder("on", "int8", False, False, cpu)
+
+
+def test_kernels_limited_to_avx2_hide_the_instructions_above_it(monkeypatch):
+    """experiments/avx2_kernels.sh's ONEDNN_MAX_CPU_ISA: the choices follow the kernels the
+    runtime may use, not the flags the CPU reports."""
+    flags = {"avx2", "avx512f", "avx512_vnni", "avx512_bf16", "avx_vnni", "amx_int8", "fma"}
+    monkeypatch.delenv("ONEDNN_MAX_CPU_ISA", raising=False)
+    assert backends.kernel_flags(flags) == flags
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX2")
+    assert backends.kernel_flags(flags) == {"avx2", "fma"}
+    assert backends.cpu_has_bf16() is False
+    text = "model name\t: x\nflags\t\t: " + " ".join(sorted(flags)) + "\n"
+    assert backends.cpu_description(text)["int8_dot_product"] is True  # a given text: as is
+    monkeypatch.setenv("ONEDNN_MAX_CPU_ISA", "AVX512_CORE_AMX")
+    assert backends.kernel_flags(flags) == flags
+
+
+def test_the_engine_opens_the_bundles_int8_encoder_and_says_so(monkeypatch):
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    monkeypatch.setattr(backends, "cpu_description",
+                        lambda: dict(model="x", int8_dot_product=False, isa=["AVX2"]))
+    engine = Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0)
+    assert engine.int8_encoder and not engine.bf16
+    assert engine.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.int8.onnx"
+    assert "(int8 encoder)" in engine.describe()
+    floating = Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0,
+                      int8_encoder="off")
+    assert floating.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.onnx"
+    sample = make_sample(3, RigConfig(), "beams16")
+    sparse, valid = sample.sparse_disparity("left")
+    a, b = (e.infer(sample.left, sample.right, (sparse * valid).astype(np.float32), iters=2)
+            for e in (engine, floating))
+    # the same network within int8's rounding (0.07 px on the calibration frames)
+    assert 0.0 < float(np.abs(a.disparity - b.disparity).mean()) < 0.3

@@ -61,8 +61,10 @@ def pinned_agreement(engine_a, engine_b, frames, iters) -> dict[str, float]:
     """What int8 moves, pinned: 0.1 px and 0.005 of confidence per int8 graph of engine_a.
     The quantizer's decisions are under test, not this host's int8 kernels (without VNNI
     they move the confidence by more than the 0.03 the quantizer allows a graph)."""
-    files = engine_a.meta["precisions"][engine_a.precision].values()
-    int8 = sum(f.endswith(".int8.onnx") for f in files)
+    files = dict(engine_a.meta["precisions"][engine_a.precision])
+    if engine_a.int8_encoder:
+        files["encoder"] = engine_a.meta["int8_encoder"]["file"]
+    int8 = sum(f.endswith(".int8.onnx") for f in files.values())
     return dict(px=0.1 * int8, confidence=0.005 * int8)
 
 
@@ -174,13 +176,23 @@ def test_quantize_sends_graphs_back_to_float_while_together_they_move_too_much(
     assert q["timing_runtime"] == "onnxruntime"
     assert not any(g["int8"] for g in q["graphs"].values())
     assert all(g["float_for_the_total"] for g in q["graphs"].values())
-    assert q["mean_abs_px_vs_fp32"] == 0.0 and not list(bundle.glob("*.int8.onnx"))
+    assert q["mean_abs_px_vs_fp32"] == 0.0
+    # the float encoder gets its int8 alternative, judged alone by the graph limit (0.1 px
+    # pinned, under 10), for the CPUs where the float one would run in f32
+    meta = json.loads((bundle / "model.json").read_text())
+    assert [p.name for p in bundle.glob("*.int8.onnx")] == ["encoder.int8.onnx"]
+    assert meta["int8_encoder"]["file"] == "encoder.int8.onnx"
+    assert meta["int8_encoder"]["mean_abs_px_vs_fp32"] == pytest.approx(0.1)
+    assert meta["int8_encoder"]["float_nodes"] == [
+        n for n in quantize.conv_nodes(bundle / "encoder.onnx")][:1]
     shutil.rmtree(bundle)
     shutil.copytree(small_bundle[0], bundle)
     q = quantize.quantize_bundle(bundle, "synthetic:1", max_graph_px=10.0, iters=1, threads=1,
                                  node_search=False, max_total_px=10.0)
     assert all(g["int8"] for g in q["graphs"].values())
     assert 0.0 < q["mean_abs_px_vs_fp32"] <= 10.0
+    # the encoder is int8 itself: no alternative
+    assert "int8_encoder" not in json.loads((bundle / "model.json").read_text())
 
 
 def test_the_printout_says_why_a_graph_stayed_float():

@@ -299,6 +299,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                    opencv_threads=cv2.getNumThreads(), bundle=str(bundle),
                    engine=engines["int8"].describe(), runtime=engines["int8"].runtime,
                    bf16_encoder=engines["int8"].bf16_encoder,
+                   int8_encoder=engines["int8"].int8_encoder,
                    points_64_beams=int(np.median([len(s.scan) for s in dense])),
                    sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
                    machine=dict(others_cpu_share=share.others, load_avg_1min=load_before,

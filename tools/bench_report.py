@@ -14,7 +14,8 @@ def markdown(summary: dict) -> str:
     w, h = summary["size"]
     st = summary["stages"]
     lines = [f"| stage ({w}x{h}, {summary['threads']} threads, {summary['runtime']}"
-             f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}) | median ms | p95 ms |",
+             f"{', bf16 encoder' if summary.get('bf16_encoder') else ''}"
+             f"{', int8 encoder' if summary.get('int8_encoder') else ''}) | median ms | p95 ms |",
              "|---|---|---|"]
     names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm",
              "edge_match", "edge_median"]

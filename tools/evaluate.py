@@ -52,8 +52,8 @@ from edge_depth.runtime.options import EngineOptions, add_engine_arguments, opti
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 # the engine settings a bundle is evaluated with (the others: EngineOptions' defaults)
-ENGINE_FLAGS = ("precision", "runtime", "bf16", "scale", "edge_match", "edge_match_rows",
-                "edge_matcher", "edge_median")
+ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_match",
+                "edge_match_rows", "edge_matcher", "edge_median")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
 ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")

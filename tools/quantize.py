@@ -48,7 +48,9 @@ RUNTIME = "onnxruntime"  # the quantizer is ONNX Runtime's: agreement is measure
 def network_engine(bundle, precision: str, threads: int, meta: dict | None = None,
                    **kwargs) -> Engine:
     """The bundle's graphs alone: quantization calibrates, times and compares the network's own
-    output, never the matching a bundle may declare as its engine's default."""
+    output, never the matching a bundle may declare as its engine's default (nor an int8
+    encoder the bundle has from before, unless asked)."""
+    kwargs.setdefault("int8_encoder", "off")
     return Engine(bundle, precision=precision, threads=threads, meta=meta, edge_match=0,
                   **kwargs)
 
@@ -313,6 +315,39 @@ class GraphChoices:
         return total
 
 
+# the int8 encoder's calibration: the rig's scenes (judged with these; calibrated on the
+# bundle's calib_mix the same graph read Motorcycle's bad-3 7.05 instead of 6.94 %: the bars
+# lie within calibration's spread, docs/experiments.md)
+ENCODER_CALIB = "synthetic:16"
+
+
+def int8_encoder(run: GraphChoices, calib: str = ENCODER_CALIB) -> dict | None:
+    """Where the encoder stays float: an int8 one beside it for the CPUs on which the float one
+    would run in f32 without int8 dot products (`backends.resolve_int8_encoder`; an AVX2-only
+    x86: 16.9 → 12.2 ms, the real pairs held, docs/speed.md), its stem float (the full-
+    resolution first convolution on the raw image: no faster in int8 and most of the shift).
+    Kept if the int8 precision with it moves the disparity (and confidence) within the graph
+    limit on ONNX Runtime (on the bundle's calibration frames); model.json's "int8_encoder"
+    says what it is."""
+    src = run.bundle / run.files["encoder"]
+    dst = run.bundle / run.files["encoder"].replace(".onnx", ".int8.onnx")
+    stem = conv_nodes(src)[:1]
+    record: dict[str, list] = {}
+    for frame in calibration_frames(calib, run.fp32.size):
+        run.fp32.infer(*frame, iters=1, record=record)
+    quantize_graph(src, dst, record["encoder"], stem)
+    entry = dict(file=dst.name, float_nodes=stem, calibration=calib)
+    engine = network_engine(run.bundle, "int8", run.threads, dict(run.meta, int8_encoder=entry),
+                            runtime=RUNTIME, int8_encoder="on")
+    shift = agreement(engine, run.fp32, run.frames, run.iters)
+    if run.over(shift, run.max_graph_px) > 1:
+        dst.unlink()
+        return None
+    return dict(entry, mean_abs_px_vs_fp32=shift["px"], confidence_vs_fp32=shift["confidence"],
+                where="the int8 precision where the float encoder would run in f32 on a CPU "
+                      "without int8 dot products")
+
+
 def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, iters: int = 4,
                     eval_dir: Path | None = None, threads: int = 2,
                     node_search: bool = True, calib_label: str | None = None,
@@ -321,6 +356,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     """calib: a `calibration_frames` spec, or the frames themselves ((left, right, sparse)
     tuples of (H, W) arrays, e.g. a robot's recordings), then named by `calib_label`."""
     meta = load_bundle_meta(bundle)
+    meta.pop("int8_encoder", None)  # made again below, where the encoder stays float
     timing = resolve_runtime(timing_runtime)
     run = GraphChoices(bundle, meta, [], iters, threads, timing, max_graph_px, max_total_px,
                        max_confidence, min_gain, node_search)
@@ -334,6 +370,9 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     for part in PARTS:
         run.choose(part)
     total = run.cap_total()
+    alternative = None if run.graphs["encoder"]["int8"] else int8_encoder(run)
+    if alternative is not None:
+        meta["int8_encoder"] = alternative
     meta["quantization"] = dict(
         format="QDQ", activations="QUInt8", weights="QInt8 per-channel",
         op_types=["Conv"],

@@ -15,6 +15,7 @@ to tolerate it (`BF16_GRAPHS`: the encoder, whose outputs agree within the int8 
 
 from __future__ import annotations
 
+import os
 import platform
 import sys
 from pathlib import Path
@@ -44,13 +45,29 @@ ISA_FLAGS = (("avx2", "AVX2"), ("avx512f", "AVX-512"), ("avx512_vnni", "AVX512-V
              ("asimd", "NEON"), ("asimddp", "dotprod"))
 
 
+# OpenVINO's oneDNN limited to these instruction sets (ONEDNN_MAX_CPU_ISA, as
+# experiments/avx2_kernels.sh sets it) uses none of the CPU's AVX-512, VNNI, BF16 or AMX
+LIMITED_ISAS = ("SSE41", "AVX", "AVX2")
+ABOVE_AVX2 = ("avx512", "avx_vnni", "amx")  # /proc/cpuinfo flag prefixes
+
+
+def kernel_flags(flags: set[str]) -> set[str]:
+    """The CPU's flags the runtime's kernels may use: all of them, or, with ONEDNN_MAX_CPU_ISA
+    at AVX2 or below, none above AVX2 (the int8 and bf16 choices then follow the kernels)."""
+    if os.environ.get("ONEDNN_MAX_CPU_ISA", "").upper() not in LIMITED_ISAS:
+        return flags
+    return {f for f in flags if not f.startswith(ABOVE_AVX2)}
+
+
 def cpu_description(cpuinfo: str | None = None) -> dict:
     """The CPU the graphs run on, for what benchmarks and quantization record: its model name,
     whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
     SDOT/UDOT; None where unknown) and `isa`, which of ISA_FLAGS' instruction sets it has.
     Without dot products int8 graphs run no faster than float (ONNX Runtime ×1.00 on an AVX2
     host, docs/experiments.md), so ratios and quantization choices from the two kinds of CPU
-    differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux)."""
+    differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux, as the kernels see it:
+    `kernel_flags`)."""
+    this_host = cpuinfo is None
     if cpuinfo is None:
         try:
             cpuinfo = Path("/proc/cpuinfo").read_text()
@@ -64,14 +81,17 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
         elif key.strip() in ("flags", "Features"):
             flags = set(value.split())
             break
+    if flags is not None and this_host:
+        flags = kernel_flags(flags)
     return dict(model=model, int8_dot_product=None if flags is None
                 else bool(flags & INT8_DOT_FLAGS),
                 isa=[] if flags is None else [name for flag, name in ISA_FLAGS if flag in flags])
 
 
 def cpu_has_bf16() -> bool:
-    """Whether OpenVINO's CPU plugin reports native bf16 (AVX512-BF16 or AMX)."""
-    if not openvino_available():
+    """Whether OpenVINO's CPU plugin reports native bf16 (AVX512-BF16 or AMX) and its kernels
+    may use it (`kernel_flags`)."""
+    if not openvino_available() or not kernel_flags({"avx512_bf16"}):
         return False
     import openvino as ov
 
@@ -93,6 +113,24 @@ def resolve_precision(precision: str, runtime: str, available, cpu: dict | None 
         return "fp32"
     dot = (cpu or cpu_description())["int8_dot_product"]
     return "int8" if dot or runtime == "openvino" else "fp32"
+
+
+def resolve_int8_encoder(choice: str, precision: str, available: bool, bf16: bool,
+                         cpu: dict | None = None) -> bool:
+    """Whether the int8 precision runs the bundle's int8 encoder (model.json's "int8_encoder")
+    instead of its float one: "on", "off", or "auto" = where the float one would run in f32
+    on a CPU without int8 dot products (an AVX2-only x86: 16.9 → 12.2 ms with the accuracy
+    held; docs/speed.md). `bf16`: whether the float encoder would run in bf16."""
+    if precision != "int8" or choice == "off":
+        return False
+    if not available:
+        if choice == "on":
+            raise ConfigError("int8_encoder", "a bundle with an int8 encoder (tools/quantize.py "
+                              'writes one) for "on"', "on")
+        return False
+    if choice == "on":
+        return True
+    return not bf16 and (cpu or cpu_description())["int8_dot_product"] is False
 
 
 def resolve_runtime(runtime: str) -> str:
@@ -122,6 +160,7 @@ class OrtSession:
         # three sessions take turns: a pool spinning after its call would steal the cores
         # from the next one (DESIGN.md)
         opts.add_session_config_entry("session.intra_op.allow_spinning", "0")
+        self.path = Path(path)
         self._session = ort.InferenceSession(str(path), opts,
                                              providers=["CPUExecutionProvider"])
         self.input_names = [i.name for i in self._session.get_inputs()]

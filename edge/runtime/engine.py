@@ -26,6 +26,7 @@ from edge_depth.runtime.backends import (
     BF16_GRAPHS,
     cpu_has_bf16,
     open_session,
+    resolve_int8_encoder,
     resolve_precision,
     resolve_runtime,
 )
@@ -93,6 +94,9 @@ class Engine:
         self.meta = meta or load_bundle_meta(self.bundle)
         self.precision = resolve_precision(options.precision, self.runtime,
                                            self.meta["precisions"])
+        self.int8_encoder = resolve_int8_encoder(options.int8_encoder, self.precision,
+                                                 "int8_encoder" in self.meta, self.bf16)
+        self.bf16 = self.bf16 and not self.int8_encoder  # bf16 is the float encoder's
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])
         self.default_iters = int(self.meta.get("default_iters", 4))
@@ -134,6 +138,8 @@ class Engine:
         if files is None:
             raise ConfigError("precision", f"one of {sorted(self.meta['precisions'])}",
                               self.precision)
+        if self.int8_encoder:
+            files = dict(files, encoder=self.meta["int8_encoder"]["file"])
         sessions: dict[str, Any] = {}
         for part in sorted(files, key=lambda p: p == "encoder"):
             name = files[part]
@@ -234,7 +240,8 @@ class Engine:
         """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
         median 9x9/2 (the bundle's)': what runs, for the first log line."""
         text = f"{self.precision} on {self.runtime}" + \
-            (" (bf16 encoder)" if self.bf16_encoder else "")
+            (" (bf16 encoder)" if self.bf16_encoder else "") + \
+            (" (int8 encoder)" if self.int8_encoder else "")
         if self.scale == NATIVE:  # the default ("budget") goes without saying
             text += ", at the camera's own size"
         m = self.edge_match
