@@ -2,7 +2,7 @@
 in one process on the same rig frame (640x400, 16 LiDAR rows): median ms per frame and stage.
 
     python experiments/bundle_engine_ab.py BUNDLE [BUNDLE ...] [--frames 40]
-        [--precisions int8,fp32] [--bf16 auto|on|off]
+        [--precisions int8,fp32] [--bf16 auto|on|off] [--int8-encoder auto,off]
 """
 
 from __future__ import annotations
@@ -24,14 +24,17 @@ def main() -> None:
     p.add_argument("--frames", type=int, default=40)
     p.add_argument("--precisions", default="auto")
     p.add_argument("--bf16", default="auto", choices=("auto", "on", "off"))
+    p.add_argument("--int8-encoder", default="auto", help="one or more of auto, on, off")
     args = p.parse_args()
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
     sample = make_sample(1_000_000, RigConfig(), "beams16")
     sparse, valid = sample.sparse_disparity("left")
     sparse = (sparse * valid).astype(np.float32)
-    engines = {f"{b} {p}": Engine(b, threads=2, precision=p, bf16=args.bf16)
-               for b in args.bundles for p in args.precisions.split(",")}
+    engines = {f"{b} {p} int8_encoder={e}": Engine(b, threads=2, precision=p, bf16=args.bf16,
+                                                   int8_encoder=e)
+               for b in args.bundles for p in args.precisions.split(",")
+               for e in args.int8_encoder.split(",")}
     for engine in engines.values():
         engine.warm_up()
     stages: dict[str, dict[str, list[float]]] = {b: {} for b in engines}
