@@ -129,6 +129,9 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert watch["every"] == EVERY and watch["per_frame_ms"] == pytest.approx(
         watch["sample_ms"] / EVERY) and 0 < watch["share_of_frame_pct"] < 100
     assert "calibration watch:" in md.read_text()
+    outside = result["outside_engine"]  # the frame's own timings: (1 untimed + 1) x 2 blocks
+    assert outside["frames"] == 4 and 0 < outside["ms"] and 0 < outside["share_pct"] < 100
+    assert "the daemon's frame outside the engine" in md.read_text()
     assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
         result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000

@@ -307,6 +307,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
                                 busy=share.others is not None and share.others > BUSY_SHARE,
                                 cpu=cpu_description()))
     summary["ratios"] = ratios(out, engine_ms, key, paired)
+    summary["outside_engine"] = outside_engine(pipeline.stats.timings)
     sample_ms = float(np.median([w for w, _ in watch]))
     summary["calibration_watch"] = dict(
         sample_ms=sample_ms, every=WATCH_EVERY, per_frame_ms=sample_ms / WATCH_EVERY,
@@ -317,6 +318,16 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return summary
+
+
+def outside_engine(timings) -> dict:
+    """The daemon's frame outside the engine (rectification, projection, logging), from the
+    frames' own timings: "frame" and "engine" of one frame are timed together, so the share
+    does not mix blocks timed minutes apart on a host whose speed drifts (the frame / engine
+    ratio does). Median ms and median % of the frame."""
+    rest = [t["frame"] - t["engine"] for t in timings]
+    return dict(ms=float(np.median(rest)), share_pct=100 * float(np.median(
+        [r / t["frame"] for r, t in zip(rest, timings, strict=True)])), frames=len(rest))
 
 
 def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[float, float]]:

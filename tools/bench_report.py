@@ -42,6 +42,10 @@ def markdown(summary: dict) -> str:
                      f"frames, {again} of them matched again with the final count"
                      if early else "the int8 engine's matching started after its graphs "
                      "(they use every core)")
+    if "outside_engine" in summary:
+        o = summary["outside_engine"]
+        lines.append(f"the daemon's frame outside the engine (rectify, projection, logging; the "
+                     f"same {o['frames']} frames): {o['ms']:.1f} ms, {o['share_pct']:.1f} %")
     if "calibration_watch" in summary:
         c = summary["calibration_watch"]
         lines.append(f"calibration watch: {c['sample_ms']:.1f} ms a sample, one in {c['every']} "
