@@ -130,7 +130,8 @@ def test_openvino_computes_only_the_encoder_outputs_the_other_graphs_read():
     ort = Engine(precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
     read = {"disparity", "hidden"}.union(ov.sessions["step"].input_names,
                                          ov.sessions["upsample"].input_names)
-    assert set(ov._enc_outputs) == set(ort._enc_outputs) & read == set(ort._enc_outputs)
+    assert set(ov.graphs.enc_outputs) == set(ort.graphs.enc_outputs) & read == set(
+        ort.graphs.enc_outputs)
     session = backends.OpenVinoSession(DEFAULT_BUNDLE / "encoder.onnx", 1,
                                        outputs={"corr", "hidden"})
     assert sorted(session.output_names) == ["corr", "hidden"]

@@ -216,7 +216,8 @@ def test_auto_started_before_the_last_step_gives_the_late_starts_output(monkeypa
 
 
 def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line():
-    from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
+    from edge_depth.runtime.graphs import load_bundle_meta
     from edge_depth.runtime.options import bundle_preset
 
     meta = load_bundle_meta(DEFAULT_BUNDLE)

@@ -47,7 +47,8 @@ from edge_depth.calibration.model import StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.runtime.backends import cpu_description
-from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine, load_bundle_meta
+from edge_depth.runtime.engine import DEFAULT_BUNDLE, Engine
+from edge_depth.runtime.graphs import load_bundle_meta
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.tools.bench_report import BUSY_SHARE, host_line, machine_line, markdown
 from edge_depth.types import LidarScan

@@ -37,7 +37,8 @@ import numpy as np
 
 from edge_depth.metrics import disparity_metrics
 from edge_depth.runtime.backends import cpu_description, resolve_runtime
-from edge_depth.runtime.engine import Engine, load_bundle_meta
+from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.graphs import load_bundle_meta
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 CALIB_SEED0 = 500_000  # synthetic calibration frames come from the training seeds

@@ -10,22 +10,18 @@ upsampling time of earlier frames, would finish after it; it always runs at leas
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError, InvalidDataError
 from edge_depth.runtime.backends import (
-    BF16_GRAPHS,
     cpu_has_bf16,
-    open_session,
     resolve_int8_encoder,
     resolve_precision,
     resolve_runtime,
@@ -38,6 +34,7 @@ from edge_depth.runtime.edge_match import (
 from edge_depth.runtime.edge_median import OFF
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
+from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
@@ -51,22 +48,6 @@ NATIVE_MIN_STRIDES = 8
 # the encoder's outputs made from the LiDAR (the seed and the anchors at 1/8); the others are
 # the images' alone, so a stereo-only pass can reuse them (`Engine.stereo_only`)
 LIDAR_OUTPUTS = ("disparity", "sparse_low", "valid_low")
-
-
-def load_bundle_meta(bundle: Path) -> dict:
-    path = Path(bundle) / "model.json"
-    if not path.is_file():
-        raise ConfigError("bundle", "a directory with model.json (tools/export.py)", str(bundle))
-    try:
-        meta = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError("bundle", f"valid JSON in {path}", str(exc)) from None
-    missing = [k for k in ("size", "downsample", "precisions") if not isinstance(meta, dict)
-               or k not in meta]
-    if missing:
-        raise ConfigError("bundle", f"{path} with the keys size, downsample and precisions "
-                          "(tools/export.py writes them)", f"missing {missing}")
-    return meta
 
 
 class Engine:
@@ -109,8 +90,10 @@ class Engine:
                               "(export it again with tools/export.py)",
                               f"native with {self.bundle}, exported for "
                               f"{self.width}x{self.height} only")
-        self.sessions = self._open_graphs(options.threads)
-        self._wire_graphs()
+        self.graphs = BundleGraphs(self.bundle, self.meta, self.precision, self.runtime,
+                                   options.threads, self.bf16, self.int8_encoder)
+        self.sessions = self.graphs.sessions
+        self.has_confidence = self.graphs.has_confidence
         self._inputs: dict[str, np.ndarray] = {}
         self._buffers((self.width, self.height))
         self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
@@ -126,59 +109,7 @@ class Engine:
             self.edge_match, self.downsample, options.threads < usable_cores())
         self._upsample_ms = 0.0  # running estimate for the deadline
         self._last: tuple[dict, FitPlan] | None = None  # the last frame's encoding
-        self._reference_upsample: Any = None  # `stereo_only`'s, without the confidence
         self._plans: dict[tuple[int, int], FitPlan] = {}
-
-    def _open_graphs(self, threads: int) -> dict[str, Any]:
-        """The precision's graphs as the runtime's sessions, the encoder last: it computes
-        only what the step and the upsampling read (OpenVINO; version 10's upsampling reads
-        no 1/4 features: 1.4 ms of a frame at one thread). ConfigError naming a graph that
-        does not load."""
-        files = self.meta["precisions"].get(self.precision)
-        if files is None:
-            raise ConfigError("precision", f"one of {sorted(self.meta['precisions'])}",
-                              self.precision)
-        if self.int8_encoder:
-            files = dict(files, encoder=self.meta["int8_encoder"]["file"])
-        sessions: dict[str, Any] = {}
-        for part in sorted(files, key=lambda p: p == "encoder"):
-            name = files[part]
-            read = None if part != "encoder" else {"disparity", "hidden"}.union(
-                *(sessions[p].input_names for p in sessions))
-            try:
-                sessions[part] = open_session(self.bundle / name, self.runtime, threads,
-                                              self.bf16 and part in BF16_GRAPHS, read)
-            except Exception as exc:  # noqa: BLE001 - the runtimes' errors have no base
-                first = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else ""
-                raise ConfigError("bundle", f"a loadable ONNX graph at {self.bundle / name} "
-                                  "(re-export with tools/export.py)",
-                                  f"{type(exc).__name__}: {first}") from None
-        return sessions
-
-    def _wire_graphs(self) -> None:
-        """Which of the encoder's outputs the step and the upsampling read, by name; graphs
-        from two exports (newer bundles pass the context as two precomputed terms, older
-        ones as itself; a refinement's version decides what the upsampling reads) are a
-        ConfigError here rather than a failure on frame 1."""
-        self._enc_outputs = self.sessions["encoder"].output_names
-        self._step_state = [n for n in self.sessions["step"].input_names
-                            if n not in ("disparity", "hidden")]
-        upsample = self.sessions["upsample"]
-        fed = {"disparity", "hidden", *self._enc_outputs}
-        for part, extra in (("step", set()), ("upsample", {"left", "right", "sparse", "valid"})):
-            missing = [n for n in self.sessions[part].input_names if n not in fed | extra]
-            if missing:
-                raise ConfigError("bundle", f"graphs exported together (tools/export.py): "
-                                  f"{part}.onnx reads what encoder.onnx writes",
-                                  f"{part}.onnx needs {', '.join(missing)}, which "
-                                  f"{self.bundle / 'encoder.onnx'} does not output")
-        # a refining upsample graph also takes the images (and, versions 2-3, the LiDAR;
-        # version 4: the encoder's 1/4 features and the LiDAR)
-        self._upsample_inputs = [n for n in upsample.input_names
-                                 if n in ("left", "right", "sparse", "valid")]
-        self._upsample_state = [n for n in upsample.input_names if n in self._enc_outputs
-                                and n not in ("disparity", "hidden")]
-        self.has_confidence = len(upsample.output_names) > 1
 
     def plan_for(self, camera: tuple[int, int]) -> FitPlan:
         """How a (w, h) camera runs on this bundle (ConfigError for an impossible scale):
@@ -310,22 +241,10 @@ class Engine:
         enc = dict(enc, **{k: np.zeros_like(enc[k]) for k in LIDAR_OUTPUTS if k in enc})
         frame = _Frame(time.perf_counter())
         disparity, hidden = self._iterate(frame, enc, max(1, int(iters)), None, None)
-        full = self._disparity_upsample().run(self._upsample_feeds(enc, disparity, hidden))[0]
+        full = self.graphs.disparity_upsample().run(
+            self._upsample_feeds(enc, disparity, hidden))[0]
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         return disp if plan.identity else plan.restore(disp, disparity=True)
-
-    def _disparity_upsample(self) -> Any:
-        """The upsampling without the confidence (OpenVINO cuts it from the graph: 3.2
-        instead of 5.8 ms at 640x400), opened on first use; elsewhere the frame's own."""
-        if self.runtime != "openvino" or len(self.sessions["upsample"].output_names) < 2:
-            return self.sessions["upsample"]
-        if self._reference_upsample is None:
-            name = self.meta["precisions"][self.precision]["upsample"]
-            first = self.sessions["upsample"].output_names[0]
-            self._reference_upsample = open_session(
-                self.bundle / name, self.runtime, self.options.threads,
-                self.bf16 and "upsample" in BF16_GRAPHS, {first})
-        return self._reference_upsample
 
     def _prepare(self, left: np.ndarray, right: np.ndarray, sparse: np.ndarray
                  ) -> tuple[FitPlan, bool]:
@@ -361,13 +280,13 @@ class Engine:
         t = time.perf_counter()
         outputs = self.sessions["encoder"].run(frame.feed("encoder", self._inputs))
         frame.timings["encoder"] = (time.perf_counter() - t) * 1000
-        return dict(zip(self._enc_outputs, outputs, strict=True))
+        return dict(zip(self.graphs.enc_outputs, outputs, strict=True))
 
     def _iterate(self, frame: _Frame, enc: dict, iters: int, deadline_ms: float | None,
                  matching: FrameMatch | None) -> tuple[np.ndarray, np.ndarray]:
         """Up to `iters` GRU steps; with a deadline, none that the prediction (this frame's
         slowest step plus what follows the steps) says would end after it; at least one."""
-        state = {k: enc[k] for k in self._step_state}
+        state = {k: enc[k] for k in self.graphs.step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
         if matching is not None:
             matching.after_step(-1, disparity)
@@ -392,8 +311,8 @@ class Engine:
         """The upsampling's inputs: the last step's state, the frame's buffers it reads and
         the encoder's outputs it reads."""
         feeds = dict(disparity=disparity, hidden=hidden)
-        feeds.update({k: self._inputs[k] for k in self._upsample_inputs})
-        feeds.update({k: enc[k] for k in self._upsample_state})
+        feeds.update({k: self._inputs[k] for k in self.graphs.upsample_inputs})
+        feeds.update({k: enc[k] for k in self.graphs.upsample_state})
         return feeds
 
     def _upsample(self, frame: _Frame, enc: dict, disparity: np.ndarray,
