@@ -285,6 +285,32 @@ def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool
     return found
 
 
+def _lidar_frames(recording: Path, is_mcap: bool, stereo, lidar, max_frames: int, topics,
+                  deskew: bool) -> list:
+    """(left, right, points) of up to `max_frames` frames: a recording's (its points deskewed
+    as the daemon deskews them) or scene folders' (left.png, right.png, lidar.npy)."""
+    from edge_depth.sim.folder import list_scene_folders, read_scene_folder
+
+    if is_mcap:
+        return mcap_frames(recording, stereo, lidar.time_offset_ns, max_frames, topics,
+                           lidar.T_cam_lidar if deskew else None)
+    folders = list_scene_folders(recording)
+    if not folders:
+        raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) and not "
+                               "a .mcap recording", path=str(recording))
+    data = []
+    for folder in folders[:max_frames]:
+        scene = read_scene_folder(folder)
+        if scene.lidar is None:
+            print(f"skipping {folder}: no lidar.npy")
+            continue
+        if scene.left.shape[::-1] != stereo.image_size:
+            raise CalibrationError(f"image size {scene.left.shape[::-1]} differs from the "
+                                   f"calibration's {stereo.image_size}", path=str(folder))
+        data.append((scene.left, scene.right, scene.lidar))
+    return data
+
+
 def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
                   refine: bool = False, overlay_path: Path | None = None,
                   max_frames: int = 20, topics=None, deskew: bool = True) -> int:
@@ -295,7 +321,6 @@ def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
     points moved by the camera's turn as the daemon moves them (`[sync] deskew`)."""
     from edge_depth.calibration.io import save_calibration
     from edge_depth.calibration.model import LidarExtrinsics
-    from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
     if max_frames < 1:
         raise ValueError(f"--max-frames: expected at least 1, got {max_frames}")
@@ -306,25 +331,7 @@ def lidar_command(recording: Path, calib_path: Path | None, out: Path | None,
                                "T_cam_lidar to refine (a [lidar] section in --calib)",
                                key="lidar")
     print(f"calibration: {origin}")
-    data = []  # (left, right, points)
-    if is_mcap:
-        data = mcap_frames(Path(recording), stereo, lidar.time_offset_ns, max_frames, topics,
-                           lidar.T_cam_lidar if deskew else None)
-        folders = []
-    else:
-        folders = list_scene_folders(recording)
-        if not folders:
-            raise CalibrationError("no scene folders (left.png, right.png, lidar.npy) and not "
-                                   "a .mcap recording", path=str(recording))
-    for folder in folders[:max_frames]:
-        scene = read_scene_folder(folder)
-        if scene.lidar is None:
-            print(f"skipping {folder}: no lidar.npy")
-            continue
-        if scene.left.shape[::-1] != stereo.image_size:
-            raise CalibrationError(f"image size {scene.left.shape[::-1]} differs from the "
-                                   f"calibration's {stereo.image_size}", path=str(folder))
-        data.append((scene.left, scene.right, scene.lidar))
+    data = _lidar_frames(Path(recording), is_mcap, stereo, lidar, max_frames, topics, deskew)
     frames = [make_frame(*d) for d in data]
     before = disagreement(frames, stereo, lidar.T_cam_lidar)
     print(f"{len(frames)} frames, {before['points']} LiDAR points on SGBM pixels")
