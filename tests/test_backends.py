@@ -196,21 +196,24 @@ def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys
     assert Engine.bf16_encoder.fget(engine) is True  # type: ignore[attr-defined]
 
 
-@pytest.mark.parametrize("choice, precision, bf16, dot, expected", [
-    ("auto", "int8", False, False, True),   # AVX2-only x86: the float encoder would run f32
-    ("auto", "int8", True, False, False),   # bf16 runs the float encoder faster and closer
-    ("auto", "int8", False, True, False),   # VNNI: judged on the pairs, not taken
-    ("auto", "int8", False, None, False),   # instructions unknown
-    ("auto", "fp32", False, False, False),  # only the int8 precision has it
-    ("on", "int8", True, True, True), ("off", "int8", False, False, False)])
+@pytest.mark.parametrize("choice, precision, bf16, runtime, dot, expected", [
+    ("auto", "int8", False, "openvino", False, True),  # AVX2-only x86: the f32 encoder's place
+    ("auto", "int8", True, "openvino", False, False),  # bf16 runs the float one faster, closer
+    ("auto", "int8", False, "openvino", True, False),  # VNNI: judged on the pairs, not taken
+    ("auto", "int8", False, "openvino", None, False),  # instructions unknown
+    ("auto", "int8", False, "onnxruntime", False, False),  # judged on OpenVINO's kernels only
+    ("auto", "fp32", False, "openvino", False, False),  # only the int8 precision has it
+    ("on", "int8", True, "onnxruntime", True, True),
+    ("off", "int8", False, "openvino", False, False)])
 def test_the_int8_encoder_runs_where_the_float_one_would_run_in_f32_without_dot_products(
-        choice, precision, bf16, dot, expected):
+        choice, precision, bf16, runtime, dot, expected):
     cpu = dict(model="x", int8_dot_product=dot, isa=[])
-    assert backends.resolve_int8_encoder(choice, precision, True, bf16, cpu) is expected
+    assert backends.resolve_int8_encoder(choice, precision, True, bf16, runtime,
+                                         cpu) is expected
     assert backends.resolve_int8_encoder(choice if choice != "on" else "auto", precision,
-                                         False, bf16, cpu) is False  # a bundle without one
+                                         False, bf16, runtime, cpu) is False  # none in the bundle
     with pytest.raises(ConfigError, match="int8_encoder"):
-        backends.resolve_int8_encoder("on", "int8", False, False, cpu)
+        backends.resolve_int8_encoder("on", "int8", False, False, runtime, cpu)
 
 
 def test_kernels_limited_to_avx2_hide_the_instructions_above_it(monkeypatch):
@@ -229,20 +232,30 @@ def test_kernels_limited_to_avx2_hide_the_instructions_above_it(monkeypatch):
 
 
 def test_the_engine_opens_the_bundles_int8_encoder_and_says_so(monkeypatch):
+    """`auto` on OpenVINO on an AVX2-only CPU (no bf16, no dot products) runs the int8 encoder
+    and says so; the same bundle with it off runs the float one, within int8's rounding."""
+    pytest.importorskip("openvino")
+    from edge_depth.runtime import engine as engine_module
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
     monkeypatch.setattr(backends, "cpu_description",
                         lambda: dict(model="x", int8_dot_product=False, isa=["AVX2"]))
-    engine = Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0)
-    assert engine.int8_encoder and not engine.bf16
+    monkeypatch.setattr(engine_module, "cpu_has_bf16", lambda: False)
+    engine = Engine(runtime="openvino", threads=1, edge_match=0)
+    assert engine.precision == "int8" and engine.int8_encoder and not engine.bf16
     assert engine.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.int8.onnx"
-    assert "(int8 encoder)" in engine.describe()
-    floating = Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0,
-                      int8_encoder="off")
+    assert engine.describe().startswith("int8 on openvino (int8 encoder)")
+    floating = Engine(runtime="openvino", threads=1, edge_match=0, int8_encoder="off")
     assert floating.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.onnx"
+    assert "encoder)" not in floating.describe()
     sample = make_sample(3, RigConfig(), "beams16")
     sparse, valid = sample.sparse_disparity("left")
     a, b = (e.infer(sample.left, sample.right, (sparse * valid).astype(np.float32), iters=2)
             for e in (engine, floating))
     # the same network within int8's rounding (0.07 px on the calibration frames)
     assert 0.0 < float(np.abs(a.disparity - b.disparity).mean()) < 0.3
+    # ONNX Runtime only as asked: its int8 encoder was not judged by `auto`'s rule
+    assert not Engine(runtime="onnxruntime", precision="int8", threads=1,
+                      edge_match=0).int8_encoder
+    assert Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0,
+                  int8_encoder="on").int8_encoder

@@ -116,11 +116,13 @@ def resolve_precision(precision: str, runtime: str, available, cpu: dict | None 
 
 
 def resolve_int8_encoder(choice: str, precision: str, available: bool, bf16: bool,
-                         cpu: dict | None = None) -> bool:
+                         runtime: str, cpu: dict | None = None) -> bool:
     """Whether the int8 precision runs the bundle's int8 encoder (model.json's "int8_encoder")
-    instead of its float one: "on", "off", or "auto" = where the float one would run in f32
-    on a CPU without int8 dot products (an AVX2-only x86: 16.9 → 12.2 ms with the accuracy
-    held; docs/speed.md). `bf16`: whether the float encoder would run in bf16."""
+    instead of its float one: "on", "off", or "auto" = on OpenVINO where the float one would
+    run in f32 on a CPU without int8 dot products (an AVX2-only x86: 16.9 → 12.2 ms with the
+    accuracy held; docs/speed.md — judged on OpenVINO's kernels, which widen int8 products
+    without saturating where there are no dot products). `bf16`: whether the float encoder
+    would run in bf16; `runtime` already resolved."""
     if precision != "int8" or choice == "off":
         return False
     if not available:
@@ -130,7 +132,8 @@ def resolve_int8_encoder(choice: str, precision: str, available: bool, bf16: boo
         return False
     if choice == "on":
         return True
-    return not bf16 and (cpu or cpu_description())["int8_dot_product"] is False
+    return runtime == "openvino" and not bf16 and \
+        (cpu or cpu_description())["int8_dot_product"] is False
 
 
 def resolve_runtime(runtime: str) -> str:

@@ -76,7 +76,8 @@ class Engine:
         self.precision = resolve_precision(options.precision, self.runtime,
                                            self.meta["precisions"])
         self.int8_encoder = resolve_int8_encoder(options.int8_encoder, self.precision,
-                                                 "int8_encoder" in self.meta, self.bf16)
+                                                 "int8_encoder" in self.meta, self.bf16,
+                                                 self.runtime)
         self.bf16 = self.bf16 and not self.int8_encoder  # bf16 is the float encoder's
         self.width, self.height = self.meta["size"]
         self.downsample = int(self.meta["downsample"])

@@ -44,8 +44,8 @@ class EngineOptions:
     bf16: str = _option("auto", "OpenVINO: the encoder in bf16; auto = where the CPU has it "
                         "natively (AVX512-BF16, AMX)", choices=("auto", "on", "off"))
     int8_encoder: str = _option("auto", "int8 precision: the bundle's int8 encoder instead of "
-                                "its float one; auto = where that would run in f32 on a CPU "
-                                "without int8 dot products (AVX2-only x86)",
+                                "its float one; auto = on OpenVINO where that would run in f32 "
+                                "on a CPU without int8 dot products (AVX2-only x86)",
                                 choices=("auto", "on", "off"))
     threads: int = _option(2, "the engine's threads", bounds=(1, 256))
     scale: float | str = _option(BUDGET, 'the camera\'s images as the network sees them: '
