@@ -458,6 +458,12 @@ def main(argv: list[str] | None = None) -> int:
                         max_confidence=args.max_confidence)
     for part, g in q["graphs"].items():
         print(graph_line(part, g))
+    alternative = load_bundle_meta(args.bundle).get("int8_encoder")
+    if alternative is not None:
+        print(f"int8 encoder beside the float one ({alternative['file']}, kept float: "
+              f"{', '.join(alternative['float_nodes'])}): the int8 precision with it moves the "
+              f"disparity {alternative['mean_abs_px_vs_fp32']:.4f} px; run where the float "
+              "encoder would run in f32 without int8 dot products")
     for rt, t in q["vs_fp32"].items():
         print(f"int8 vs fp32 on the calibration frames, {rt}: disparity {t['px']:.4f} px, "
               f"confidence {t['confidence']:.4f} (mean |difference|)")
