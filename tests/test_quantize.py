@@ -208,3 +208,29 @@ def test_the_printout_says_why_a_graph_stayed_float():
                                    mean_abs_px_with_float_nodes=0.05))
     assert "step: int8" in some and "kept float: /a/Conv -> moves 0.0500 px" in some
     assert "kept float" not in graph_line("upsample", dict(base, float_nodes=[]))
+
+
+def test_the_command_line_says_which_graphs_went_int8_and_names_the_int8_encoder(
+        small_bundle, tmp_path, monkeypatch, capsys):
+    """The encoder too slow in int8 here (the speed test pinned): it stays float, and the
+    printout names the int8 encoder written beside it for the CPUs where the float one would
+    run in f32."""
+    import shutil
+
+    from edge_depth.tools import quantize
+
+    monkeypatch.setattr(quantize, "paired_ms", lambda engines, frames, iters: (
+        (10.0, 12.0, 1.2) if engines[1].meta["precisions"]["int8"]["encoder"].endswith(
+            ".int8.onnx") else (10.0, 5.0, 0.5)))
+    monkeypatch.setattr(quantize, "agreement", pinned_agreement)
+    bundle = tmp_path / "b"
+    shutil.copytree(small_bundle[0], bundle)
+    assert quantize.main([str(bundle), "--calib", "synthetic:1", "--iters", "1", "--threads",
+                          "1", "--no-node-search", "--max-total-px", "10", "--max-graph-px", "10",
+                          "--timing-runtime", "onnxruntime"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("encoder: float (alone: moves disparity 0.1000 px")
+    assert "step: int8" in out and "upsample: int8" in out
+    # the int8 precision with it: step, upsampling and encoder int8, 0.1 px each (pinned)
+    assert "int8 encoder beside the float one (encoder.int8.onnx, kept float: " in out
+    assert "moves the disparity 0.3000 px" in out
