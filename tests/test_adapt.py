@@ -117,6 +117,9 @@ def test_adapt_round_trip_writes_a_bundle_that_replays(tmp_path, capsys):
     assert rc == 0
     meta = json.loads((out / "model.json").read_text())
     assert meta["size"] == [192, 128] and "int8" in meta["precisions"]
+    # where the encoder stays float its int8 alternative is calibrated on the robot's frames
+    encoder = meta.get("int8_encoder")
+    assert encoder is None or encoder["calibration"] == meta["quantization"]["calibration"]
     assert (out / "checkpoint.pt").is_file() and (out / "report.png").is_file()
     import torch
 

@@ -322,22 +322,24 @@ class GraphChoices:
 ENCODER_CALIB = "synthetic:16"
 
 
-def int8_encoder(run: GraphChoices, calib: str = ENCODER_CALIB) -> dict | None:
+def int8_encoder(run: GraphChoices, calib: str | None = ENCODER_CALIB,
+                 label: str = "the bundle's calibration frames") -> dict | None:
     """Where the encoder stays float: an int8 one beside it for the CPUs on which the float one
     would run in f32 without int8 dot products (`backends.resolve_int8_encoder`; an AVX2-only
     x86: 16.9 → 12.2 ms, the real pairs held, docs/speed.md), its stem float (the full-
     resolution first convolution on the raw image: no faster in int8 and most of the shift).
     Kept if the int8 precision with it moves the disparity (and confidence) within the graph
     limit on ONNX Runtime (on the bundle's calibration frames); model.json's "int8_encoder"
-    says what it is."""
+    says what it is. `calib`: its calibration frames (a `calibration_frames` spec), or None
+    for the bundle's own (a robot's recordings, `adapt`), then named by `label`."""
     src = run.bundle / run.files["encoder"]
     dst = run.bundle / run.files["encoder"].replace(".onnx", ".int8.onnx")
     stem = conv_nodes(src)[:1]
-    record: dict[str, list] = {}
-    for frame in calibration_frames(calib, run.fp32.size):
+    record: dict[str, list] = {"encoder": run.record["encoder"]} if calib is None else {}
+    for frame in [] if calib is None else calibration_frames(calib, run.fp32.size):
         run.fp32.infer(*frame, iters=1, record=record)
     quantize_graph(src, dst, record["encoder"], stem)
-    entry = dict(file=dst.name, float_nodes=stem, calibration=calib)
+    entry = dict(file=dst.name, float_nodes=stem, calibration=label if calib is None else calib)
     engine = network_engine(run.bundle, "int8", run.threads, dict(run.meta, int8_encoder=entry),
                             runtime=RUNTIME, int8_encoder="on")
     shift = agreement(engine, run.fp32, run.frames, run.iters)
@@ -361,6 +363,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     timing = resolve_runtime(timing_runtime)
     run = GraphChoices(bundle, meta, [], iters, threads, timing, max_graph_px, max_total_px,
                        max_confidence, min_gain, node_search)
+    given = not isinstance(calib, str)  # a robot's own frames
     if isinstance(calib, str):
         run.frames = list(calibration_frames(calib, run.fp32.size))
     else:
@@ -371,7 +374,10 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     for part in PARTS:
         run.choose(part)
     total = run.cap_total()
-    alternative = None if run.graphs["encoder"]["int8"] else int8_encoder(run)
+    # the rig's scenes where a spec names the frames (the shipped bundle's judgement); a
+    # robot's own recordings where they were given
+    alternative = None if run.graphs["encoder"]["int8"] else int8_encoder(
+        run, None if given else ENCODER_CALIB, str(calib))
     if alternative is not None:
         meta["int8_encoder"] = alternative
     meta["quantization"] = dict(
