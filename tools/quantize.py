@@ -347,8 +347,8 @@ def int8_encoder(run: GraphChoices, calib: str | None = ENCODER_CALIB,
         dst.unlink()
         return None
     return dict(entry, mean_abs_px_vs_fp32=shift["px"], confidence_vs_fp32=shift["confidence"],
-                where="the int8 precision where the float encoder would run in f32 on a CPU "
-                      "without int8 dot products")
+                where="the int8 precision on OpenVINO where the float encoder would run in "
+                      "f32 on a CPU without int8 dot products")
 
 
 def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, iters: int = 4,
