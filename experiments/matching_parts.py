@@ -1,7 +1,8 @@
 """The full-resolution matching's parts, each timed alone on rig test frames after the
 engine's own inference: StereoBM at the frame's "auto" count (every 2nd row), the choice's
-pair-only terms and, of them, the LiDAR's nearest-point map and one 5×5 warp cost, and the
-gate. Median ms of 20 calls.
+pair-only terms and, of them, the LiDAR's nearest-point map (and, for comparison, the same
+distance transform on a half-resolution mask, which would pick other points at depth edges)
+and one 5×5 warp cost, and the gate. Median ms of 20 calls.
 
     python experiments/matching_parts.py [--frames 2]
 """
@@ -11,6 +12,7 @@ from __future__ import annotations
 import argparse
 import time
 
+import cv2
 import numpy as np
 
 from edge_depth.baselines import lidar_nearest
@@ -52,10 +54,14 @@ def time_parts(engine: Engine, seed: int) -> dict[str, float]:
     count = disparities_for(result.disparity, result.disparity.shape[1])
     grey = [np.asarray(im, np.float32) for im in (left, right)]
     point = lidar_nearest(sparse, sparse > 0)
+    half = cv2.resize((sparse > 0).astype(np.uint8), None, fx=0.5, fy=0.5,
+                      interpolation=cv2.INTER_AREA) == 0
     parts = {
         f"StereoBM ({count})": lambda: match.matched(left, right, count),
         "pair-only terms": lambda: match.pair_terms(left, right, sparse),
         "of them the nearest point": lambda: lidar_nearest(sparse, sparse > 0),
+        "its transform at half resolution": lambda: cv2.distanceTransformWithLabels(
+            half.astype(np.uint8), cv2.DIST_L2, 5, labelType=cv2.DIST_LABEL_PIXEL),
         "a 5x5 warp cost": lambda: warped_cost(*grey, point, (5,)),
         "gate": lambda: (confidence < match.max_confidence)
         & (local_range(result.disparity, match.window_px) > match.min_range_px),
