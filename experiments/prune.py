@@ -2,10 +2,9 @@
 ones the next layers use most, as the start of a fine-tuning run (`tools/train.py --init OUT`).
 
     python experiments/prune.py edge/models/sparse_stereo.pt --out runs/prune/h48.pt \
-        --hidden 48 --context 32 --motion 48 --head 32 --feature 48 [--quarter 24]
+        --hidden 48 --context 32 --motion 48 --head 32 --feature 48 [--widths 12,24,32]
 
-`--quarter`: the backbone's 1/4-resolution block, the encoder's most expensive layer
-(`prune_backbone`).
+`--widths`: the shared backbone's channels at 1/2, 1/4 and 1/8 (`prune_backbone`).
 
 The step graph's cost is mostly the GRU's gates, whose convolutions scale with (hidden +
 motion) × hidden; at 4 iterations it is ~40 % of the int8 engine (`docs/experiments.md`).
@@ -121,28 +120,60 @@ def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tupl
     return s, pruned
 
 
-def prune_backbone(state: dict, config: ModelConfig, quarter: int) -> tuple[dict, ModelConfig]:
-    """The backbone's 1/4-resolution block (`layer2`, the encoder's most expensive layer)
-    cut to `quarter` channels: its inner channels ranked by its second convolution's input
-    weights, its output (the second convolution's and the skip's, added) by the next block's
-    (`layer3`'s convolution and skip). Batch-norm statistics follow their channels."""
-    s = dict(state)
-    b = "encoders.backbone."
-    if b + "layer3.skip.0.weight" not in s:
-        raise SystemExit("--quarter needs the 1/8 block's strided skip (downsample 8)")
+def _block(s: dict, name: str, inner: torch.Tensor | None, out: torch.Tensor | None,
+           source: torch.Tensor | None) -> None:
+    """A residual block (`edge.model.extractor.ResidualBlock`) cut: its inner channels
+    (conv1's outputs, conv2's inputs) to `inner`, its outputs (conv2's and the skip's, with
+    their batch norms) to `out`, its inputs (conv1's and the skip's) to `source`; None keeps."""
+    if inner is not None:
+        for layer in ("conv1", "norm1"):
+            _rows(s, f"{name}.{layer}", inner)
+        _cols(s, f"{name}.conv2", inner)
+    if out is not None:
+        for layer in ("conv2", "norm2", "skip.0", "skip.1"):
+            if f"{name}.{layer}.weight" in s:
+                _rows(s, f"{name}.{layer}", out)
+    if source is not None:
+        for layer in ("conv1", "skip.0"):
+            if f"{name}.{layer}.weight" in s:
+                _cols(s, f"{name}.{layer}", source)
 
-    inner = _keep(_col_norm(s[b + "layer2.conv2.weight"]), quarter)
-    out = _keep(_col_norm(s[b + "layer3.conv1.weight"], s[b + "layer3.skip.0.weight"]),
-                quarter)
-    for name in ("layer2.conv1", "layer2.norm1"):
-        _rows(s, b + name, inner)
-    _cols(s, b + "layer2.conv2", inner)
-    for name in ("layer2.conv2", "layer2.norm2", "layer2.skip.0", "layer2.skip.1"):
-        _rows(s, b + name, out)
-    for name in ("layer3.conv1", "layer3.skip.0"):
-        _cols(s, b + name, out)
-    widths = (config.widths[0], quarter, *config.widths[2:])
-    return s, ModelConfig.from_dict({**config.to_dict(), "widths": widths})
+
+def prune_backbone(state: dict, config: ModelConfig, widths: tuple[int, int, int]
+                   ) -> tuple[dict, ModelConfig]:
+    """The shared backbone cut to `widths` (its channels at 1/2, 1/4 and 1/8). Each block's
+    inner channels are ranked by its second convolution's input weights; each stage's output
+    by the layers that read it: the stem's by the 1/4 block, the 1/4 block's by the 1/8
+    block, the 1/8 block's by the feature, context and affinity heads (the affinity block adds
+    its input to its output, so its output keeps the same channels). Batch-norm statistics
+    follow their channels. Needs the backbone without its 1/2-resolution block (the shipped
+    one) and downsample 8."""
+    if config.half_res_block or config.downsample != 8:
+        raise SystemExit("--widths needs half_res_block false and downsample 8 (the shipped "
+                         "network's backbone)")
+    for new, old in zip(widths, config.widths, strict=True):
+        if not 1 <= new <= old:
+            raise SystemExit(f"--widths: each 1 to the checkpoint's {config.widths} (a prune "
+                             f"only cuts), got {widths}")
+    s = dict(state)
+    b, e = "encoders.backbone.", "encoders."
+    stem = _keep(_col_norm(s[b + "layer2.conv1.weight"], s[b + "layer2.skip.0.weight"]),
+                 widths[0])
+    quarter = _keep(_col_norm(s[b + "layer3.conv1.weight"], s[b + "layer3.skip.0.weight"]),
+                    widths[1])
+    eighth = _keep(_col_norm(s[e + "feature_head.weight"], s[e + "context_head.weight"],
+                             s[e + "affinity_block.conv1.weight"]), widths[2])
+    inner2 = _keep(_col_norm(s[b + "layer2.conv2.weight"]), widths[1])
+    inner3 = _keep(_col_norm(s[b + "layer3.conv2.weight"]), widths[2])
+    inner_a = _keep(_col_norm(s[e + "affinity_block.conv2.weight"]), widths[2])
+    for layer in ("stem.0", "stem.1"):
+        _rows(s, b + layer, stem)
+    _block(s, b + "layer2", inner2, quarter, stem)
+    _block(s, b + "layer3", inner3, eighth, quarter)
+    _block(s, e + "affinity_block", inner_a, eighth, eighth)
+    for head in ("feature_head", "context_head", "affinity_head"):
+        _cols(s, e + head, eighth)
+    return s, ModelConfig.from_dict({**config.to_dict(), "widths": tuple(widths)})
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -152,8 +183,9 @@ def main(argv: list[str] | None = None) -> int:
     for key in SIZES:
         p.add_argument(f"--{key}", type=int, default=None,
                        help=f"channels to keep (default: the checkpoint's {SIZES[key]})")
-    p.add_argument("--quarter", type=int, default=None,
-                   help="the backbone's 1/4-resolution block's channels (default: as it is)")
+    p.add_argument("--widths", default=None,
+                   help="the backbone's channels at 1/2, 1/4 and 1/8, e.g. 12,24,32 "
+                   "(default: as they are)")
     args = p.parse_args(argv)
     ckpt = torch.load(args.checkpoint, weights_only=False, map_location="cpu")
     config = ModelConfig.from_dict(ckpt["config"])
@@ -162,11 +194,11 @@ def main(argv: list[str] | None = None) -> int:
         if v < 1:
             p.error(f"--{k} must be at least 1, got {v}")
     state, pruned = prune_state(ckpt["model"], config, sizes)
-    if args.quarter is not None:
-        if not 1 <= args.quarter <= config.widths[1]:
-            p.error(f"--quarter: 1 to {config.widths[1]} (a prune only cuts), got "
-                    f"{args.quarter}")
-        state, pruned = prune_backbone(state, pruned, args.quarter)
+    if args.widths is not None:
+        widths = tuple(int(w) for w in args.widths.split(","))
+        if len(widths) != 3:
+            p.error(f"--widths: three channel counts, e.g. 12,24,32, got {args.widths}")
+        state, pruned = prune_backbone(state, pruned, widths)
     before = sum(v.numel() for v in ckpt["model"].values())
     after = sum(v.numel() for v in state.values())
     args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -308,3 +308,49 @@ def test_device_flag_is_checked_and_checkpoints_load_on_the_cpu(tmp_path, capsys
     assert train.main(["--out", str(run), "--steps", "2", "--resume", "--device", "auto",
                        "--workers", "0"]) == 0
     assert torch.load(run / "last.pt", weights_only=False)["step"] == 2
+
+
+def test_a_teacher_adds_the_distance_to_its_own_final_disparity(tmp_path, capsys):
+    """--teacher: the loss gains --teacher-weight × the sequence loss towards the frozen
+    teacher's final disparity after as many iterations; a network that is its own teacher
+    (both in eval mode) is at distance 0, and a run with one logs the term."""
+    from argparse import Namespace
+
+    from edge_depth.model.config import ModelConfig
+    from edge_depth.model.network import SparseStereoNet
+
+    torch.manual_seed(0)
+    net = SparseStereoNet(ModelConfig(widths=(8, 8, 8), feature_dim=8, context_dim=8,
+                                      hidden_dim=8, motion_dim=8, head_dim=8)).eval()
+    rng = np.random.default_rng(0)
+    images = [torch.from_numpy(rng.uniform(0, 255, (2, 1, 32, 128)).astype(np.float32))
+              for _ in range(2)]
+    valid = torch.from_numpy((rng.uniform(size=(2, 1, 32, 128)) < 0.1).astype(np.float32))
+    gt = torch.full((2, 1, 32, 128), 5.0)
+    batch = dict(left=images[0], right=images[1], sparse=gt * valid, valid=valid, gt=gt)
+    args = Namespace(mode="supervised", iters=2, edge_weight=0.0, teacher_weight=0.5)
+    plain, terms, _ = train.batch_loss(net, batch, args)
+    assert "teacher" not in terms
+    _, terms, _ = train.batch_loss(net, batch, args, teacher=net)
+    assert terms["teacher"] == pytest.approx(0.0, abs=1e-6)
+    other = SparseStereoNet(net.config).eval()
+    with torch.no_grad():
+        taught = other(batch["left"], batch["right"], batch["sparse"], valid, 2)[-1]
+        preds = net(batch["left"], batch["right"], batch["sparse"], valid, 2)
+    expected = sum(0.9 ** (1 - i) * (p - taught).abs().mean() for i, p in enumerate(preds))
+    loss, terms, _ = train.batch_loss(net, batch, args, teacher=other)
+    assert terms["teacher"] == pytest.approx(float(expected), rel=1e-4)
+    assert float(loss.detach()) == pytest.approx(
+        float(plain.detach()) + 0.5 * float(expected), rel=1e-4)
+
+    first = tmp_path / "a"
+    small = ["--batch", "1", "--crop", "64x64", "--iters", "2", "--workers", "0"]
+    assert train.main(["--out", str(first), "--steps", "1"] + small) == 0
+    run = tmp_path / "b"
+    assert train.main(["--out", str(run), "--steps", "1", "--teacher", str(first / "final.pt"),
+                       "--init", str(first / "final.pt")] + small) == 0
+    row = next(csv.DictReader(open(run / "metrics.csv")))
+    assert float(row["teacher"]) >= 0 and float(row["loss"]) > float(row["teacher"]) * 0.99
+    with pytest.raises(SystemExit):
+        train.main(["--out", str(run), "--mode", "self", "--teacher", str(first / "final.pt")])
+    assert "--teacher distils in supervised mode" in capsys.readouterr().err

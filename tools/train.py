@@ -161,8 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         torch.set_flush_denormal(False)
 
 
-LOG_FIELDS = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "epe",
-              "val_epe", "val_bad3", "lr_now", "seconds"]
+LOG_FIELDS = ["step", "loss", "appearance", "sparse", "lr", "smooth", "confidence", "teacher",
+              "epe", "val_epe", "val_bad3", "lr_now", "seconds"]
 HEADS = ("refine.",)  # the confidence head: may start fresh, at its own learning rate
 
 
@@ -275,8 +275,22 @@ def open_log(path: Path, step: int, main_rank: bool):
     return log, writer
 
 
-def batch_loss(net, batch: dict, args):
-    """(loss, its logged terms, the final disparity) of one batch, supervised or not."""
+def load_teacher(path: Path, device: torch.device):
+    """The frozen network distilled from (`--teacher`): eval mode, no gradients."""
+    from edge_depth.tools.export import load_checkpoint
+
+    teacher, ckpt = load_checkpoint(path)
+    for param in teacher.parameters():
+        param.requires_grad_(False)
+    print(f"teacher {path}: step {ckpt.get('step')}")
+    return teacher.to(device)
+
+
+def batch_loss(net, batch: dict, args, teacher=None):
+    """(loss, its logged terms, the final disparity) of one batch, supervised or not; with a
+    `teacher`, plus `--teacher-weight` × the same sequence loss towards its final disparity
+    after as many iterations (on every pixel: the teacher answers where the ground truth is
+    unknown too)."""
     if args.mode != "supervised":
         return self_supervised_step(net, batch, args.split, args.iters)
     preds, logit = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
@@ -286,10 +300,17 @@ def batch_loss(net, batch: dict, args):
               if args.edge_weight else None)  # the plain mean: no edge map to make
     loss = sequence_loss(preds, batch["gt"], has_gt, weight=weight)
     terms, final = {}, preds[-1]
+    if teacher is not None:
+        with torch.no_grad():
+            taught = teacher(batch["left"], batch["right"], batch["sparse"], batch["valid"],
+                             args.iters)[-1]
+        distil = sequence_loss(preds, taught, torch.ones_like(has_gt))
+        loss = loss + args.teacher_weight * distil
+        terms["teacher"] = float(distil.detach())
     if logit is not None:
         conf = confidence_loss(logit, final.detach(), batch["gt"], has_gt)
         loss = loss + CONFIDENCE_WEIGHT * conf
-        terms = dict(confidence=float(conf.detach()))
+        terms["confidence"] = float(conf.detach())
     return loss, terms, final
 
 
@@ -347,12 +368,13 @@ def _train(argv: list[str] | None) -> int:
                        tmp)
 
     set_train_mode(model, args.freeze_trunk)
+    teacher = None if args.teacher is None else load_teacher(args.teacher, device)
     bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True,
                disable=not main_rank)
     start = time.time()
     while step < args.steps:
         batch = to_device(next(loader), device)
-        loss, terms, final = batch_loss(net, batch, args)
+        loss, terms, final = batch_loss(net, batch, args, teacher)
         bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)
         if world > 1:  # every rank skips, or none: a lone skip would hang the all-reduce
             torch.distributed.all_reduce(bad)

@@ -77,6 +77,13 @@ def parse_args(argv, description: str = "") -> argparse.Namespace:
                         "augmentation (default 0.2, RAFT-Stereo's)")
     p.add_argument("--edge-weight", type=float, default=0.0,
                    help="supervised: pixels at GT depth edges weigh 1 + W in the loss")
+    p.add_argument("--teacher", type=Path, default=None,
+                   help="supervised: a trained checkpoint whose final disparity (at its own "
+                   "iterations, frozen) the network also learns to reproduce: distillation "
+                   "into a lighter network")
+    p.add_argument("--teacher-weight", type=float, default=1.0,
+                   help="with --teacher: the weight of the L1 towards the teacher's disparity "
+                   "beside the ground truth's")
     p.add_argument("--resume", action="store_true", help="continue from OUT/last.pt")
     p.add_argument("--init", type=Path, default=None, help="start from a checkpoint's weights")
     p.add_argument("--data", default=None,
@@ -90,6 +97,8 @@ def parse_args(argv, description: str = "") -> argparse.Namespace:
     if args.dims and args.init is not None:
         p.error("--dims is for a network from scratch: with --init the widths are the "
                 "checkpoint's (experiments/prune.py cuts them)")
+    if args.teacher is not None and args.mode != "supervised":
+        p.error("--teacher distils in supervised mode")
     if args.fresh_lr_mult != 1.0 and args.init is None:
         p.error("--fresh-lr-mult needs --init (fresh tensors are those the checkpoint lacks)")
     if args.freeze_trunk and not args.refine:
