@@ -82,13 +82,8 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     left/right (H, W) grey (any dtype), disparity and confidence (H, W) the network's
     outputs, sparse (H, W) LiDAR disparity in px (0 or non-finite = none). Returns
     (features (N, len(FEATURES)) float32, cells (N,) their flat indices over `cell_shape`,
-    lidar (N,) float32 the nearest LiDAR point's disparity there). The point's residual is
-    how far the network's own value at the LiDAR point's cell is from the point: large where
-    the point leaked through an occlusion or the network is wrong there too. The local ranges
-    (max − min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map
-    say whether the cell sits at an edge of either: without them the scorer could not tell a
-    network that missed an edge from a LiDAR point across one, and a cap of 8 px on the
-    disagreement had to keep the large ones out (docs/experiments.md).
+    lidar (N,) float32 the nearest LiDAR point's disparity there); what each feature says:
+    `_point_columns`.
 
     side_cells > 0: the network's own near and far sides (the largest and smallest of its
     cell means over side_cells × side_cells cells) are candidates too. The cells are then
@@ -110,58 +105,100 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     index, distance = nearest_valid_index(valid)
     net = cell_mean(disparity)
     points = lidar_cells[valid]
-    residual = points - net[valid]
     index = index.ravel()
     nearest = points[index]  # each cell's nearest point's value
     signed = nearest - net.ravel()
-    gap = np.abs(signed)
     trust = cell_mean(confidence).ravel()
-    candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px)
     grey_l = cell_mean(left)
-    if side_cells:
-        sides = cell_sides(net, grey_l, side_cells)
-        candidate |= sides_differ(*sides[:2], net, SIDE_ONLY_MIN_PX).ravel()
-    cells = np.flatnonzero(candidate & (trust < max_confidence))
+    sides = cell_sides(net, grey_l, side_cells) if side_cells else None
+    cells = _candidate_cells(signed, trust, net, sides, max_disagreement_px, max_confidence)
     if not len(cells):
         return empty
     point = index[cells]
-    lidar = points[point]
-    signed = signed[cells]
-    grey_r = cell_mean(right)
-    wc = net.shape[1]
-    point_cell = np.flatnonzero(valid.ravel())[point]
-    # the two disparity maps' local ranges in one pass each (2 channels)
-    both = cv2.merge([net, nearest.reshape(net.shape)])
-    range3 = local_range(both, 3).reshape(-1, 2)[cells]
-    range7 = local_range(both, 7).reshape(-1, 2)[cells]
-    # disparities in cell units for the warp; windows 3 and 5 cells ≈ 5 and 9 pixels. The
-    # LiDAR candidate's map is the network's but at these cells (where they agree its cost is
-    # not used), so its error is the network's but there (a full second warp cost more)
-    net_error = warp_error(grey_l, grey_r, net / CELL_PX)
-    lidar_error = net_error.copy()
-    lidar_error.ravel()[cells] = warp_error_at(grey_l, grey_r, cells, lidar / CELL_PX)
-    net5, net9 = (cv2.blur(net_error, (k, k)).ravel()[cells] for k in (3, 5))
-    lid5, lid9 = (cv2.blur(lidar_error, (k, k)).ravel()[cells] for k in (3, 5))
-    gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
-                np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
-    columns = (net5 - lid5, net9 - lid9, log1p32(net5), log1p32(lid5),
-               log1p32(np.abs(signed)), tanh32(signed / 8.0),
-               trust[cells],
-               log1p32(CELL_PX * distance.ravel()[cells]), log1p32(gradient),
-               log1p32(np.abs(residual[point])),
-               log1p32(np.abs(grey_l.ravel()[cells] - grey_l.ravel()[point_cell])),
-               log1p32(range3[:, 0]), log1p32(range7[:, 0]),
-               log1p32(range3[:, 1]), log1p32(range7[:, 1]),
-               log1p32(local_range(grey_l, 5).ravel()[cells]),
-               tanh32((cells // wc - point_cell // wc) / 4.0))
-    values = lidar
-    if side_cells:
+    cell_maps = _CellMaps(grey_l, cell_mean(right), net, nearest.reshape(net.shape),
+                          np.flatnonzero(valid.ravel())[point])
+    columns = _point_columns(cell_maps, cells, points[point], signed[cells], trust[cells],
+                             distance.ravel()[cells], (points - net[valid])[point])
+    values = points[point]
+    if sides is not None:
+        lidar = values
         near_c, far_c, *side_features = side_columns(cells, net, grey_l, sides)
         columns += (*side_features, log1p32(np.abs(lidar - near_c)),
                     log1p32(np.abs(lidar - far_c)))
         values = np.empty((len(cells), 3), np.float32)
         values[:, 0], values[:, 1], values[:, 2] = lidar, near_c, far_c
     return feature_matrix(columns, scratch), cells, values
+
+
+def _candidate_cells(signed: np.ndarray, trust: np.ndarray, net: np.ndarray,
+                     sides: tuple | None, max_disagreement_px: float,
+                     max_confidence: float) -> np.ndarray:
+    """The flat cells scored: the nearest point differs from the network's cell value by
+    more than MIN_DISAGREEMENT_PX and at most `max_disagreement_px` (or, with `sides`, the
+    network's own sides differ), where the network's mean confidence is below
+    `max_confidence`."""
+    gap = np.abs(signed)
+    candidate = (gap > MIN_DISAGREEMENT_PX) & (gap <= max_disagreement_px)
+    if sides is not None:
+        candidate |= sides_differ(*sides[:2], net, SIDE_ONLY_MIN_PX).ravel()
+    return np.flatnonzero(candidate & (trust < max_confidence))
+
+
+@dataclass(frozen=True)
+class _CellMaps:
+    """The cell-resolution maps the point's features read: both views' grey, the network's
+    disparity, the nearest-point map, and each scored cell's point's own cell (flat)."""
+
+    grey_l: np.ndarray
+    grey_r: np.ndarray
+    net: np.ndarray
+    nearest: np.ndarray
+    point_cell: np.ndarray
+
+
+def _point_columns(maps: _CellMaps, cells: np.ndarray, lidar: np.ndarray, signed: np.ndarray,
+                   trust: np.ndarray, distance: np.ndarray, residual: np.ndarray
+                   ) -> tuple[np.ndarray, ...]:
+    """FEATURES' columns at `cells`, in order. The point's residual is how far the
+    network's own value at the LiDAR point's cell is from the point: large where the point
+    leaked through an occlusion or the network is wrong there too. The local ranges (max −
+    min over 3×3 / 7×7 cells) of the network's disparity and of the nearest-point map say
+    whether the cell sits at an edge of either: without them the scorer could not tell a
+    network that missed an edge from a LiDAR point across one, and a cap of 8 px on the
+    disagreement had to keep the large ones out (docs/experiments.md)."""
+    grey_l, net, point_cell = maps.grey_l, maps.net, maps.point_cell
+    wc = net.shape[1]
+    # the two disparity maps' local ranges in one pass each (2 channels)
+    both = cv2.merge([net, maps.nearest])
+    range3 = local_range(both, 3).reshape(-1, 2)[cells]
+    range7 = local_range(both, 7).reshape(-1, 2)[cells]
+    net5, net9, lid5, lid9 = _warp_costs(grey_l, maps.grey_r, net, cells, lidar)
+    gradient = (np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 1, 0)) +
+                np.abs(cv2.Sobel(grey_l, cv2.CV_32F, 0, 1))).ravel()[cells]
+    return (net5 - lid5, net9 - lid9, log1p32(net5), log1p32(lid5),
+            log1p32(np.abs(signed)), tanh32(signed / 8.0),
+            trust,
+            log1p32(CELL_PX * distance), log1p32(gradient),
+            log1p32(np.abs(residual)),
+            log1p32(np.abs(grey_l.ravel()[cells] - grey_l.ravel()[point_cell])),
+            log1p32(range3[:, 0]), log1p32(range7[:, 0]),
+            log1p32(range3[:, 1]), log1p32(range7[:, 1]),
+            log1p32(local_range(grey_l, 5).ravel()[cells]),
+            tanh32((cells // wc - point_cell // wc) / 4.0))
+
+
+def _warp_costs(grey_l: np.ndarray, grey_r: np.ndarray, net: np.ndarray, cells: np.ndarray,
+                lidar: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The network's and the LiDAR candidate's warp errors at `cells`, averaged over 3 and
+    5 cells (≈ 5 and 9 pixels): (net5, net9, lid5, lid9). The LiDAR candidate's map is the
+    network's but at these cells (where they agree its cost is not used), so its error is
+    the network's but there (a full second warp cost more)."""
+    net_error = warp_error(grey_l, grey_r, net / CELL_PX)
+    lidar_error = net_error.copy()
+    lidar_error.ravel()[cells] = warp_error_at(grey_l, grey_r, cells, lidar / CELL_PX)
+    net5, net9 = (cv2.blur(net_error, (k, k)).ravel()[cells] for k in (3, 5))
+    lid5, lid9 = (cv2.blur(lidar_error, (k, k)).ravel()[cells] for k in (3, 5))
+    return net5, net9, lid5, lid9
 
 
 def available(features: np.ndarray, max_disagreement_px: float = np.inf) -> np.ndarray:
