@@ -228,6 +228,9 @@ def ratios(out: dict, engine_ms: dict, key: str, paired: list[float]) -> dict:
 
 def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle: Path,
           rss_frames: int = 5, runtime: str = "auto", bf16: bool | None = None) -> dict:
+    """Every stage timed on `scenes` rig frames in `repeat` blocks, the engine at each of
+    `iters_list` (and the bundle's own count) in fp32 and int8, SGBM on the same pairs; the
+    JSON summary `main` writes."""
     from edge_depth.capture.sim import SimSource
     from edge_depth.daemon import Pipeline
     from edge_depth.mcap_log import McapLogger
@@ -238,10 +241,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
     samples = [make_sample(TEST_SEED0 + i, rig, "beams16") for i in range(scenes)]
     dense = [make_sample(TEST_SEED0 + i, rig, "beams64") for i in range(scenes)]
-    rectifier = distorted_rig(rig).rectifier()
-    ideal = samples[0].calibration()
     inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
-    pairs = [(s.left, s.right) for s in samples]
     matcher = make_sgbm()
     # as the daemon runs them: with the engine settings the bundle declares (the shipped one:
     # the edge matching "auto" on every other row, inside every engine row)
@@ -257,30 +257,15 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     logger = McapLogger(Path(tmp.name) / "bench.mcap")
     source = SimSource(1, TEST_SEED0, rig)
     pipeline = Pipeline(engines["int8"], *source.calibration, logger)
-    results = [engines["int8"].infer(*x, focal_px=rig.focal_px, baseline_m=rig.baseline_m)
-               for x in inputs]
-    frames = [s.frame(1_000_000_000 + i * 100_000_000, i) for i, s in enumerate(samples)]
-    for i, s in enumerate(samples):
-        pipeline.on_scan(LidarScan(frames[i].stamp_ns - 5_000_000, s.scan.points))
-
-    methods = {"rectify": (lambda a, b: rectifier.rectify(a, b), pairs),
-               "project_filter": (lambda s: project_to_disparity(s.scan.points, ideal,
-                                                                 s.T_cam_lidar),
-                                  [(s,) for s in dense]),
-               "sgbm": (lambda a, b: sgbm_disparity(a, b, matcher), pairs),
-               "log": (lambda r, x: logger.log_result(r, x[2], rig.focal_px,
-                                                      (rig.cx, rig.cy)),
-                       list(zip(results, inputs, strict=True))),
-               "frame": (lambda f: pipeline.on_frame(f), [(f,) for f in frames])}
+    methods = daemon_stages(rig, samples, dense, inputs, engines["int8"], logger, pipeline)
+    pairs = [(s.left, s.right) for s in samples]
+    methods["sgbm"] = (lambda a, b: sgbm_disparity(a, b, matcher), pairs)
     for precision in ("fp32", "int8"):
         for iters in iters_list:
             methods[f"engine_{precision}_{iters}"] = (clock.run(precision, iters), inputs)
-    times: dict[str, list[float]] = {k: [] for k in methods}
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     with CpuShare() as share:
-        for _ in range(repeat):  # blocks
-            for name, (fn, args_list) in methods.items():
-                _timed(fn, args_list, times[name])
+        times = _timed_blocks(methods, repeat)
         paired = paired_ratios(  # the engine at the bundle's count against SGBM, frame by frame
             lambda a, b, p: engines["int8"].infer(a, b, p, iters=default_iters),
             lambda a, b: sgbm_disparity(a, b, matcher), inputs, repeat)
@@ -288,37 +273,76 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     logger.close()
     tmp.cleanup()
 
-    out = {name: stat(t) for name, t in times.items()}
-    for name, t in clock.runs.items():
-        out[name] = stat(t)
-    sgbm_ms = out["sgbm"]["median_ms"]
+    out = {name: stat(t) for name, t in (times | clock.runs).items()}
     engine_ms = {p: {str(i): out[f"engine_{p}_{i}"]["median_ms"] for i in iters_list}
                  for p in ("fp32", "int8")}
-    key = str(default_iters)
-    sgbm_spread = float(np.percentile(times["sgbm"], 90) / np.percentile(times["sgbm"], 10))
+    engine = engines["int8"]
     summary = dict(size=[w, h], scenes=scenes, threads=threads,
                    opencv_threads=cv2.getNumThreads(), bundle=str(bundle),
-                   engine=engines["int8"].describe(), runtime=engines["int8"].runtime,
-                   bf16_encoder=engines["int8"].bf16_encoder,
-                   int8_encoder=engines["int8"].int8_encoder,
+                   engine=engine.describe(), runtime=engine.runtime,
+                   bf16_encoder=engine.bf16_encoder, int8_encoder=engine.int8_encoder,
                    points_64_beams=int(np.median([len(s.scan) for s in dense])),
-                   sgbm_ms=sgbm_ms, engine_ms=engine_ms, stages=out,
-                   machine=dict(others_cpu_share=share.others, load_avg_1min=load_before,
-                                sgbm_p90_over_p10=sgbm_spread,
-                                busy=share.others is not None and share.others > BUSY_SHARE,
-                                cpu=cpu_description()))
-    summary["ratios"] = ratios(out, engine_ms, key, paired)
+                   sgbm_ms=out["sgbm"]["median_ms"], engine_ms=engine_ms, stages=out,
+                   machine=machine_state(share.others, load_before, times["sgbm"]))
+    summary["ratios"] = ratios(out, engine_ms, str(default_iters), paired)
     summary["outside_engine"] = outside_engine(pipeline.stats.timings)
-    sample_ms = float(np.median([w for w, _ in watch]))
-    summary["calibration_watch"] = dict(
-        sample_ms=sample_ms, every=WATCH_EVERY, per_frame_ms=sample_ms / WATCH_EVERY,
-        share_of_frame_pct=100 * float(np.median([w / f for w, f in watch])) / WATCH_EVERY)
-    if engines["int8"].edge_match is not None:
-        summary["match_starts"] = dict(engines["int8"].match_schedule.starts)
+    summary["calibration_watch"] = watch_summary(watch)
+    if engine.match_schedule is not None:
+        summary["match_starts"] = dict(engine.match_schedule.starts)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return summary
+
+
+def daemon_stages(rig, samples, dense, inputs, engine, logger, pipeline) -> dict:
+    """The daemon's stages around the engine, as `_timed` takes them (a function and its
+    argument tuples): rectification, the LiDAR's projection with its occlusion filter (64
+    beams), the results' logging and the daemon's whole frame (`pipeline`, given a scan 5 ms
+    before each frame)."""
+    rectifier = distorted_rig(rig).rectifier()
+    ideal = samples[0].calibration()
+    results = [engine.infer(*x, focal_px=rig.focal_px, baseline_m=rig.baseline_m)
+               for x in inputs]
+    frames = [s.frame(1_000_000_000 + i * 100_000_000, i) for i, s in enumerate(samples)]
+    for i, s in enumerate(samples):
+        pipeline.on_scan(LidarScan(frames[i].stamp_ns - 5_000_000, s.scan.points))
+    return {"rectify": (lambda a, b: rectifier.rectify(a, b),
+                        [(s.left, s.right) for s in samples]),
+            "project_filter": (lambda s: project_to_disparity(s.scan.points, ideal,
+                                                              s.T_cam_lidar),
+                               [(s,) for s in dense]),
+            "log": (lambda r, x: logger.log_result(r, x[2], rig.focal_px, (rig.cx, rig.cy)),
+                    list(zip(results, inputs, strict=True))),
+            "frame": (lambda f: pipeline.on_frame(f), [(f,) for f in frames])}
+
+
+def _timed_blocks(methods: dict, repeat: int) -> dict[str, list[float]]:
+    """Each method's per-call ms over `repeat` blocks, every method once per block (so a
+    slow spell of the host falls on all of them)."""
+    times: dict[str, list[float]] = {k: [] for k in methods}
+    for _ in range(repeat):
+        for name, (fn, args_list) in methods.items():
+            _timed(fn, args_list, times[name])
+    return times
+
+
+def machine_state(others_share: float | None, load_avg: float | None,
+                  sgbm_times: list[float]) -> dict:
+    """What else ran while the bench did, and how steady SGBM's own times were."""
+    spread = float(np.percentile(sgbm_times, 90) / np.percentile(sgbm_times, 10))
+    return dict(others_cpu_share=others_share, load_avg_1min=load_avg,
+                sgbm_p90_over_p10=spread,
+                busy=others_share is not None and others_share > BUSY_SHARE,
+                cpu=cpu_description())
+
+
+def watch_summary(watch: list[tuple[float, float]]) -> dict:
+    """The calibration watch's sample (`watch_costs`: its ms, the frame's ms) per frame."""
+    sample_ms = float(np.median([w for w, _ in watch]))
+    return dict(sample_ms=sample_ms, every=WATCH_EVERY, per_frame_ms=sample_ms / WATCH_EVERY,
+                share_of_frame_pct=100 * float(np.median([w / f for w, f in watch]))
+                / WATCH_EVERY)
 
 
 def outside_engine(timings) -> dict:
@@ -338,7 +362,7 @@ def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[floa
     from edge_depth.daemon import Pipeline
 
     pipeline = Pipeline(engine, *source.calibration, logger, watch_every=1)
-    out = []
+    out: list[tuple[float, float]] = []
     for k in range(repeat * len(samples)):
         s, stamp = samples[k % len(samples)], 5_000_000_000 + k * 100_000_000
         pipeline.on_scan(LidarScan(stamp - 5_000_000, s.scan.points))
