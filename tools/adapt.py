@@ -87,18 +87,67 @@ class FineTune:
         return min(1.0, max(parts))
 
 
+def adapt_and_check_frames(recordings: list[Path | str], calib: Path | None, topics: dict | None,
+                           max_frames: int, check_share: float, test_time: bool
+                           ) -> tuple[list[Frame], list[Frame]]:
+    """The recordings' frames (at most `max_frames` in all), split by time into the frames
+    adapted on and the later ones checked on (the same frames with `test_time`); one camera
+    size, or a clear error."""
+    per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
+                     for r in recordings]
+    if test_time:
+        adapt_frames = check_frames = [f for frames in per_recording for f in frames]
+        if not adapt_frames:
+            raise ValueError("no frames to adapt on")
+    else:
+        adapt_frames, check_frames = split_by_time(per_recording, check_share)
+    sizes = sorted({f.left.shape[::-1] for f in adapt_frames + check_frames})
+    if len(sizes) > 1:
+        raise ValueError(f"the recordings hold more than one camera size {sizes}: adapt one "
+                         "camera at a time")
+    print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames"
+          + (" (test-time: the same frames)" if test_time else ""))
+    return adapt_frames, check_frames
+
+
+def unadapted_engine(before: Engine, old_bundle: Path, init: Path, start: Path | None,
+                     work: Path, adapt_frames: list[Frame], node_search: bool) -> Engine:
+    """The starting weights at the camera's size: what adaptation gained apart from the
+    resolution the old bundle ran at. A bundle with any-size graphs holding those weights
+    runs there itself; others are exported at that size."""
+    if before.any_size and (start is None or Path(start).is_dir()):
+        return Engine(old_bundle, precision="int8", scale="native")
+    start_bundle = work / "start_bundle"
+    build_bundle(init, start_bundle, bundle_size(adapt_frames), adapt_frames,
+                 node_search=node_search)
+    return Engine(start_bundle, precision="int8")
+
+
+def install(candidate: Path, out: Path, files: list[Path]) -> None:
+    """The candidate bundle (with the report's `files`) becomes `out`: copied beside it
+    first, the old one kept as `out.previous`, then renamed into place."""
+    for f in files:
+        shutil.copy(f, candidate / f.name)
+    staging = out.with_name(out.name + ".new")
+    if staging.exists():
+        shutil.rmtree(staging)
+    shutil.copytree(candidate, staging)
+    if out.exists():
+        previous = out.with_name(out.name + ".previous")
+        if previous.exists():
+            shutil.rmtree(previous)
+        out.rename(previous)
+    staging.rename(out)
+
+
 def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
              resume: bool = False) -> tuple[Path, dict]:
     """Self-supervised fine-tuning of `init` on `frames`; (checkpoint path, summary). The
     learning rate warms up over the first 5 % and falls linearly to 0 at the bound."""
     import torch
-    from tqdm import tqdm
 
-    from edge_depth.model.data import to_tensors
     from edge_depth.model.device import on_cpu, resolve_device
-    from edge_depth.model.losses import sequence_loss
     from edge_depth.tools.export import load_checkpoint
-    from edge_depth.tools.train import self_supervised_step
 
     if not frames:
         raise ValueError("no adapt frames")
@@ -112,11 +161,7 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     last = work / "last.pt"
     step, seconds, skipped, skipped_in_a_row = 0, 0.0, 0, 0
     if resume and last.exists():
-        state = torch.load(last, weights_only=False, map_location="cpu")
-        net.load_state_dict(state["model"])
-        opt.load_state_dict(state["optimizer"])
-        step, seconds = state["step"], state["seconds"]
-        print(f"resumed from {last} at step {step} ({seconds / 60:.1f} min)")
+        step, seconds = _resume(last, net, opt)
     rng = np.random.default_rng([plan.seed, step])
     torch.manual_seed(plan.seed + step)
 
@@ -136,26 +181,14 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
                     split=plan.split, skipped_batches=skipped, device=str(device))
 
     net.train()
-    # the bar counts steps, or seconds when only --minutes bounds the run
     by_time = plan.steps is None
-    bar = tqdm(total=round(60 * plan.minutes) if by_time else plan.steps,
-               initial=round(seconds) if by_time else step, desc="adapt",
-               unit="s" if by_time else "it", dynamic_ncols=True)
+    bar = _progress_bar(plan, step, seconds)
     started = time.time() - seconds
     while plan.progress(step, seconds) < 1.0:
         frac = plan.progress(step, seconds)
-        for group in opt.param_groups:
+        for group in opt.param_groups:  # warm-up over 5 %, then linearly down to 0
             group["lr"] = plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac)
-        items = [to_tensors(frames[int(i)].arrays(), crop, rng, augment=True)
-                 for i in rng.integers(0, len(frames), plan.batch)]
-        batch = {k: torch.stack([item[k] for item in items]).to(device) for k in items[0]}
-        if plan.supervised:
-            preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"],
-                        plan.iters)
-            loss = sequence_loss(preds, batch["gt"], (batch["gt"] > 0).float())
-            terms = {}
-        else:
-            loss, terms, _ = self_supervised_step(net, batch, plan.split, plan.iters)
+        loss, terms = _loss(net, _batch(frames, crop, rng, plan.batch, device), plan)
         seconds = time.time() - started
         if not math.isfinite(float(loss.detach())):
             skipped, skipped_in_a_row = skipped + 1, skipped_in_a_row + 1
@@ -181,6 +214,52 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     out = work / "adapted.pt"
     save(out, optimizer=False)
     return out, summary()
+
+
+def _progress_bar(plan: FineTune, step: int, seconds: float):
+    """The run's bar: it counts steps, or seconds when only a time bounds the run."""
+    from tqdm import tqdm
+
+    by_time = plan.steps is None
+    return tqdm(total=round(60 * (plan.minutes or 0.0)) if by_time else plan.steps,
+                initial=round(seconds) if by_time else step, desc="adapt",
+                unit="s" if by_time else "it", dynamic_ncols=True)
+
+
+def _batch(frames: list[Frame], crop: tuple[int, int], rng: np.random.Generator, size: int,
+           device) -> dict:
+    """`size` frames drawn at random, cropped and augmented, stacked on `device`."""
+    import torch
+
+    from edge_depth.model.data import to_tensors
+
+    items = [to_tensors(frames[int(i)].arrays(), crop, rng, augment=True)
+             for i in rng.integers(0, len(frames), size)]
+    return {k: torch.stack([item[k] for item in items]).to(device) for k in items[0]}
+
+
+def _resume(last: Path, net, opt) -> tuple[int, float]:
+    """The network and optimizer as `last` left them; (its step, its seconds)."""
+    import torch
+
+    state = torch.load(last, weights_only=False, map_location="cpu")
+    net.load_state_dict(state["model"])
+    opt.load_state_dict(state["optimizer"])
+    print(f"resumed from {last} at step {state['step']} ({state['seconds'] / 60:.1f} min)")
+    return state["step"], state["seconds"]
+
+
+def _loss(net, batch: dict, plan: FineTune):
+    """(loss, its logged terms): the sequence loss against the ground truth (supervised), or
+    the paper's self-supervised loss."""
+    from edge_depth.model.losses import sequence_loss
+    from edge_depth.tools.train import self_supervised_step
+
+    if plan.supervised:
+        preds = net(batch["left"], batch["right"], batch["sparse"], batch["valid"], plan.iters)
+        return sequence_loss(preds, batch["gt"], (batch["gt"] > 0).float()), {}
+    loss, terms, _ = self_supervised_step(net, batch, plan.split, plan.iters)
+    return loss, terms
 
 
 def bundle_size(frames: list[Frame], multiple: int = 8) -> tuple[int, int]:
@@ -246,20 +325,8 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     from edge_depth.model.device import resolve_device
 
     resolve_device(plan.device)  # a GPU asked for but absent: one line before any work
-    per_recording = [load_frames(r, calib, topics, max_frames // len(recordings))
-                     for r in recordings]
-    if test_time:
-        adapt_frames = check_frames = [f for frames in per_recording for f in frames]
-        if not adapt_frames:
-            raise ValueError("no frames to adapt on")
-    else:
-        adapt_frames, check_frames = split_by_time(per_recording, check_share)
-    sizes = sorted({f.left.shape[::-1] for f in adapt_frames + check_frames})
-    if len(sizes) > 1:
-        raise ValueError(f"the recordings hold more than one camera size {sizes}: adapt one "
-                         "camera at a time")
-    print(f"{len(adapt_frames)} adapt frames, {len(check_frames)} check frames"
-          + (" (test-time: the same frames)" if test_time else ""))
+    adapt_frames, check_frames = adapt_and_check_frames(
+        recordings, calib, topics, max_frames, check_share, test_time)
     if plan.supervised and any(f.gt is None for f in adapt_frames):
         raise ValueError("supervised fine-tuning needs ground truth on every adapt frame")
     checkpoint, training = finetune(init, adapt_frames, work, plan, resume)
@@ -267,17 +334,9 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     quant = build_bundle(checkpoint, candidate, bundle_size(adapt_frames), adapt_frames,
                          node_search=node_search)
     engines = {"before": Engine(old_bundle, precision="int8")}
-    size = bundle_size(adapt_frames)
-    if unadapted and tuple(engines["before"].size) != size:
-        # the starting weights at the camera's size: what adaptation gained apart from the
-        # resolution the old bundle ran at; a bundle with any-size graphs holding those
-        # weights runs there itself, others are exported at that size
-        if engines["before"].any_size and (start is None or Path(start).is_dir()):
-            engines["unadapted"] = Engine(old_bundle, precision="int8", scale="native")
-        else:
-            start_bundle = work / "start_bundle"
-            build_bundle(init, start_bundle, size, adapt_frames, node_search=node_search)
-            engines["unadapted"] = Engine(start_bundle, precision="int8")
+    if unadapted and tuple(engines["before"].size) != bundle_size(adapt_frames):
+        engines["unadapted"] = unadapted_engine(engines["before"], old_bundle, init, start,
+                                                work, adapt_frames, node_search)
     engines["after"] = Engine(candidate, precision="int8")
     means, rows, shown = check(engines, check_frames)
     better, why = decide(means, photometric_only)
@@ -305,18 +364,7 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     files[1].write_text(format_report(report))
     picture(shown, files[2])
     if written:
-        for f in files:
-            shutil.copy(f, candidate / f.name)
-        staging = out.with_name(out.name + ".new")
-        if staging.exists():
-            shutil.rmtree(staging)
-        shutil.copytree(candidate, staging)
-        if out.exists():
-            previous = out.with_name(out.name + ".previous")
-            if previous.exists():
-                shutil.rmtree(previous)
-            out.rename(previous)
-        staging.rename(out)
+        install(candidate, out, files)
     print(format_report(report))
     return AdaptResult(written, report, work, files)
 
