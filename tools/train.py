@@ -328,6 +328,31 @@ def finish_distributed(model, args, main_rank: bool, world: int) -> None:
     torch.distributed.destroy_process_group()
 
 
+def batches(args, crop: tuple[int, int], step: int, rank: int, world: int,
+            device: torch.device):
+    """The endless batch iterator (`--workers` processes start here, each with one BLAS /
+    OpenCV thread), from `step` on, this rank's shard."""
+    with one_thread_each():
+        return iter(DataLoader(training_data(args, crop, step, rank, world),
+                               batch_size=args.batch, num_workers=args.workers,
+                               pin_memory=device.type == "cuda"))
+
+
+def optimise(net, opt, sched, loss) -> None:
+    """One optimiser step on `loss`, its gradients clipped to norm 1."""
+    opt.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+    opt.step()
+    sched.step()
+
+
+def batch_epe(final: torch.Tensor, gt: torch.Tensor) -> float:
+    """The final disparity's mean error where the ground truth is known (NaN: nowhere)."""
+    has_gt = gt > 0
+    return float((final.detach() - gt).abs()[has_gt].mean()) if has_gt.any() else float("nan")
+
+
 def _train(argv: list[str] | None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from tqdm import tqdm
@@ -350,10 +375,7 @@ def _train(argv: list[str] | None) -> int:
         net = torch.nn.parallel.DistributedDataParallel(
             net, device_ids=[device.index] if device.type == "cuda" else None)
     model = net.module if world > 1 else net
-    with one_thread_each():  # the workers start here, each with one BLAS / OpenCV thread
-        loader = iter(DataLoader(training_data(args, (cw, ch), step, rank, world),
-                                 batch_size=args.batch, num_workers=args.workers,
-                                 pin_memory=device.type == "cuda"))
+    loader = batches(args, (cw, ch), step, rank, world, device)
     log_path = args.out / "metrics.csv"
     log, writer = open_log(log_path, step, main_rank)
 
@@ -381,15 +403,9 @@ def _train(argv: list[str] | None) -> int:
         if float(bad) > 0:
             print(f"step {step}: non-finite loss, batch skipped", file=sys.stderr)
             continue
-        opt.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
-        sched.step()
+        optimise(net, opt, sched, loss)
         step += 1
-        has_gt = batch["gt"] > 0
-        epe = float((final.detach() - batch["gt"]).abs()[has_gt].mean()) if has_gt.any() \
-            else float("nan")
+        epe = batch_epe(final, batch["gt"])
         row = dict(step=step, loss=float(loss.detach()), epe=epe, lr_now=sched.get_last_lr()[0],
                    seconds=round(time.time() - start, 1), **terms)
         if args.val_every and (step % args.val_every == 0 or step == args.steps):
