@@ -328,12 +328,25 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
                         max_frames=max_frames, pipelined=e.pipelined)
     finally:
         stop.restore()
-    elapsed = time.monotonic() - started
+    print_run_summary(stats, pipeline, logger, config, time.monotonic() - started)
+    if stats.fatal:
+        print(f"error: {stats.fatal}", file=sys.stderr)
+        return 1
+    if stats.source_failed and not stop.is_set():
+        print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
+              file=sys.stderr)
+        return 1
+    return 0
+
+
+def print_run_summary(stats, pipeline: Pipeline, logger, config, elapsed: float) -> None:
+    """The daemon's closing lines: frames, scans and drops; the LiDAR's, the calibration
+    watch's, the selections' and the health's summaries; throughput and latency; the files."""
     lat = summarise(stats.timings)
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
           f"dropped, errors {dict(stats.errors) or 'none'}")
     print(lidar_summary(pipeline))
-    if watched := watch_summary(pipeline, str(logger.files[0]) if lg.raw else None,
+    if watched := watch_summary(pipeline, str(logger.files[0]) if config.log.raw else None,
                                 config.calibration.file or None):
         print(watched)
     if selected := selection_summary(stats.timings):
@@ -343,18 +356,11 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     if lat:
         fps = stats.throughput()
         print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s"
-              f"{' (pipelined)' if e.pipelined else ''}; latency (prepared to logged) "
-              f"median {lat['frame']['median']:.0f} ms, p95 {lat['frame']['p95']:.0f} ms")
+              f"{' (pipelined)' if config.engine.pipelined else ''}; latency (prepared to "
+              f"logged) median {lat['frame']['median']:.0f} ms, p95 "
+              f"{lat['frame']['p95']:.0f} ms")
         print("latency median / p95 ms: " + format_latency(lat))
     print(f"wrote {', '.join(str(p) for p in logger.files)}")
-    if stats.fatal:
-        print(f"error: {stats.fatal}", file=sys.stderr)
-        return 1
-    if stats.source_failed and not stop.is_set():
-        print("a source failed (see errors above): exiting 1 so a supervisor restarts us",
-              file=sys.stderr)
-        return 1
-    return 0
 
 
 def record_command(config_path, out, max_frames: int | None = None,
