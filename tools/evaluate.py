@@ -122,7 +122,6 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
         scene = read_scene_folder(folder)
         if scene.disp is None or scene.sparse is None:
             raise SystemExit(f"{folder}: needs disp.pfm and sparse.pfm")
-        valid = scene.sparse > 0
         gt_max = float(np.max(scene.disp[np.isfinite(scene.disp)], initial=0.0))
         sgbm = make_sgbm(sgbm_disparities_for(gt_max))
         runs = []  # (name, method, iterations)
@@ -135,23 +134,7 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
                 runs.append((method, method, 0))
         for name, method, iters in runs:
             start = time.perf_counter()
-            confidence = None
-            if method == "net":
-                pred, confidence = net(scene.left, scene.right, scene.sparse, iters)
-            elif method == "net-nolidar":
-                pred, confidence = net(scene.left, scene.right, np.zeros_like(scene.sparse),
-                                       iters)
-            elif method == "sgbm":
-                pred = sgbm_disparity(scene.left, scene.right, sgbm)
-            elif method == "sgbm-filled":
-                pred = fill_row_nearest(sgbm_disparity(scene.left, scene.right, sgbm))
-            elif method == "sgbm+lidar":
-                pred = sgbm_lidar_fusion(sgbm_disparity(scene.left, scene.right, sgbm),
-                                         scene.sparse, valid)
-            elif method == "lidar-nearest":
-                pred = lidar_nearest(scene.sparse, valid)
-            else:
-                pred = lidar_linear(scene.sparse, valid)
+            pred, confidence = predict(method, scene, net, sgbm, iters)
             ms = (time.perf_counter() - start) * 1000
             m = disparity_metrics(pred, scene.disp)
             if "focal_px" in scene.meta and "baseline_m" in scene.meta:
@@ -172,6 +155,25 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
         summary[name]["ms"] = float(np.median([r["ms"] for r in rows]))
         summary[name]["samples"] = len(rows)
     return summary
+
+
+def predict(method: str, scene, net, sgbm, iters: int):
+    """One method's (disparity, confidence or None) on a scene folder's pair and LiDAR."""
+    valid = scene.sparse > 0
+    if method == "net":
+        return net(scene.left, scene.right, scene.sparse, iters)
+    if method == "net-nolidar":
+        return net(scene.left, scene.right, np.zeros_like(scene.sparse), iters)
+    if method == "sgbm":
+        return sgbm_disparity(scene.left, scene.right, sgbm), None
+    if method == "sgbm-filled":
+        return fill_row_nearest(sgbm_disparity(scene.left, scene.right, sgbm)), None
+    if method == "sgbm+lidar":
+        return sgbm_lidar_fusion(sgbm_disparity(scene.left, scene.right, sgbm),
+                                 scene.sparse, valid), None
+    if method == "lidar-nearest":
+        return lidar_nearest(scene.sparse, valid), None
+    return lidar_linear(scene.sparse, valid), None
 
 
 def _mean(values: list[float]) -> float:
