@@ -5,7 +5,8 @@
 # what `auto` runs there.
 #     bash experiments/judge_encoder_int8.sh runs/enc8 runs/judge_enc8
 # KERNELS=native: this host's own kernels; RUNTIME=onnxruntime; BF16=auto|on|off (default off);
-# DATA="data/variants/aloe_noise ...": other scene folders (default the real pairs and data/test16).
+# DATA="data/variants/aloe_noise ...": other scene folders (default the real pairs and data/test16);
+# ROWS=1: the candidate's matching on every row (the shipped bundle keeps its own).
 set -euo pipefail
 CANDIDATE=$1
 OUT=$2
@@ -14,15 +15,19 @@ KERNELS=${KERNELS:-avx2}
 RUNTIME=${RUNTIME:-openvino}
 BF16=${BF16:-off}
 DATA=${DATA:-data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16}
+ROWS=${ROWS:-bundle}
 WRAP=()
 [ "$KERNELS" = avx2 ] && WRAP=(bash experiments/avx2_kernels.sh)
 mkdir -p "$OUT"
-echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores); kernels $KERNELS, $RUNTIME, bf16 $BF16"
+echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores); kernels $KERNELS, $RUNTIME, bf16 $BF16, the candidate's rows $ROWS"
 for data in $DATA; do
   for model in edge/models/default "$CANDIDATE"; do
+    rows=bundle
+    [ "$model" = "$CANDIDATE" ] && rows=$ROWS
     "${WRAP[@]}" "$BIN/python" tools/evaluate.py "$data" --model "$model" --methods net \
       --no-lidar --runtime "$RUNTIME" --precision int8 --bf16 "$BF16" --iters 4 \
-      --json "$OUT/eval_$(basename "$data")_$(basename "$model").json" > /dev/null
+      --edge-match-rows "$rows" --json "$OUT/eval_$(basename "$data")_$(basename "$model").json" \
+      > /dev/null
   done
 done
 "$BIN/python" - "$OUT" "$(basename "$CANDIDATE")" $DATA <<'PY'
