@@ -130,6 +130,25 @@ class SerialLidarSource(Source):
                 pass
 
     # -- iteration -----------------------------------------------------------------------------
+    def _opened(self, backoff: Backoff) -> bool:
+        """The port open (opened now if it was closed; a reopen counts as a reconnect), or
+        False after a failed attempt, counted and backed off."""
+        import serial
+
+        if self._port is not None:
+            return True
+        try:
+            self._port = self._open()
+        except (serial.SerialException, OSError, LidarDeviceError) as exc:
+            self.errors[f"open: {type(exc).__name__}"] += 1
+            backoff.wait()
+            return False
+        if self.connects > 1:
+            self.reconnects += 1
+            log.warning("%s: reconnected", self.url)
+        backoff.reset()
+        return True
+
     def __iter__(self):
         import serial
 
@@ -139,17 +158,8 @@ class SerialLidarSource(Source):
         rev_stamp = 0
         try:
             while not self._stop.is_set():
-                if self._port is None:
-                    try:
-                        self._port = self._open()
-                        if self.connects > 1:
-                            self.reconnects += 1
-                            log.warning("%s: reconnected", self.url)
-                        backoff.reset()
-                    except (serial.SerialException, OSError, LidarDeviceError) as exc:
-                        self.errors[f"open: {type(exc).__name__}"] += 1
-                        backoff.wait()
-                        continue
+                if not self._opened(backoff):
+                    continue
                 try:
                     waiting = getattr(self._port, "in_waiting", 0) or 1
                     data = self._port.read(min(self.read_size, waiting))
