@@ -312,30 +312,10 @@ class Runner:
         one result (logging is faster than the engine)."""
         to_engine: queue.Queue = queue.Queue(maxsize=1)
         to_log: queue.Queue = queue.Queue(maxsize=1)
-
-        def engine_loop() -> None:
-            while (item := to_engine.get()) is not None:
-                result = self._infer(item)
-                to_log.put(None if result is None else (item, result))
-                if result is None:
-                    self._after(item.frame, None)  # skipped: still counts for the stops
-                else:  # the frame is on its way: the watch's sample delays none
-                    self._guarded(self.pipeline.watch_sample, item)
-            to_log.put(StopIteration)
-
-        def log_loop() -> None:
-            while (item := to_log.get()) is not StopIteration:
-                if item is None:
-                    continue
-                try:
-                    self._after(item[0].frame, self._finish(*item))
-                except Exception as exc:  # noqa: BLE001 - e.g. on_output: stop, and keep
-                    # draining, or the engine thread would block on a full hand-off forever
-                    self.stats.count_error(f"output: {type(exc).__name__}", exc)
-                    self.stop.set()
-
-        workers = [threading.Thread(target=engine_loop, name="engine", daemon=True),
-                   threading.Thread(target=log_loop, name="log", daemon=True)]
+        workers = [threading.Thread(target=self._engine_loop, args=(to_engine, to_log),
+                                    name="engine", daemon=True),
+                   threading.Thread(target=self._log_loop, args=(to_log,), name="log",
+                                    daemon=True)]
         for worker in workers:
             worker.start()
         submitted = 0
@@ -367,6 +347,30 @@ class Runner:
             while worker.is_alive():
                 worker.join(timeout=0.1)
                 self.tick()
+
+    def _engine_loop(self, to_engine: queue.Queue, to_log: queue.Queue) -> None:
+        """The pipelined run's engine thread: infers each prepared frame handed to it and
+        hands the result on (None: skipped), then the calibration watch's sample."""
+        while (item := to_engine.get()) is not None:
+            result = self._infer(item)
+            to_log.put(None if result is None else (item, result))
+            if result is None:
+                self._after(item.frame, None)  # skipped: still counts for the stops
+            else:  # the frame is on its way: the watch's sample delays none
+                self._guarded(self.pipeline.watch_sample, item)
+        to_log.put(StopIteration)
+
+    def _log_loop(self, to_log: queue.Queue) -> None:
+        """The pipelined run's logging thread: finishes each result handed to it."""
+        while (item := to_log.get()) is not StopIteration:
+            if item is None:
+                continue
+            try:
+                self._after(item[0].frame, self._finish(*item))
+            except Exception as exc:  # noqa: BLE001 - e.g. on_output: stop, and keep
+                # draining, or the engine thread would block on a full hand-off forever
+                self.stats.count_error(f"output: {type(exc).__name__}", exc)
+                self.stop.set()
 
     def _run_replay(self) -> None:
         # a frame is held at least until the next event that is not its ground truth (so
