@@ -25,6 +25,7 @@ from edge_depth.errors import EdgeError
 
 
 def add_parsers(sub) -> None:
+    """`edge-depth calibrate`'s subcommands."""
     from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 
     cal = sub.add_parser("calibrate", help="stereo calibration, imports, LiDAR extrinsics")
@@ -54,6 +55,23 @@ def add_parsers(sub) -> None:
     exp.add_argument("--calib", required=True, type=Path)
     exp.add_argument("--out-dir", required=True, type=Path)
 
+    _lidar_parser(csub)
+    chk = csub.add_parser("check", help="estimate the LiDAR-camera rotation error of a "
+                          "recording (exit status 1 on ERROR)")
+    chk.add_argument("recording", type=Path, help="a .mcap recording with images and LiDAR")
+    chk.add_argument("--calib", type=Path, default=None,
+                     help="the calibration to check (default: the recording's own)")
+    chk.add_argument("--topics", type=Path, default=None,
+                     help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
+    chk.add_argument("--every", type=int, default=WATCH_EVERY,
+                     help="the daemon's sampling: one sample's budget in this many frames "
+                          f"with LiDAR (default {WATCH_EVERY}, as [calibration] watch_every)")
+    chk.add_argument("--max-samples", type=int, default=60,
+                     help="stop after this many samples (default 60, the watch's window)")
+
+
+def _lidar_parser(csub) -> None:
+    """`calibrate lidar`: check (and refine) T_cam_lidar against the stereo."""
     lid = csub.add_parser("lidar", help="check (and --refine) T_cam_lidar against stereo")
     lid.add_argument("--recording", required=True, type=Path,
                      help="a .mcap recording, or scene folders (a folder of them) with "
@@ -76,19 +94,6 @@ def add_parsers(sub) -> None:
                      help="a recording's points as recorded, not moved by the camera's turn "
                           "between their own time and the frame's (the daemon's [sync] "
                           "deskew)")
-
-    chk = csub.add_parser("check", help="estimate the LiDAR-camera rotation error of a "
-                          "recording (exit status 1 on ERROR)")
-    chk.add_argument("recording", type=Path, help="a .mcap recording with images and LiDAR")
-    chk.add_argument("--calib", type=Path, default=None,
-                     help="the calibration to check (default: the recording's own)")
-    chk.add_argument("--topics", type=Path, default=None,
-                     help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
-    chk.add_argument("--every", type=int, default=WATCH_EVERY,
-                     help="the daemon's sampling: one sample's budget in this many frames "
-                          f"with LiDAR (default {WATCH_EVERY}, as [calibration] watch_every)")
-    chk.add_argument("--max-samples", type=int, default=60,
-                     help="stop after this many samples (default 60, the watch's window)")
 
 
 def run(args: argparse.Namespace) -> int:
