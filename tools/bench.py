@@ -257,9 +257,12 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     logger = McapLogger(Path(tmp.name) / "bench.mcap")
     source = SimSource(1, TEST_SEED0, rig)
     pipeline = Pipeline(engines["int8"], *source.calibration, logger)
-    methods = daemon_stages(rig, samples, dense, inputs, engines["int8"], logger, pipeline)
-    pairs = [(s.left, s.right) for s in samples]
-    methods["sgbm"] = (lambda a, b: sgbm_disparity(a, b, matcher), pairs)
+    stages = daemon_stages(rig, samples, dense, inputs, engines["int8"], logger, pipeline)
+    # each block times them in this order: rectify, project_filter, sgbm, log, frame, engines
+    methods = {k: stages[k] for k in ("rectify", "project_filter")}
+    methods["sgbm"] = (lambda a, b: sgbm_disparity(a, b, matcher),
+                       [(s.left, s.right) for s in samples])
+    methods.update(stages)
     for precision in ("fp32", "int8"):
         for iters in iters_list:
             methods[f"engine_{precision}_{iters}"] = (clock.run(precision, iters), inputs)
