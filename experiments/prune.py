@@ -120,23 +120,21 @@ def prune_state(state: dict, config: ModelConfig, sizes: dict[str, int]) -> tupl
     return s, pruned
 
 
-def _block(s: dict, name: str, inner: torch.Tensor | None, out: torch.Tensor | None,
-           source: torch.Tensor | None) -> None:
+def _block(s: dict, name: str, inner: torch.Tensor, out: torch.Tensor,
+           source: torch.Tensor) -> None:
     """A residual block (`edge.model.extractor.ResidualBlock`) cut: its inner channels
     (conv1's outputs, conv2's inputs) to `inner`, its outputs (conv2's and the skip's, with
-    their batch norms) to `out`, its inputs (conv1's and the skip's) to `source`; None keeps."""
-    if inner is not None:
-        for layer in ("conv1", "norm1"):
-            _rows(s, f"{name}.{layer}", inner)
-        _cols(s, f"{name}.conv2", inner)
-    if out is not None:
-        for layer in ("conv2", "norm2", "skip.0", "skip.1"):
-            if f"{name}.{layer}.weight" in s:
-                _rows(s, f"{name}.{layer}", out)
-    if source is not None:
-        for layer in ("conv1", "skip.0"):
-            if f"{name}.{layer}.weight" in s:
-                _cols(s, f"{name}.{layer}", source)
+    their batch norms; a block without a skip has none) to `out`, its inputs (conv1's and the
+    skip's) to `source`."""
+    for layer in ("conv1", "norm1"):
+        _rows(s, f"{name}.{layer}", inner)
+    _cols(s, f"{name}.conv2", inner)
+    for layer in ("conv2", "norm2", "skip.0", "skip.1"):
+        if f"{name}.{layer}.weight" in s:
+            _rows(s, f"{name}.{layer}", out)
+    for layer in ("conv1", "skip.0"):
+        if f"{name}.{layer}.weight" in s:
+            _cols(s, f"{name}.{layer}", source)
 
 
 def prune_backbone(state: dict, config: ModelConfig, widths: tuple[int, int, int]

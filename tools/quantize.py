@@ -335,9 +335,12 @@ def int8_encoder(run: GraphChoices, calib: str | None = ENCODER_CALIB,
     src = run.bundle / run.files["encoder"]
     dst = run.bundle / run.files["encoder"].replace(".onnx", ".int8.onnx")
     stem = conv_nodes(src)[:1]
-    record: dict[str, list] = {"encoder": run.record["encoder"]} if calib is None else {}
-    for frame in [] if calib is None else calibration_frames(calib, run.fp32.size):
-        run.fp32.infer(*frame, iters=1, record=record)
+    record: dict[str, list] = {}
+    if calib is None:
+        record["encoder"] = run.record["encoder"]
+    else:
+        for frame in calibration_frames(calib, run.fp32.size):
+            run.fp32.infer(*frame, iters=1, record=record)
     quantize_graph(src, dst, record["encoder"], stem)
     entry = dict(file=dst.name, float_nodes=stem, calibration=label if calib is None else calib)
     engine = network_engine(run.bundle, "int8", run.threads, dict(run.meta, int8_encoder=entry),
@@ -364,7 +367,7 @@ def quantize_bundle(bundle: Path, calib: str | list, max_graph_px: float = 0.1, 
     run = GraphChoices(bundle, meta, [], iters, threads, timing, max_graph_px, max_total_px,
                        max_confidence, min_gain, node_search)
     given = not isinstance(calib, str)  # a robot's own frames
-    if isinstance(calib, str):
+    if not given:
         run.frames = list(calibration_frames(calib, run.fp32.size))
     else:
         run.frames, calib = list(calib), calib_label or f"{len(calib)} frames"

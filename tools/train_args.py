@@ -129,6 +129,7 @@ def data_flags(p: argparse.ArgumentParser) -> None:
                    help="with --teacher: the weight of the L1 towards the teacher's disparity "
                    "beside the ground truth's")
 
+
 def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
     """--device as a torch device; a GPU asked for but absent is one clear line."""
     try:

@@ -115,13 +115,13 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     if not len(cells):
         return empty
     point = index[cells]
+    lidar = points[point]
     cell_maps = _CellMaps(grey_l, cell_mean(right), net, nearest.reshape(net.shape),
                           np.flatnonzero(valid.ravel())[point])
-    columns = _point_columns(cell_maps, cells, points[point], signed[cells], trust[cells],
+    columns = _point_columns(cell_maps, cells, lidar, signed[cells], trust[cells],
                              distance.ravel()[cells], (points - net[valid])[point])
-    values = points[point]
+    values = lidar
     if sides is not None:
-        lidar = values
         near_c, far_c, *side_features = side_columns(cells, net, grey_l, sides)
         columns += (*side_features, log1p32(np.abs(lidar - near_c)),
                     log1p32(np.abs(lidar - far_c)))
