@@ -139,15 +139,15 @@ def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
 
 
 # what a resumed run may change: how long and with what it continues, not what it trains
-RESUME_MAY_CHANGE = {"out", "resume", "steps", "threads", "workers", "ckpt_every", "val_every",
-                     "device"}
+RESUME_MAY_CHANGE = {"steps", "threads", "workers", "ckpt_every", "val_every", "device"}
 
 
 def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv) -> None:
     """--resume continues the run as it was started: the flags not given again take the values
     saved in OUT/last.pt (--init and --refine among them: without them the model and its
-    optimizer groups would not match the checkpoint); one given again with another value is an
-    error, except those in RESUME_MAY_CHANGE."""
+    optimizer groups would not match the checkpoint; --steps too, so a run resumed without it
+    goes on to the end it was started for); one given again with another value is an error,
+    except those in RESUME_MAY_CHANGE."""
     last = args.out / "last.pt"
     if not last.exists():
         return
@@ -157,7 +157,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
     given = {k: v for k, v in parsed.items() if v is not unset}  # on the command line
     restored, clashes = [], []
     for key, value in saved.items():
-        if key in RESUME_MAY_CHANGE or not hasattr(args, key):
+        if key in ("out", "resume") or not hasattr(args, key):
             continue
         if key == "init":
             value = None if value in (None, "None") else Path(value)
@@ -166,7 +166,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
             if value != getattr(args, key):
                 restored.append(flag if value is True else f"{flag} {value}")
             setattr(args, key, value)
-        elif str(given[key]) != str(value):
+        elif key not in RESUME_MAY_CHANGE and str(given[key]) != str(value):
             clashes.append(f"{flag} {given[key]} (the run: {value})")
     if clashes:
         p.error(f"--resume continues {last} as it was started; these differ from it: "
