@@ -186,22 +186,14 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     started = time.time() - seconds
     while plan.progress(step, seconds) < 1.0:
         frac = plan.progress(step, seconds)
-        for group in opt.param_groups:  # warm-up over 5 %, then linearly down to 0
-            group["lr"] = plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac)
         loss, terms = _loss(net, _batch(frames, crop, rng, plan.batch, device), plan)
         seconds = time.time() - started
         if not math.isfinite(float(loss.detach())):
-            skipped, skipped_in_a_row = skipped + 1, skipped_in_a_row + 1
-            log.warning("step %d: non-finite loss, batch skipped (%d so far)", step, skipped)
-            if skipped_in_a_row >= MAX_SKIPPED_IN_A_ROW:
-                raise ValueError(f"{skipped_in_a_row} batches in a row gave a non-finite loss "
-                                 "(check the recordings' LiDAR and calibration)")
+            skipped, skipped_in_a_row = _skipped(step, skipped + 1, skipped_in_a_row + 1)
             continue
         skipped_in_a_row = 0
-        opt.zero_grad()
-        loss.backward()
-        torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
-        opt.step()
+        # warm-up over 5 %, then linearly down to 0
+        _optimise(net, opt, loss, plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac))
         step += 1
         seconds = time.time() - started
         bar.update(min(round(seconds), bar.total) - bar.n if by_time else 1)
@@ -214,6 +206,28 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     out = work / "adapted.pt"
     save(out, optimizer=False)
     return out, summary()
+
+
+def _skipped(step: int, skipped: int, in_a_row: int) -> tuple[int, int]:
+    """A batch skipped for its non-finite loss: said, counted, and an error once
+    MAX_SKIPPED_IN_A_ROW come in a row."""
+    log.warning("step %d: non-finite loss, batch skipped (%d so far)", step, skipped)
+    if in_a_row >= MAX_SKIPPED_IN_A_ROW:
+        raise ValueError(f"{in_a_row} batches in a row gave a non-finite loss "
+                         "(check the recordings' LiDAR and calibration)")
+    return skipped, in_a_row
+
+
+def _optimise(net, opt, loss, lr: float) -> None:
+    """One optimiser step at `lr`, the gradient's norm clipped to 1."""
+    import torch
+
+    for group in opt.param_groups:
+        group["lr"] = lr
+    opt.zero_grad()
+    loss.backward()
+    torch.nn.utils.clip_grad_norm_(net.parameters(), 1.0)
+    opt.step()
 
 
 def _progress_bar(plan: FineTune, step: int, seconds: float):
@@ -369,12 +383,8 @@ def adapt(recordings: list[Path | str], out: Path | str, *, steps: int | None = 
     return AdaptResult(written, report, work, files)
 
 
-def main(argv: list[str] | None = None) -> int:
-    import torch  # noqa: F401  (the train extra: said in one line before any work)
-    import tqdm  # noqa: F401
-
-    from edge_depth.arguments import load_topic_map
-
+def build_parser() -> argparse.ArgumentParser:
+    """`edge-depth adapt`'s flags."""
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("recordings", type=Path, nargs="+",
                    help="MCAP recordings (or folders of scene folders)")
@@ -411,6 +421,16 @@ def main(argv: list[str] | None = None) -> int:
                    help="skip scoring the starting weights at the camera's size")
     p.add_argument("--no-node-search", action="store_true",
                    help="quantize without the per-convolution pass (faster)")
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    import torch  # noqa: F401  (the train extra: said in one line before any work)
+    import tqdm  # noqa: F401
+
+    from edge_depth.arguments import load_topic_map
+
+    p = build_parser()
     args = p.parse_args(argv)
     if args.steps is None and args.minutes is None:
         p.error("give --steps N and/or --minutes M")

@@ -238,10 +238,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     cv2.setNumThreads(threads)  # SGBM with the engine's thread count
     meta = load_bundle_meta(bundle)
     w, h = meta["size"]
-    rig = RigConfig(width=w, height=h, focal_px=450.0 * w / 640)
-    samples = [make_sample(TEST_SEED0 + i, rig, "beams16") for i in range(scenes)]
-    dense = [make_sample(TEST_SEED0 + i, rig, "beams64") for i in range(scenes)]
-    inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
+    rig, samples, dense, inputs = bench_frames(w, h, scenes)
     matcher = make_sgbm()
     # as the daemon runs them: with the engine settings the bundle declares (the shipped one:
     # the edge matching "auto" on every other row, inside every engine row)
@@ -258,14 +255,7 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     source = SimSource(1, TEST_SEED0, rig)
     pipeline = Pipeline(engines["int8"], *source.calibration, logger)
     stages = daemon_stages(rig, samples, dense, inputs, engines["int8"], logger, pipeline)
-    # each block times them in this order: rectify, project_filter, sgbm, log, frame, engines
-    methods = {k: stages[k] for k in ("rectify", "project_filter")}
-    methods["sgbm"] = (lambda a, b: sgbm_disparity(a, b, matcher),
-                       [(s.left, s.right) for s in samples])
-    methods.update(stages)
-    for precision in ("fp32", "int8"):
-        for iters in iters_list:
-            methods[f"engine_{precision}_{iters}"] = (clock.run(precision, iters), inputs)
+    methods = timed_methods(stages, samples, inputs, matcher, clock, iters_list)
     load_before = os.getloadavg()[0] if hasattr(os, "getloadavg") else None
     with CpuShare() as share:
         times = _timed_blocks(methods, repeat)
@@ -296,6 +286,30 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     return summary
+
+
+def bench_frames(width: int, height: int, scenes: int) -> tuple:
+    """(rig, its 16-beam samples, the same scenes with 64 beams, the engine's inputs) at the
+    bundle's size."""
+    rig = RigConfig(width=width, height=height, focal_px=450.0 * width / 640)
+    samples = [make_sample(TEST_SEED0 + i, rig, "beams16") for i in range(scenes)]
+    dense = [make_sample(TEST_SEED0 + i, rig, "beams64") for i in range(scenes)]
+    inputs = [(s.left, s.right, s.sparse_disparity("left")[0]) for s in samples]
+    return rig, samples, dense, inputs
+
+
+def timed_methods(stages: dict, samples, inputs, matcher, clock: StageClock,
+                  iters_list: list[int]) -> dict:
+    """What each block times, in this order: rectify, project_filter, sgbm, the daemon's other
+    stages (log, frame), then the engine at each precision and count."""
+    methods = {k: stages[k] for k in ("rectify", "project_filter")}
+    methods["sgbm"] = (lambda a, b: sgbm_disparity(a, b, matcher),
+                       [(s.left, s.right) for s in samples])
+    methods.update(stages)
+    for precision in ("fp32", "int8"):
+        for iters in iters_list:
+            methods[f"engine_{precision}_{iters}"] = (clock.run(precision, iters), inputs)
+    return methods
 
 
 def daemon_stages(rig, samples, dense, inputs, engine, logger, pipeline) -> dict:
@@ -380,6 +394,35 @@ def watch_costs(engine, source, logger, samples, repeat: int) -> list[tuple[floa
     return out
 
 
+def runtimes_main(args: argparse.Namespace) -> int:
+    """`--runtimes`: the int8 engine on each runtime and SGBM, interleaved call by call, as a
+    table instead of the stage table."""
+    specs = [v.strip() for v in args.runtimes.split(",") if v.strip()]
+    result = compare_runtimes(specs, args.scenes, args.rounds, args.threads, args.bundle)
+    lines = ["| contender | median ms | / SGBM |", "|---|---|---|"]
+    for name, ms in result["median_ms"].items():
+        ratio = result["vs_sgbm"].get(name)
+        lines.append(f"| {name} | {ms:.1f} | {'' if ratio is None else f'{ratio:.2f}x'} |")
+    others = result["others_cpu_share"]
+    lines.append(f"({result['rounds']} interleaved calls each; other processes "
+                 f"{'n/a' if others is None else f'{others:.0%}'} of the CPU"
+                 f"{' — BUSY: do not trust' if result['busy'] else ''})")
+    print("\n".join(lines))
+    if args.json:
+        args.json.write_text(json.dumps(result, indent=2))
+    return 0
+
+
+def run_line(summary: dict) -> dict:
+    """One run's entry in a --runs summary: its ratios, SGBM's and the engine's ms, and the
+    machine's state during it."""
+    r = summary["ratios"]
+    return dict(int8_vs_sgbm=r["int8_vs_sgbm"], sgbm_ms=summary["sgbm_ms"],
+                engine_int8_ms=r["int8_vs_sgbm"] * summary["sgbm_ms"],
+                **{k: r[k] for k in ("edge_match_vs_sgbm",) if k in r},
+                int8_vs_sgbm_paired=r["int8_vs_sgbm_paired"], **summary["machine"])
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--scenes", type=int, default=4)
@@ -409,20 +452,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.runs < 1:
         p.error("--runs: at least 1")
     if args.runtimes:
-        specs = [v.strip() for v in args.runtimes.split(",") if v.strip()]
-        result = compare_runtimes(specs, args.scenes, args.rounds, args.threads, args.bundle)
-        lines = ["| contender | median ms | / SGBM |", "|---|---|---|"]
-        for name, ms in result["median_ms"].items():
-            ratio = result["vs_sgbm"].get(name)
-            lines.append(f"| {name} | {ms:.1f} | {'' if ratio is None else f'{ratio:.2f}x'} |")
-        others = result["others_cpu_share"]
-        lines.append(f"({result['rounds']} interleaved calls each; other processes "
-                     f"{'n/a' if others is None else f'{others:.0%}'} of the CPU"
-                     f"{' — BUSY: do not trust' if result['busy'] else ''})")
-        print("\n".join(lines))
-        if args.json:
-            args.json.write_text(json.dumps(result, indent=2))
-        return 0
+        return runtimes_main(args)
     bf16 = {"auto": None, "on": True, "off": False}[args.bf16]
     print(host_line(cpu_description()), flush=True)  # ratios are only comparable per ISA
     runs = []
@@ -435,12 +465,7 @@ def main(argv: list[str] | None = None) -> int:
                   + machine_line(summary["machine"]), flush=True)
         runs.append(summary)
     if args.runs > 1:
-        summary["runs"] = [dict(int8_vs_sgbm=r["ratios"]["int8_vs_sgbm"], sgbm_ms=r["sgbm_ms"],
-                                engine_int8_ms=r["ratios"]["int8_vs_sgbm"] * r["sgbm_ms"],
-                                **{k: r["ratios"][k] for k in ("edge_match_vs_sgbm",)
-                                   if k in r["ratios"]},
-                                int8_vs_sgbm_paired=r["ratios"]["int8_vs_sgbm_paired"],
-                                **r["machine"]) for r in runs]
+        summary["runs"] = [run_line(r) for r in runs]
         summary["ratio_median"] = float(np.median([r["int8_vs_sgbm"] for r in summary["runs"]]))
     table = markdown(summary)
     print(table)

@@ -24,18 +24,7 @@ def markdown(summary: dict) -> str:
         if name in st:
             lines.append(f"| {name} | {st[name]['median_ms']:.1f} | {st[name]['p95_ms']:.1f} |")
     if "ratios" in summary:
-        r = summary["ratios"]
-        lines.append("")
-        lines.append(f"int8 engine / SGBM: **{r['int8_vs_sgbm']:.2f}x** (fp32 "
-                     f"{r['fp32_vs_sgbm']:.2f}x; int8 speed-up x{r['int8_speedup']:.2f}); "
-                     f"daemon frame / engine: {r['frame_vs_engine']:.2f}x")
-        if "int8_vs_sgbm_paired" in r:
-            lo, hi = r["int8_vs_sgbm_paired_p10_p90"]
-            lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
-                         f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
-        if "edge_match_vs_sgbm" in r:
-            lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
-                         "(inside the engine rows)")
+        lines += ratio_lines(summary["ratios"])
     if "match_starts" in summary:
         early, again = summary["match_starts"]["early"], summary["match_starts"]["again"]
         lines.append(f"the int8 engine's matching started before its last step in {early} "
@@ -59,28 +48,49 @@ def markdown(summary: dict) -> str:
                  f"{summary['scenes']} test scenes)")
     lines.append(machine_line(summary["machine"]))
     if "runs" in summary:
-        ratios = [r["int8_vs_sgbm"] for r in summary["runs"]]
-        busy = [i + 1 for i, r in enumerate(summary["runs"]) if r["busy"]]
-        lines.append("")
-        lines.append(f"{len(ratios)} runs: int8 engine / SGBM per run "
-                     f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
-                     f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
-                     f"{max(ratios):.2f}x)")
-        paired = [r["int8_vs_sgbm_paired"] for r in summary["runs"]
-                  if "int8_vs_sgbm_paired" in r]
-        if paired:
-            lines.append(f"paired per run {', '.join(f'{r:.2f}x' for r in paired)}; median "
-                         f"{float(np.median(paired)):.2f}x")
-        matched = [r["edge_match_vs_sgbm"] for r in summary["runs"] if "edge_match_vs_sgbm" in r]
-        if matched:
-            lines.append(f"the engine's edge_match stage / SGBM per run "
-                         f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
-                         f"{float(np.median(matched)):.2f}x")
-        if busy:
-            lines.append(f"**busy machine in run(s) {busy}: other processes took over "
-                         f"{BUSY_SHARE:.0%} of the CPU; do not trust this ratio, rerun on a "
-                         "quiet machine**")
+        lines += runs_lines(summary)
     return "\n".join(lines)
+
+
+def ratio_lines(r: dict) -> list[str]:
+    """The engine's ratios against SGBM (plain, paired frame by frame, the matching's)."""
+    lines = ["", f"int8 engine / SGBM: **{r['int8_vs_sgbm']:.2f}x** (fp32 "
+                 f"{r['fp32_vs_sgbm']:.2f}x; int8 speed-up x{r['int8_speedup']:.2f}); "
+                 f"daemon frame / engine: {r['frame_vs_engine']:.2f}x"]
+    if "int8_vs_sgbm_paired" in r:
+        lo, hi = r["int8_vs_sgbm_paired_p10_p90"]
+        lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
+                     f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
+    if "edge_match_vs_sgbm" in r:
+        lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
+                     "(inside the engine rows)")
+    return lines
+
+
+def runs_lines(summary: dict) -> list[str]:
+    """A --runs summary: the ratio per run and its median, paired and the matching's too, and
+    which runs a busy machine spoiled."""
+    runs = summary["runs"]
+    ratios = [r["int8_vs_sgbm"] for r in runs]
+    lines = ["", f"{len(ratios)} runs: int8 engine / SGBM per run "
+                 f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
+                 f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
+                 f"{max(ratios):.2f}x)"]
+    paired = [r["int8_vs_sgbm_paired"] for r in runs if "int8_vs_sgbm_paired" in r]
+    if paired:
+        lines.append(f"paired per run {', '.join(f'{r:.2f}x' for r in paired)}; median "
+                     f"{float(np.median(paired)):.2f}x")
+    matched = [r["edge_match_vs_sgbm"] for r in runs if "edge_match_vs_sgbm" in r]
+    if matched:
+        lines.append(f"the engine's edge_match stage / SGBM per run "
+                     f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
+                     f"{float(np.median(matched)):.2f}x")
+    busy = [i + 1 for i, r in enumerate(runs) if r["busy"]]
+    if busy:
+        lines.append(f"**busy machine in run(s) {busy}: other processes took over "
+                     f"{BUSY_SHARE:.0%} of the CPU; do not trust this ratio, rerun on a "
+                     "quiet machine**")
+    return lines
 
 
 def host_line(cpu: dict) -> str:

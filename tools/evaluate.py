@@ -261,33 +261,41 @@ def main(argv: list[str] | None = None) -> int:
     summary = evaluate(folders, methods, iters_list, args.model, options, first)
     print(markdown_table(summary))
     if args.picture:
-        import cv2
-
-        jpeg = args.picture.suffix.lower() in (".jpg", ".jpeg")
-        if not cv2.imwrite(str(args.picture), picture(first),
-                           [cv2.IMWRITE_JPEG_QUALITY, 85] if jpeg else []):
-            raise SystemExit(f"--picture {args.picture}: could not write it (does its "
-                             "folder exist?)")
-        print(f"wrote {args.picture} (the first scene, {folders[0]})")
+        write_picture(args.picture, first, folders[0])
     if args.json:
         args.json.write_text(json.dumps(summary, indent=2))
     if args.plot and "net" in methods:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        keys = [f"net@{i}" if len(iters_list) > 1 else "net" for i in iters_list]
-        fig, ax = plt.subplots(figsize=(5, 3.5))
-        ax.plot(iters_list, [summary[k]["epe"] for k in keys], marker="o", label="net")
-        for base in ("sgbm", "sgbm-filled", "sgbm+lidar", "lidar-nearest", "lidar-linear"):
-            if base in summary:
-                ax.axhline(summary[base]["epe"], ls="--", label=base, color=None)
-        ax.set(xlabel="GRU iterations", ylabel="EPE (px)", xscale="log", title=str(args.data))
-        ax.legend()
-        fig.tight_layout()
-        fig.savefig(args.plot, dpi=90)
+        plot_iterations(args.plot, summary, iters_list, str(args.data))
     return 0
+
+
+def write_picture(path: Path, first: dict | None, folder: Path) -> None:
+    """--picture: the first scene's left image, GT and each method's |error|, as JPEG or PNG."""
+    import cv2
+
+    jpeg = path.suffix.lower() in (".jpg", ".jpeg")
+    if not cv2.imwrite(str(path), picture(first), [cv2.IMWRITE_JPEG_QUALITY, 85] if jpeg else []):
+        raise SystemExit(f"--picture {path}: could not write it (does its folder exist?)")
+    print(f"wrote {path} (the first scene, {folder})")
+
+
+def plot_iterations(path: Path, summary: dict, iters_list: list[int], title: str) -> None:
+    """--plot: the network's EPE against its iterations, the baselines as lines across."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = [f"net@{i}" if len(iters_list) > 1 else "net" for i in iters_list]
+    fig, ax = plt.subplots(figsize=(5, 3.5))
+    ax.plot(iters_list, [summary[k]["epe"] for k in keys], marker="o", label="net")
+    for base in ("sgbm", "sgbm-filled", "sgbm+lidar", "lidar-nearest", "lidar-linear"):
+        if base in summary:
+            ax.axhline(summary[base]["epe"], ls="--", label=base, color=None)
+    ax.set(xlabel="GRU iterations", ylabel="EPE (px)", xscale="log", title=title)
+    ax.legend()
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ checkpoint, and one given with another value is an error.
 
 from __future__ import annotations
 
+import argparse
 import csv
 import json
 import math
@@ -353,6 +354,27 @@ def batch_epe(final: torch.Tensor, gt: torch.Tensor) -> float:
     return float((final.detach() - gt).abs()[has_gt].mean()) if has_gt.any() else float("nan")
 
 
+def save_checkpoint(path: Path, model: torch.nn.Module, opt, sched, step: int, config,
+                    args: argparse.Namespace, device: torch.device) -> None:
+    """The resumable checkpoint (weights and optimiser state on the CPU, the schedule, the
+    step, the network's config and the run's flags), written whole or not at all."""
+    with atomic_write(path) as tmp:
+        torch.save(dict(model=on_cpu(model.state_dict()), optimizer=on_cpu(opt.state_dict()),
+                        scheduler=sched.state_dict(), step=step, config=config.to_dict(),
+                        args=vars(args) | {"out": str(args.out), "init": str(args.init),
+                                           "device": str(device)}),
+                   tmp)
+
+
+def finite_on_every_rank(loss: torch.Tensor, world: int, device: torch.device) -> bool:
+    """Whether the batch's loss is finite on every rank: every rank skips the batch, or
+    none does (a lone skip would hang the all-reduce)."""
+    bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)
+    if world > 1:
+        torch.distributed.all_reduce(bad)
+    return float(bad) == 0
+
+
 def _train(argv: list[str] | None) -> int:
     args = parse_args(argv, __doc__.splitlines()[0])
     from tqdm import tqdm
@@ -380,14 +402,8 @@ def _train(argv: list[str] | None) -> int:
     log, writer = open_log(log_path, step, main_rank)
 
     def save(path: Path) -> None:
-        if not main_rank:
-            return
-        with atomic_write(path) as tmp:
-            torch.save(dict(model=on_cpu(model.state_dict()), optimizer=on_cpu(opt.state_dict()),
-                            scheduler=sched.state_dict(), step=step, config=config.to_dict(),
-                            args=vars(args) | {"out": str(args.out), "init": str(args.init),
-                                               "device": str(device)}),
-                       tmp)
+        if main_rank:
+            save_checkpoint(path, model, opt, sched, step, config, args, device)
 
     set_train_mode(model, args.freeze_trunk)
     teacher = None if args.teacher is None else load_teacher(args.teacher, device)
@@ -397,10 +413,7 @@ def _train(argv: list[str] | None) -> int:
     while step < args.steps:
         batch = to_device(next(loader), device)
         loss, terms, final = batch_loss(net, batch, args, teacher)
-        bad = torch.tensor(0.0 if math.isfinite(float(loss.detach())) else 1.0, device=device)
-        if world > 1:  # every rank skips, or none: a lone skip would hang the all-reduce
-            torch.distributed.all_reduce(bad)
-        if float(bad) > 0:
+        if not finite_on_every_rank(loss, world, device):
             print(f"step {step}: non-finite loss, batch skipped", file=sys.stderr)
             continue
         optimise(net, opt, sched, loss)
