@@ -4,6 +4,9 @@ before), alternated frame by frame on rig frames (640x400, 16 LiDAR rows): media
 engine and its after-graph stages, and whether the outputs are the same.
 
     python experiments/match_start_ab.py [--frames 40] [--scenes 4]
+
+It needs `FrameMatch.after_graphs`, which only commit 0d41c7c has (measured, not kept:
+docs/experiments.md, "StereoBM from the end of the graphs").
 """
 
 from __future__ import annotations

@@ -214,8 +214,6 @@ class Engine:
         self._last = (enc, plan)
         disparity, hidden = self._iterate(frame, enc, iters, deadline_ms, matching)
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
-        if matching is not None:
-            matching.after_graphs(disp)  # its block matching beside the selection
         disp, confidence = self._select(frame, disp, confidence, has_points)
         disp, prepared = self._match(frame, matching, disp, confidence)
         disp = self._median(frame, prepared, disp)

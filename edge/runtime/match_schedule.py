@@ -9,9 +9,7 @@ the GIL, so it runs on the matching's own thread while the graphs run:
   with the count guessed from the disparity one step before the last, beside that step
   (after the encoder with a single step); should the final disparity need another count it
   matches again after the graphs (`starts` counts both);
-- otherwise right after the graphs, with the count from the upsampled disparity, beside the
-  LiDAR selection and the choice's preparation (`EdgeMatch.prepare`); should the selection
-  have moved the disparity to another count it matches again (`starts["recounted"]`).
+- otherwise after the graphs, beside the choice's preparation (`EdgeMatch.prepare`).
 
 With every core in the graphs, StereoBM beside them slowed them by as much as it saved, and
 beside the memory-bound upsampling by more (docs/experiments.md). The outputs are the same
@@ -35,10 +33,8 @@ class MatchSchedule:
         self.match, self.downsample, self.early = match, downsample, early
         self._thread: ThreadPoolExecutor | None = None
         # frames whose matching started before the network's end, and of those, how many
-        # matched again because the final disparity needed another count than the guess;
-        # frames whose matching started after the graphs and matched again because the
-        # selection moved the count
-        self.starts = {"early": 0, "again": 0, "recounted": 0}
+        # matched again because the final disparity needed another count than the guess
+        self.starts = {"early": 0, "again": 0}
 
     def submit(self, fn, *args) -> Future:
         if self._thread is None:
@@ -68,7 +64,6 @@ class FrameMatch:
         self.copies: list[np.ndarray] | None = None  # the pair for the thread (buffers reused)
         self.terms: Future | None = None
         self.early: tuple[int, Future] | None = None  # (count, job): started before the end
-        self.late: tuple[int, Future] | None = None  # (count, job): after the graphs
         match = schedule.match
         if match.num_disparities:
             self.early = self._start(match.num_disparities)
@@ -95,15 +90,6 @@ class FrameMatch:
         if step == self.guess_after:
             self.early = self._start(self.schedule.guess_count(disparity))
 
-    def after_graphs(self, disparity: np.ndarray) -> None:
-        """The network's upsampled disparity (H, W), before the selection: StereoBM starts
-        now with its count unless it started beside the graphs."""
-        if self.early is None:
-            count = self.schedule.match.num_disparities or \
-                disparities_for(disparity, disparity.shape[1])
-            self.late = count, self.schedule.submit(self.schedule.match.matched, *self.pair,
-                                                    count)
-
     def finish(self, disparity: np.ndarray, confidence: np.ndarray
                ) -> tuple[np.ndarray, int, int, Prepared | None]:
         """(disparity with the matched pixels taken, pixels taken, pixels beyond the count,
@@ -122,15 +108,8 @@ class FrameMatch:
             if early_count != count:  # the guess missed: StereoBM again, the count right
                 schedule.starts["again"] += 1
                 found = None
-        late = None
-        if found is None and self.late is not None:  # started after the graphs
-            late_count, late = self.late
-            if late_count != count:  # the selection moved the count: StereoBM again
-                schedule.starts["recounted"] += 1
-                late = None
-        # no start yet, or a missed one: StereoBM matches while the choice prepares
-        if found is None and late is None:
-            late = schedule.submit(match.matched, *self.pair, count)
+        # late (no guess, or a missed one): StereoBM matches while the choice prepares
+        late = None if found is not None else schedule.submit(match.matched, *self.pair, count)
         prepared = match.prepare(*self.pair, disparity, confidence, self.sparse, terms)
         found = found if late is None else late.result()
         out, taken = match.finish(prepared, disparity, found)
