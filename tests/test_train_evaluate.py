@@ -30,13 +30,15 @@ def test_train_writes_checkpoints_and_resumes_where_it_stopped(tmp_path):
 
 def test_a_run_resumed_without_steps_goes_on_to_the_end_it_was_started_for(tmp_path):
     """A run started for 3 steps that stopped at step 2 (its last.pt says so) continues to
-    step 3 on a plain --resume; --steps is not the parser's default there."""
+    step 3 on a plain --resume; --steps is not the parser's default there. Where it trained
+    is not restored: a run from a GPU machine resumes on this CPU one."""
     out = tmp_path / "run"
     args = ["--out", str(out), "--batch", "1", "--crop", "64x64", "--iters", "2",
             "--workers", "0", "--ckpt-every", "1"]
     assert train.main(args + ["--steps", "2"]) == 0
     ckpt = torch.load(out / "last.pt", weights_only=False)
     ckpt["args"]["steps"] = 3  # as if the run had been started for 3 and stopped after 2
+    ckpt["args"]["device"] = "cuda:0"  # ... on a GPU
     torch.save(ckpt, out / "last.pt")
     assert train.main(["--out", str(out), "--resume"]) == 0
     assert torch.load(out / "last.pt", weights_only=False)["step"] == 3

@@ -138,7 +138,9 @@ def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
         p.error(str(exc))
 
 
-# what a resumed run may change: how long and with what it continues, not what it trains
+# what a resumed run may change: how long and with what it continues, not what it trains;
+# all but --steps take the parser's defaults when not given again (the machine may be new:
+# a run trained on a GPU resumes on a CPU), --steps the run's own count
 RESUME_MAY_CHANGE = {"steps", "threads", "workers", "ckpt_every", "val_every", "device"}
 
 
@@ -157,7 +159,8 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
     given = {k: v for k, v in parsed.items() if v is not unset}  # on the command line
     restored, clashes = [], []
     for key, value in saved.items():
-        if key in ("out", "resume") or not hasattr(args, key):
+        if key in ("out", "resume") or not hasattr(args, key) or \
+                (key in RESUME_MAY_CHANGE and (key != "steps" or key in given)):
             continue
         if key == "init":
             value = None if value in (None, "None") else Path(value)
@@ -166,7 +169,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
             if value != getattr(args, key):
                 restored.append(flag if value is True else f"{flag} {value}")
             setattr(args, key, value)
-        elif key not in RESUME_MAY_CHANGE and str(given[key]) != str(value):
+        elif str(given[key]) != str(value):
             clashes.append(f"{flag} {given[key]} (the run: {value})")
     if clashes:
         p.error(f"--resume continues {last} as it was started; these differ from it: "
