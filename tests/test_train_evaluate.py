@@ -40,7 +40,9 @@ def test_a_run_resumed_without_steps_goes_on_to_the_end_it_was_started_for(tmp_p
     ckpt["args"]["steps"] = 3  # as if the run had been started for 3 and stopped after 2
     ckpt["args"]["device"] = "cuda:0"  # ... on a GPU
     torch.save(ckpt, out / "last.pt")
-    assert train.main(["--out", str(out), "--resume"]) == 0
+    # --workers: not restored either (a new machine's cores), and no loader processes forked
+    # inside the test's process
+    assert train.main(["--out", str(out), "--resume", "--workers", "0"]) == 0
     assert torch.load(out / "last.pt", weights_only=False)["step"] == 3
 
 
