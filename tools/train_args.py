@@ -138,10 +138,10 @@ def training_device(p: argparse.ArgumentParser, name: str) -> torch.device:
         p.error(str(exc))
 
 
-# what a resumed run may change: how long and with what it continues, not what it trains;
-# all but --steps take the parser's defaults when not given again (the machine may be new:
-# a run trained on a GPU resumes on a CPU), --steps the run's own count
-RESUME_MAY_CHANGE = {"steps", "threads", "workers", "ckpt_every", "val_every", "device"}
+# where and how a resumed run trains now: never taken from the run (the machine may be new:
+# a run trained on a GPU resumes on a CPU); given, or the parser's defaults
+RESUME_FROM_THIS_MACHINE = {"out", "resume", "threads", "workers", "ckpt_every", "val_every",
+                            "device"}
 
 
 def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv) -> None:
@@ -149,7 +149,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
     saved in OUT/last.pt (--init and --refine among them: without them the model and its
     optimizer groups would not match the checkpoint; --steps too, so a run resumed without it
     goes on to the end it was started for); one given again with another value is an error,
-    except those in RESUME_MAY_CHANGE."""
+    except --steps. Those in RESUME_FROM_THIS_MACHINE are left as given."""
     last = args.out / "last.pt"
     if not last.exists():
         return
@@ -159,8 +159,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
     given = {k: v for k, v in parsed.items() if v is not unset}  # on the command line
     restored, clashes = [], []
     for key, value in saved.items():
-        if key in ("out", "resume") or not hasattr(args, key) or \
-                (key in RESUME_MAY_CHANGE and (key != "steps" or key in given)):
+        if key in RESUME_FROM_THIS_MACHINE or not hasattr(args, key):
             continue
         if key == "init":
             value = None if value in (None, "None") else Path(value)
@@ -169,7 +168,7 @@ def restore_run_args(p: argparse.ArgumentParser, args: argparse.Namespace, argv)
             if value != getattr(args, key):
                 restored.append(flag if value is True else f"{flag} {value}")
             setattr(args, key, value)
-        elif str(given[key]) != str(value):
+        elif key != "steps" and str(given[key]) != str(value):  # how long it runs may change
             clashes.append(f"{flag} {given[key]} (the run: {value})")
     if clashes:
         p.error(f"--resume continues {last} as it was started; these differ from it: "
