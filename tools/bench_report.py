@@ -76,15 +76,12 @@ def runs_lines(summary: dict) -> list[str]:
                  f"{', '.join(f'{r:.2f}x' for r in ratios)}; median "
                  f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
                  f"{max(ratios):.2f}x)"]
-    paired = [r["int8_vs_sgbm_paired"] for r in runs if "int8_vs_sgbm_paired" in r]
-    if paired:
-        lines.append(f"paired per run {', '.join(f'{r:.2f}x' for r in paired)}; median "
-                     f"{float(np.median(paired)):.2f}x")
-    matched = [r["edge_match_vs_sgbm"] for r in runs if "edge_match_vs_sgbm" in r]
-    if matched:
-        lines.append(f"the engine's edge_match stage / SGBM per run "
-                     f"{', '.join(f'{r:.2f}x' for r in matched)}; median "
-                     f"{float(np.median(matched)):.2f}x")
+    for key, label in (("int8_vs_sgbm_paired", "paired"),
+                       ("edge_match_vs_sgbm", "the engine's edge_match stage / SGBM")):
+        values = [r[key] for r in runs if key in r]
+        if values:
+            lines.append(f"{label} per run {', '.join(f'{v:.2f}x' for v in values)}; median "
+                         f"{float(np.median(values)):.2f}x")
     busy = [i + 1 for i, r in enumerate(runs) if r["busy"]]
     if busy:
         lines.append(f"**busy machine in run(s) {busy}: other processes took over "
