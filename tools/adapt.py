@@ -189,7 +189,8 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
         loss, terms = _loss(net, _batch(frames, crop, rng, plan.batch, device), plan)
         seconds = time.time() - started
         if not math.isfinite(float(loss.detach())):
-            skipped, skipped_in_a_row = _skipped(step, skipped + 1, skipped_in_a_row + 1)
+            skipped, skipped_in_a_row = skipped + 1, skipped_in_a_row + 1
+            _say_skipped(step, skipped, skipped_in_a_row)
             continue
         skipped_in_a_row = 0
         # warm-up over 5 %, then linearly down to 0
@@ -208,14 +209,13 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     return out, summary()
 
 
-def _skipped(step: int, skipped: int, in_a_row: int) -> tuple[int, int]:
-    """A batch skipped for its non-finite loss: said, counted, and an error once
-    MAX_SKIPPED_IN_A_ROW come in a row."""
+def _say_skipped(step: int, skipped: int, in_a_row: int) -> None:
+    """A batch skipped for its non-finite loss: said, and an error once MAX_SKIPPED_IN_A_ROW
+    come in a row."""
     log.warning("step %d: non-finite loss, batch skipped (%d so far)", step, skipped)
     if in_a_row >= MAX_SKIPPED_IN_A_ROW:
         raise ValueError(f"{in_a_row} batches in a row gave a non-finite loss "
                          "(check the recordings' LiDAR and calibration)")
-    return skipped, in_a_row
 
 
 def _optimise(net, opt, loss, lr: float) -> None:
