@@ -11,7 +11,14 @@ from edge_depth.runtime.edge_match import (
     POINT_MARGIN,
     EdgeMatch,
 )
-from edge_depth.runtime.edge_median import PATTERNS, EdgeMedian, sorting_network
+from edge_depth.runtime.edge_median import (
+    MAX_DISPARITY_PX,
+    PATTERNS,
+    SUBPIXEL,
+    EdgeMedian,
+    disparity_steps,
+    sorting_network,
+)
 
 
 def apply_network(pairs, values: np.ndarray) -> np.ndarray:
@@ -180,3 +187,20 @@ def test_with_the_median_the_point_gate_is_the_looser_one():
         (MEDIAN_POINT_MARGIN, MEDIAN_MIN_TEXTURE) == (1.0, 2.0)
     given = EdgeMatch(64, median="9x9/2", point_margin=0.5, min_texture=8.0)   # the caller's
     assert (given.point_margin, given.min_texture) == (0.5, 8.0)
+
+
+@pytest.mark.parametrize("odd", [None, np.nan, np.inf, -np.inf, MAX_DISPARITY_PX, 1e30])
+def test_the_disparity_steps_are_the_clipped_rounded_sixteenths_whatever_the_frame_holds(odd):
+    # OpenCV's saturating conversion where the frame is finite and in range, numpy's
+    # otherwise: both must give the same steps (halves rounded to even, negatives to 0)
+    rng = np.random.default_rng(3)
+    disparity = (rng.random((40, 64)) * 300 - 20).astype(np.float32)
+    disparity[0, :6] = [0.03125, 0.09375, -0.03125, -7.0, 2.5 / 16, 4095.96875]
+    if odd is not None:
+        disparity[5, 5] = odd
+    finite = np.nan_to_num(disparity, nan=0.0, posinf=MAX_DISPARITY_PX, neginf=0.0)
+    expected = np.rint(np.clip(finite, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.uint16)
+    steps = disparity_steps(disparity)
+    assert steps.dtype == np.uint16
+    np.testing.assert_array_equal(steps, expected)
+    assert list(steps[0, :4]) == [0, 2, 0, 0]  # 0.5 and 1.5 steps: to the even neighbour

@@ -112,14 +112,12 @@ class EdgeMedian:
         radius = PATTERNS[self.pattern][0]
         border = (radius,) * 4
         width = out.shape[1]
-        level = cv2.copyMakeBorder(np.clip(np.rint(grey), 0, 255).astype(np.uint8),
+        # rounded and saturated to 0 … 255 in one OpenCV pass (np.rint, np.clip and astype
+        # were three over the whole frame)
+        level = cv2.copyMakeBorder(cv2.multiply(np.asarray(grey, np.float32), 1.0,
+                                                dtype=cv2.CV_8U),
                                    *border, cv2.BORDER_REPLICATE).ravel()
-        # a non-finite value (none should reach here) must not become a garbage key that a
-        # neighbour's median could pick: NaN counts as 0, ±inf as the range's ends
-        finite = np.nan_to_num(out, nan=0.0, posinf=MAX_DISPARITY_PX, neginf=0.0)
-        # in 16 bits: half the bytes a float32 image has, gathered from cache more often
-        steps = np.rint(np.clip(finite, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.uint16)
-        steps = cv2.copyMakeBorder(steps, *border, cv2.BORDER_REPLICATE).ravel()
+        steps = cv2.copyMakeBorder(disparity_steps(out), *border, cv2.BORDER_REPLICATE).ravel()
         padded_width = width + 2 * radius
         # the pixels in the padded image: `radius` rows above, 2·radius more columns a row
         centre = pixels + (pixels // width) * (2 * radius) + radius * padded_width + radius
@@ -176,6 +174,19 @@ class EdgeMedian:
     @cached_property
     def _scratch(self) -> Scratch:
         return Scratch()
+
+
+def disparity_steps(disparity: np.ndarray) -> np.ndarray:
+    """(H, W) float32 px -> uint16 steps of 1/SUBPIXEL px, rounded half to even, clipped to
+    0 … MAX_DISPARITY_PX: in 16 bits, half the bytes a float32 image has, gathered from cache
+    more often. A non-finite value (none should reach here) must not become a garbage key
+    that a neighbour's median could pick: NaN counts as 0, ±inf as the range's ends."""
+    if cv2.checkRange(disparity, True, -float(np.finfo(np.float32).max),
+                      MAX_DISPARITY_PX)[0]:
+        # finite and below the range's end: OpenCV's saturating conversion is the clip
+        return cv2.multiply(disparity, float(SUBPIXEL), dtype=cv2.CV_16U)
+    finite = np.nan_to_num(disparity, nan=0.0, posinf=MAX_DISPARITY_PX, neginf=0.0)
+    return np.rint(np.clip(finite, 0.0, MAX_DISPARITY_PX) * SUBPIXEL).astype(np.uint16)
 
 
 def settings_text() -> str:
