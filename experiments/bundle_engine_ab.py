@@ -19,6 +19,16 @@ from edge_depth.runtime.engine import Engine
 from edge_depth.sim import RigConfig, make_sample
 
 
+def rig_frame():
+    """The frame the A/B scripts time (the test split's first scene, 16 LiDAR rows): (sample,
+    its sparse disparity, 0 = no point); says the CPU first."""
+    cpu = cpu_description()
+    print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
+    sample = make_sample(1_000_000, RigConfig(), "beams16")
+    sparse, valid = sample.sparse_disparity("left")
+    return sample, (sparse * valid).astype(np.float32)
+
+
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("bundles", nargs="+")
@@ -29,11 +39,7 @@ def main() -> None:
     p.add_argument("--edge-match-rows", default="bundle", help="one or more of bundle, 1, 2")
     p.add_argument("--iters", default="0", help="one or more counts (0: the bundle's)")
     args = p.parse_args()
-    cpu = cpu_description()
-    print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
-    sample = make_sample(1_000_000, RigConfig(), "beams16")
-    sparse, valid = sample.sparse_disparity("left")
-    sparse = (sparse * valid).astype(np.float32)
+    sample, sparse = rig_frame()
     engines = {f"{b} {p} int8_encoder={e} rows={r} iters={n}": Engine(
         b, threads=2, precision=p, bf16=args.bf16, int8_encoder=e,
         edge_match_rows=r if r == "bundle" else int(r), iters=int(n))

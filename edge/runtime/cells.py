@@ -14,6 +14,7 @@ import threading
 import cv2
 import numpy as np
 
+from edge_depth.baselines import nearest_valid_index
 from edge_depth.selfcheck import warp_right_to_left
 
 CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
@@ -190,6 +191,24 @@ def cell_lidar(sparse: np.ndarray) -> np.ndarray:
             np.fmax(out, sparse[dy::CELL_PX, dx::CELL_PX], out=out)
     out[~np.isfinite(out)] = 0
     return out
+
+
+def cell_nearest_point(sparse: np.ndarray) -> np.ndarray:
+    """Each pixel's nearest LiDAR point as the cells see it: the largest of a cell's points
+    (`cell_lidar`), each cell taking its nearest such cell's, each pixel its cell's; (H, W)
+    float32, 0 everywhere without points. The distance transform runs over a quarter of the
+    pixels (0.5 against 2.2 ms at 640×400); the point differs from the pixel-exact nearest one
+    by up to a cell, and where a cell holds two surfaces' points it is the nearer surface's."""
+    lidar = cell_lidar(sparse)
+    valid = lidar > 0
+    if not valid.any():
+        return np.zeros(sparse.shape, np.float32)
+    index, _ = nearest_valid_index(valid)
+    nearest = lidar[valid][index]
+    h, w = sparse.shape
+    hc, wc = nearest.shape
+    return cv2.resize(nearest, (wc * CELL_PX, hc * CELL_PX),
+                      interpolation=cv2.INTER_NEAREST)[:h, :w]
 
 
 def feature_matrix(columns, scratch: Scratch | None = None) -> np.ndarray:

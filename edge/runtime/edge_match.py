@@ -8,7 +8,9 @@ confidence below `max_confidence`, the network's disparity ranging over more tha
 `min_range_px` within `window` × `window` pixels, and the matched value warping the right view
 onto the left better than the network's (mean |difference| over `photo_window` ×
 `photo_window`). Where StereoBM found no checked match inside that gate (its holes: 15 % of
-the frame's pixels on motorcycle), the LiDAR's nearest point is the second candidate, taken
+the frame's pixels on motorcycle), the LiDAR's nearest point (as the 2×2 cells see it:
+`cells.cell_nearest_point`, a quarter of the pixel-exact transform's cost) is the second
+candidate, taken
 where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
@@ -40,9 +42,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.baselines import lidar_nearest, make_sgbm
+from edge_depth.baselines import make_sgbm
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.cells import local_range, warped_cost
+from edge_depth.runtime.cells import cell_nearest_point, local_range, warped_cost
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
 
 BLOCK_PX = 7
@@ -191,7 +193,7 @@ class EdgeMatch:
         if sparse is None or not (sparse > 0).any():
             return PairTerms(grey)
         window = (self.photo_window_px,)
-        point = lidar_nearest(sparse, sparse > 0)
+        point = cell_nearest_point(sparse)
         gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
         texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
