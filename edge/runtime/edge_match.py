@@ -44,7 +44,7 @@ import numpy as np
 
 from edge_depth.baselines import make_sgbm
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.cells import cell_nearest_point, local_range, warped_cost
+from edge_depth.runtime.cells import CellPoints, local_range, warped_cost
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
 
 BLOCK_PX = 7
@@ -165,17 +165,19 @@ class EdgeMatch:
 
     def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                 confidence: np.ndarray, sparse: np.ndarray | None = None,
-                terms: PairTerms | None = None) -> Prepared | None:
+                terms: PairTerms | None = None,
+                cell_points: CellPoints | None = None) -> Prepared | None:
         """Everything of the choice that does not need StereoBM's answer: where the network
         is unsure at its edges (the gate), its own warp cost, and where the LiDAR's nearest
         point would do for a hole. None when nothing is gated. `terms`: `pair_terms(left,
-        right, sparse)` if already computed (the engine's matching thread does)."""
+        right, sparse)` if already computed (the engine's matching thread does);
+        `cell_points`: `CellPoints.of(sparse)` if already made (the LiDAR selection does)."""
         gate = (confidence < self.max_confidence) & \
             (local_range(disparity, self.window_px) > self.min_range_px)
         if not gate.any():
             return None
         if terms is None:
-            terms = self.pair_terms(left, right, sparse)
+            terms = self.pair_terms(left, right, sparse, cell_points)
         network_cost = warped_cost(*terms.grey, disparity, (self.photo_window_px,))[0]
         point_ok = None
         if terms.point is not None and terms.texture is not None \
@@ -185,15 +187,17 @@ class EdgeMatch:
         return Prepared(gate, terms.grey, network_cost, terms.point, point_ok)
 
     def pair_terms(self, left: np.ndarray, right: np.ndarray,
-                   sparse: np.ndarray | None = None) -> PairTerms:
+                   sparse: np.ndarray | None = None,
+                   cell_points: CellPoints | None = None) -> PairTerms:
         """The choice's terms that need only the pair and the LiDAR, not the network: the grey
         pair (float32), the nearest point's map, its 5×5 warp cost and the left image's
-        texture (the last three None without points)."""
+        texture (the last three None without points). `cell_points`: `CellPoints.of(sparse)`
+        if already made."""
         grey = [np.asarray(im, np.float32) for im in (left, right)]
         if sparse is None or not (sparse > 0).any():
             return PairTerms(grey)
         window = (self.photo_window_px,)
-        point = cell_nearest_point(sparse)
+        point = (cell_points or CellPoints.of(sparse)).pixel_map(sparse.shape)
         gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
         texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
