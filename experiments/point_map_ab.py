@@ -5,6 +5,9 @@ and the cells' the LiDAR selection made (what the engine runs). Median ms of the
 selection and its matching stage, per run.
 
     python experiments/point_map_ab.py [--frames 40] [--runs 3]
+
+Runs on commit 0795b0f, which had the cells' point map (reverted: it moved Motorcycle's bad-3
+over its bar on this host's own kernels and on ONNX Runtime; docs/experiments.md).
 """
 
 from __future__ import annotations

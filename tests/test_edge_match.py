@@ -411,18 +411,3 @@ def test_sgbm_as_the_matcher_fills_what_stereobm_leaves_and_is_switched_on_every
         load_robot_config(path)
     with pytest.raises(SystemExit):
         evaluate.main([str(tmp_path), "--edge-matcher", "census"])
-
-
-def test_the_point_map_from_the_selections_cells_is_the_one_the_matching_would_make():
-    from edge_depth.runtime.cells import CellPoints
-
-    left, right, gt, _, _ = thin_bar_pair()
-    sparse = lidar_rows(gt)
-    stage = EdgeMatch(64)
-    made, shared = stage.pair_terms(left, right, sparse), \
-        stage.pair_terms(left, right, sparse, CellPoints.of(sparse))
-    np.testing.assert_array_equal(made.point, shared.point)
-    np.testing.assert_array_equal(made.point_cost, shared.point_cost)
-    # every pixel's point is one of the LiDAR's values
-    rows = np.flatnonzero(sparse.any(1))
-    assert set(np.unique(made.point)) <= set(np.unique(sparse[rows]))

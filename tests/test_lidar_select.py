@@ -479,22 +479,3 @@ def test_the_vectorised_helpers_match_numpy():
     assert not np.shares_memory(feature_matrix([np.zeros(9000)] * 2, scratch), again)
     keys = np.arange(0, 2**24, 97, dtype=np.float32)
     np.testing.assert_array_equal(key_disparity(keys), unpack_key(keys)[0])
-
-
-def test_the_cells_nearest_point_is_each_pixels_nearest_cells_largest_point():
-    from edge_depth.runtime.cells import cell_nearest_point
-
-    sparse = np.zeros((5, 7), np.float32)      # cells of 2×2: 3 rows, 4 columns (cut)
-    sparse[0, 0] = 3.0
-    sparse[4, 5], sparse[4, 6] = 8.0, 9.0      # two cells of the last row
-    sparse[1, 1] = np.nan                      # no point
-    expected = np.array([[3, 3, 3, 3, 3, 3, 9],
-                         [3, 3, 3, 3, 3, 3, 9],
-                         [3, 3, 3, 3, 8, 8, 9],
-                         [3, 3, 3, 3, 8, 8, 9],
-                         [3, 3, 8, 8, 8, 8, 9]], np.float32)
-    np.testing.assert_array_equal(cell_nearest_point(sparse), expected)
-    # a cell with two surfaces' points takes the nearer one's (the larger disparity)
-    sparse[5 - 1, 4] = 20.0
-    assert cell_nearest_point(sparse)[4, 5] == 20.0
-    assert not cell_nearest_point(np.zeros((4, 6), np.float32)).any()

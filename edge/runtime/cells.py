@@ -10,13 +10,10 @@ Pure numpy + OpenCV (robot side, no torch).
 from __future__ import annotations
 
 import threading
-from dataclasses import dataclass
-from functools import cached_property
 
 import cv2
 import numpy as np
 
-from edge_depth.baselines import nearest_valid_index
 from edge_depth.selfcheck import warp_right_to_left
 
 CELL_PX = 2  # the stage decides per CELL_PX × CELL_PX pixels
@@ -193,55 +190,6 @@ def cell_lidar(sparse: np.ndarray) -> np.ndarray:
             np.fmax(out, sparse[dy::CELL_PX, dx::CELL_PX], out=out)
     out[~np.isfinite(out)] = 0
     return out
-
-
-@dataclass(frozen=True)
-class CellPoints:
-    """The LiDAR as the cells see it, made once a frame for both stages that read it (the
-    LiDAR selection and the matching's point map): `lidar` (hc, wc) the largest of each
-    cell's points (`cell_lidar`; 0 = none) and, for every cell, the nearest cell with a point
-    (`baselines.nearest_valid_index` over the cells): `index` into `points`, `distance` in
-    cells (both None without points)."""
-
-    lidar: np.ndarray
-    index: np.ndarray | None
-    distance: np.ndarray | None
-
-    @classmethod
-    def of(cls, sparse: np.ndarray) -> CellPoints:
-        """From the sparse disparity (H, W) px, 0 or non-finite = none."""
-        lidar = cell_lidar(sparse)
-        valid = lidar > 0
-        if not valid.any():
-            return cls(lidar, None, None)
-        return cls(lidar, *nearest_valid_index(valid))
-
-    @cached_property
-    def valid(self) -> np.ndarray:
-        return self.lidar > 0
-
-    @cached_property
-    def points(self) -> np.ndarray:
-        """The cells' points in row-major order, (N,) float32."""
-        return self.lidar[self.valid]
-
-    def pixel_map(self, shape: tuple[int, int]) -> np.ndarray:
-        """Each pixel's nearest point as the cells see it: its cell's nearest cell's; (H, W)
-        float32, 0 everywhere without points. The distance transform runs over a quarter of
-        the pixels (0.5 against 2.2 ms at 640×400); the point differs from the pixel-exact
-        nearest one by up to a cell, and where a cell holds two surfaces' points it is the
-        nearer surface's."""
-        if self.index is None:
-            return np.zeros(shape, np.float32)
-        nearest = self.points[self.index]
-        hc, wc = nearest.shape
-        return cv2.resize(nearest, (wc * CELL_PX, hc * CELL_PX),
-                          interpolation=cv2.INTER_NEAREST)[:shape[0], :shape[1]]
-
-
-def cell_nearest_point(sparse: np.ndarray) -> np.ndarray:
-    """`CellPoints.pixel_map` of the sparse disparity (H, W)."""
-    return CellPoints.of(sparse).pixel_map(sparse.shape)
 
 
 def feature_matrix(columns, scratch: Scratch | None = None) -> np.ndarray:

@@ -8,9 +8,7 @@ confidence below `max_confidence`, the network's disparity ranging over more tha
 `min_range_px` within `window` × `window` pixels, and the matched value warping the right view
 onto the left better than the network's (mean |difference| over `photo_window` ×
 `photo_window`). Where StereoBM found no checked match inside that gate (its holes: 15 % of
-the frame's pixels on motorcycle), the LiDAR's nearest point (as the 2×2 cells see it:
-`cells.cell_nearest_point`, a quarter of the pixel-exact transform's cost) is the second
-candidate, taken
+the frame's pixels on motorcycle), the LiDAR's nearest point is the second candidate, taken
 where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
@@ -42,9 +40,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.baselines import make_sgbm
+from edge_depth.baselines import lidar_nearest, make_sgbm
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.cells import CellPoints, local_range, warped_cost
+from edge_depth.runtime.cells import local_range, warped_cost
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
 
 BLOCK_PX = 7
@@ -165,19 +163,17 @@ class EdgeMatch:
 
     def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                 confidence: np.ndarray, sparse: np.ndarray | None = None,
-                terms: PairTerms | None = None,
-                cell_points: CellPoints | None = None) -> Prepared | None:
+                terms: PairTerms | None = None) -> Prepared | None:
         """Everything of the choice that does not need StereoBM's answer: where the network
         is unsure at its edges (the gate), its own warp cost, and where the LiDAR's nearest
         point would do for a hole. None when nothing is gated. `terms`: `pair_terms(left,
-        right, sparse)` if already computed (the engine's matching thread does);
-        `cell_points`: `CellPoints.of(sparse)` if already made (the LiDAR selection does)."""
+        right, sparse)` if already computed (the engine's matching thread does)."""
         gate = (confidence < self.max_confidence) & \
             (local_range(disparity, self.window_px) > self.min_range_px)
         if not gate.any():
             return None
         if terms is None:
-            terms = self.pair_terms(left, right, sparse, cell_points)
+            terms = self.pair_terms(left, right, sparse)
         network_cost = warped_cost(*terms.grey, disparity, (self.photo_window_px,))[0]
         point_ok = None
         if terms.point is not None and terms.texture is not None \
@@ -187,17 +183,15 @@ class EdgeMatch:
         return Prepared(gate, terms.grey, network_cost, terms.point, point_ok)
 
     def pair_terms(self, left: np.ndarray, right: np.ndarray,
-                   sparse: np.ndarray | None = None,
-                   cell_points: CellPoints | None = None) -> PairTerms:
+                   sparse: np.ndarray | None = None) -> PairTerms:
         """The choice's terms that need only the pair and the LiDAR, not the network: the grey
         pair (float32), the nearest point's map, its 5×5 warp cost and the left image's
-        texture (the last three None without points). `cell_points`: `CellPoints.of(sparse)`
-        if already made."""
+        texture (the last three None without points)."""
         grey = [np.asarray(im, np.float32) for im in (left, right)]
         if sparse is None or not (sparse > 0).any():
             return PairTerms(grey)
         window = (self.photo_window_px,)
-        point = (cell_points or CellPoints.of(sparse)).pixel_map(sparse.shape)
+        point = lidar_nearest(sparse, sparse > 0)
         gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
         texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)

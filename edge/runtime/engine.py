@@ -26,7 +26,6 @@ from edge_depth.runtime.backends import (
     resolve_precision,
     resolve_runtime,
 )
-from edge_depth.runtime.cells import CellPoints
 from edge_depth.runtime.edge_match import (
     AUTO,
     EdgeMatch,
@@ -345,10 +344,8 @@ class Engine:
                 left, right, disp, confidence)
             frame.stage("edge_select", t)
         elif self.select is not None:
-            # the LiDAR as the cells see it, made once: the matching's point map reads it too
-            frame.cell_points = CellPoints.of(self._inputs["sparse"][0, 0])
             disp, confidence, frame.counts["selected_px"] = self.select.apply(
-                left, right, disp, confidence, self._inputs["sparse"][0, 0], frame.cell_points)
+                left, right, disp, confidence, self._inputs["sparse"][0, 0])
             frame.stage("select", t)
         return disp, confidence
 
@@ -359,7 +356,7 @@ class Engine:
         if matching is None or confidence is None:
             return disp, None
         t = time.perf_counter()
-        disp, taken, beyond, prepared = matching.finish(disp, confidence, frame.cell_points)
+        disp, taken, beyond, prepared = matching.finish(disp, confidence)
         frame.counts.update(matched_px=taken, match_beyond_px=beyond)
         frame.stage("edge_match", t)
         return disp, prepared
@@ -387,7 +384,6 @@ class _Frame:
         selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None))
     steps: int = 0
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction
-    cell_points: CellPoints | None = None  # the LiDAR selection's, for the matching
 
     def feed(self, part: str, feeds: dict) -> dict:
         if self.record is not None:

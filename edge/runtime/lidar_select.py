@@ -32,14 +32,15 @@ from functools import cached_property
 import cv2
 import numpy as np
 
+from edge_depth.baselines import nearest_valid_index
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import (
     CELL_PX,
     LOG_MIN_DISAGREEMENT,
     MIN_DISAGREEMENT_PX,
-    CellPoints,
     Perceptron,
     Scratch,
+    cell_lidar,
     cell_mean,
     cell_pixels,
     cell_sides,
@@ -72,8 +73,7 @@ SIDE_ONLY_MIN_PX = 1.0
 def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
                        confidence: np.ndarray, sparse: np.ndarray,
                        max_disagreement_px: float = np.inf, max_confidence: float = np.inf,
-                       side_cells: int = 0, scratch: Scratch | None = None,
-                       cell_points: CellPoints | None = None
+                       side_cells: int = 0, scratch: Scratch | None = None
                        ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The scorer's inputs at the cells where the two candidates differ (by more than
     MIN_DISAGREEMENT_PX, at most max_disagreement_px) and the network's confidence is below
@@ -94,16 +94,18 @@ def selection_features(left: np.ndarray, right: np.ndarray, disparity: np.ndarra
     (`available` says which of them are candidates at each cell).
 
     scratch: the feature matrix goes into its buffer (`feature_matrix`), valid until the
-    next call with the same scratch. cell_points: `CellPoints.of(sparse)` if already made."""
+    next call with the same scratch."""
     n_features = len(FEATURES) + (len(SIDE_FEATURES) if side_cells else 0)
     empty = (np.zeros((0, n_features), np.float32), np.zeros(0, np.int64),
              np.zeros((0, 3) if side_cells else 0, np.float32))
-    cells_seen = cell_points or CellPoints.of(sparse)
-    if cells_seen.index is None or cells_seen.distance is None:
+    lidar_cells = cell_lidar(sparse)
+    valid = lidar_cells > 0
+    if not valid.any():
         return empty
-    valid, points = cells_seen.valid, cells_seen.points
-    distance, index = cells_seen.distance, cells_seen.index.ravel()
+    index, distance = nearest_valid_index(valid)
     net = cell_mean(disparity)
+    points = lidar_cells[valid]
+    index = index.ravel()
     nearest = points[index]  # each cell's nearest point's value
     signed = nearest - net.ravel()
     trust = cell_mean(confidence).ravel()
@@ -344,15 +346,14 @@ class LidarSelect:
         return (1.0 / (1.0 + np.exp(-z))).astype(np.float32)
 
     def apply(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
-              confidence: np.ndarray, sparse: np.ndarray, cell_points: CellPoints | None = None
+              confidence: np.ndarray, sparse: np.ndarray
               ) -> tuple[np.ndarray, np.ndarray, int]:
         """(disparity (H, W) with the chosen cells' pixels replaced, the confidence with
-        theirs replaced by `chosen_confidence` (when fitted), how many pixels were).
-        cell_points: `CellPoints.of(sparse)` if already made."""
+        theirs replaced by `chosen_confidence` (when fitted), how many pixels were)."""
         features, cells, values = selection_features(left, right, disparity, confidence,
                                                      sparse, self.max_disagreement_px,
                                                      self.max_confidence, self.side_cells,
-                                                     self._scratch, cell_points)
+                                                     self._scratch)
         if not len(features):
             return disparity, confidence, 0
         choice, margin = self.choose(features)

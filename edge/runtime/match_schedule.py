@@ -22,7 +22,6 @@ from concurrent.futures import Future, ThreadPoolExecutor
 
 import numpy as np
 
-from edge_depth.runtime.cells import CellPoints
 from edge_depth.runtime.edge_match import EdgeMatch, Prepared, disparities_for
 
 
@@ -91,12 +90,10 @@ class FrameMatch:
         if step == self.guess_after:
             self.early = self._start(self.schedule.guess_count(disparity))
 
-    def finish(self, disparity: np.ndarray, confidence: np.ndarray,
-               cell_points: CellPoints | None = None
+    def finish(self, disparity: np.ndarray, confidence: np.ndarray
                ) -> tuple[np.ndarray, int, int, Prepared | None]:
         """(disparity with the matched pixels taken, pixels taken, pixels beyond the count,
-        the choice's preparation for the median), waiting for StereoBM if it still runs.
-        `cell_points`: the frame's LiDAR cells if the selection made them."""
+        the choice's preparation for the median), waiting for StereoBM if it still runs."""
         schedule, match = self.schedule, self.schedule.match
         count = match.num_disparities or disparities_for(disparity, disparity.shape[1])
         beyond = match.beyond_px(disparity, count)
@@ -113,8 +110,7 @@ class FrameMatch:
                 found = None
         # late (no guess, or a missed one): StereoBM matches while the choice prepares
         late = None if found is not None else schedule.submit(match.matched, *self.pair, count)
-        prepared = match.prepare(*self.pair, disparity, confidence, self.sparse, terms,
-                                 cell_points)
+        prepared = match.prepare(*self.pair, disparity, confidence, self.sparse, terms)
         found = found if late is None else late.result()
         out, taken = match.finish(prepared, disparity, found)
         return out, taken, beyond, prepared
