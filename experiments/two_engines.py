@@ -1,0 +1,71 @@
+"""Throughput of one engine on two threads against two engines on one thread each, run on two
+Python threads over the same four rig frames (640x400, 16 LiDAR rows): frames/s, and the two
+engines' median latency. Would a daemon that hands frames to two engines run more of them?
+
+    python experiments/two_engines.py [--frames 40] [--runs 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import threading
+import time
+
+import numpy as np
+
+from edge_depth.runtime.backends import cpu_description
+from edge_depth.runtime.engine import Engine
+from edge_depth.sim import RigConfig, make_sample
+
+
+def serial(engine: Engine, frames: list, count: int) -> float:
+    t = time.perf_counter()
+    for i in range(count):
+        engine.infer(*frames[i % len(frames)])
+    return count / (time.perf_counter() - t)
+
+
+def parallel(engines: list[Engine], frames: list, count: int) -> tuple[float, float]:
+    latency: list[float] = []
+
+    def work(engine: Engine, first: int) -> None:
+        for i in range(first, count, len(engines)):
+            t = time.perf_counter()
+            engine.infer(*frames[i % len(frames)])
+            latency.append((time.perf_counter() - t) * 1000)
+
+    threads = [threading.Thread(target=work, args=(e, k)) for k, e in enumerate(engines)]
+    t = time.perf_counter()
+    for thread in threads:
+        thread.start()
+    for thread in threads:
+        thread.join()
+    return count / (time.perf_counter() - t), statistics.median(latency)
+
+
+def main() -> None:
+    p = argparse.ArgumentParser()
+    p.add_argument("--frames", type=int, default=40)
+    p.add_argument("--runs", type=int, default=3)
+    args = p.parse_args()
+    cpu = cpu_description()
+    print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
+    frames = []
+    for i in range(4):
+        sample = make_sample(1_000_000 + i, RigConfig(), "beams16")
+        sparse, valid = sample.sparse_disparity("left")
+        frames.append((sample.left, sample.right, (sparse * valid).astype(np.float32)))
+    one = Engine(threads=2)
+    two = [Engine(threads=1), Engine(threads=1)]
+    for engine in (one, *two):
+        engine.warm_up()
+    for run in range(args.runs):
+        alone = serial(one, frames, args.frames)
+        together, latency = parallel(two, frames, args.frames)
+        print(f"run {run + 1}: one engine, 2 threads {alone:.1f} frames/s; two engines, 1 "
+              f"thread each {together:.1f} frames/s (latency median {latency:.0f} ms)")
+
+
+if __name__ == "__main__":
+    main()
