@@ -82,10 +82,9 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
     import cv2
     import numpy as np
 
-    from edge_depth.camera_turn import turned_points
     from edge_depth.mcap_log import RAW_TOPICS, McapLogger
     from edge_depth.sim import make_sample
-    from edge_depth.types import LidarScan, StereoFrame
+    from edge_depth.types import StereoFrame
 
     rig = rig or RigConfig()
     if hold < 1 or turn_period_s <= 0:
@@ -99,17 +98,6 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
         yaw = np.radians(amplitude_deg) * np.sin(2 * np.pi * t_s / turn_period_s)
         return cv2.Rodrigues(np.array([0.0, yaw, 0.0]))[0]
 
-    def turning_scan(scan, forward_ns: int) -> LidarScan:
-        """The scene's points as the LiDAR saw each at its own time (X_cam -> R(t)^T X_cam,
-        back to the LiDAR), stamped by its forward middle (what the camera sees), `forward_ns`,
-        with each point's stamp; every point was swept `lidar_clock_ms` before its stamp."""
-        offsets = scan.point_stamps_ns - scan.stamp_ns
-        stamps = (forward_ns + offsets - int(np.median(offsets))).astype(np.int64)
-        yaw = np.radians(amplitude_deg) * np.sin(
-            2 * np.pi * (stamps - int(lidar_clock_ms * 1e6) - 1_000_000_000) / 1e9
-            / turn_period_s)
-        return LidarScan(forward_ns, turned_points(scan.points, T, yaw), None, stamps)
-
     with McapLogger(path, topics=RAW_TOPICS) as logger:
         logger.set_calibration(stereo, extrinsics)
         sample = None
@@ -120,7 +108,8 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
             stamp = 1_000_000_000 + int(i * period_ms * 1e6)
             # the revolution stamped `lidar_lag_ms` before its frame
             forward_ns = stamp - int(lidar_lag_ms * 1e6)
-            logger.log_scan(turning_scan(sample.scan, forward_ns))
+            logger.log_scan(_turning_scan(sample.scan, forward_ns, T, amplitude_deg,
+                                          turn_period_s, lidar_clock_ms))
             H = K @ rotation(i * period_ms / 1000).T @ np.linalg.inv(K)
             size = (rig.width, rig.height)
             left, right = (cv2.warpPerspective(im, H, size, flags=cv2.INTER_LINEAR,
@@ -128,3 +117,21 @@ def write_turning_recording(path, count: int, seed: int = 0, rig: RigConfig | No
                            for im in (sample.left, sample.right))
             logger.log_frame(StereoFrame(stamp, i, left, right, rectified=True))
         return logger.messages
+
+
+def _turning_scan(scan, forward_ns: int, T_cam_lidar, amplitude_deg: float,
+                  turn_period_s: float, lidar_clock_ms: float):
+    """`write_turning_recording`'s scan: the scene's points as the LiDAR saw each at its own
+    time on the turning robot (X_cam -> R(t)^T X_cam, back to the LiDAR), stamped by its
+    forward middle (what the camera sees), `forward_ns`, with each point's stamp; every point
+    was swept `lidar_clock_ms` before its stamp."""
+    import numpy as np
+
+    from edge_depth.camera_turn import turned_points
+    from edge_depth.types import LidarScan
+
+    offsets = scan.point_stamps_ns - scan.stamp_ns
+    stamps = (forward_ns + offsets - int(np.median(offsets))).astype(np.int64)
+    yaw = np.radians(amplitude_deg) * np.sin(
+        2 * np.pi * (stamps - int(lidar_clock_ms * 1e6) - 1_000_000_000) / 1e9 / turn_period_s)
+    return LidarScan(forward_ns, turned_points(scan.points, T_cam_lidar, yaw), None, stamps)

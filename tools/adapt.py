@@ -38,6 +38,7 @@ import shutil
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -140,13 +141,52 @@ def install(candidate: Path, out: Path, files: list[Path]) -> None:
     staging.rename(out)
 
 
+@dataclass
+class _Adapting:
+    """A fine-tuning run's network and optimiser and how far it has got."""
+
+    init: Path
+    net: Any
+    opt: Any
+    ckpt: dict
+    plan: FineTune
+    frames: int
+    crop: tuple[int, int]
+    device: Any
+    step: int = 0
+    seconds: float = 0.0
+    skipped: int = 0
+
+    def summary(self) -> dict:
+        plan = self.plan
+        return dict(init=str(self.init), steps=self.step, minutes=round(self.seconds / 60, 2),
+                    frames=self.frames, lr=plan.lr, batch=plan.batch, crop=list(self.crop),
+                    iters=plan.iters, mode="supervised" if plan.supervised else "self",
+                    split=plan.split, skipped_batches=self.skipped, device=str(self.device))
+
+    def save(self, path: Path, optimizer: bool = True) -> None:
+        """A checkpoint: resumable with `optimizer`; the one that ships with the bundle
+        stays small."""
+        import torch
+
+        from edge_depth.model.device import on_cpu
+
+        state = dict(model=on_cpu(self.net.state_dict()), step=self.step,
+                     seconds=self.seconds, config=self.ckpt["config"],
+                     training=dict(self.ckpt.get("training") or {}, adapted=self.summary()))
+        if optimizer:
+            state["optimizer"] = on_cpu(self.opt.state_dict())
+        with atomic_write(path) as tmp:
+            torch.save(state, tmp)
+
+
 def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
              resume: bool = False) -> tuple[Path, dict]:
     """Self-supervised fine-tuning of `init` on `frames`; (checkpoint path, summary). The
     learning rate warms up over the first 5 % and falls linearly to 0 at the bound."""
     import torch
 
-    from edge_depth.model.device import on_cpu, resolve_device
+    from edge_depth.model.device import resolve_device
     from edge_depth.tools.export import load_checkpoint
 
     if not frames:
@@ -158,55 +198,40 @@ def finetune(init: Path, frames: list[Frame], work: Path, plan: FineTune,
     h, w = frames[0].left.shape
     crop = (min(plan.crop[0], w // 8 * 8), min(plan.crop[1], h // 8 * 8))
     opt = torch.optim.AdamW(net.parameters(), lr=plan.lr, weight_decay=1e-5)
+    run = _Adapting(init, net, opt, ckpt, plan, len(frames), crop, device)
     last = work / "last.pt"
-    step, seconds, skipped, skipped_in_a_row = 0, 0.0, 0, 0
     if resume and last.exists():
-        step, seconds = _resume(last, net, opt)
-    rng = np.random.default_rng([plan.seed, step])
-    torch.manual_seed(plan.seed + step)
-
-    def save(path: Path, optimizer: bool = True) -> None:
-        state = dict(model=on_cpu(net.state_dict()), step=step, seconds=seconds,
-                     config=ckpt["config"],
-                     training=dict(ckpt.get("training") or {}, adapted=summary()))
-        if optimizer:  # resumable; the one that ships with the bundle stays small
-            state["optimizer"] = on_cpu(opt.state_dict())
-        with atomic_write(path) as tmp:
-            torch.save(state, tmp)
-
-    def summary() -> dict:
-        return dict(init=str(init), steps=step, minutes=round(seconds / 60, 2),
-                    frames=len(frames), lr=plan.lr, batch=plan.batch, crop=list(crop),
-                    iters=plan.iters, mode="supervised" if plan.supervised else "self",
-                    split=plan.split, skipped_batches=skipped, device=str(device))
-
+        run.step, run.seconds = _resume(last, net, opt)
+    rng = np.random.default_rng([plan.seed, run.step])
+    torch.manual_seed(plan.seed + run.step)
     net.train()
     by_time = plan.steps is None
-    bar = _progress_bar(plan, step, seconds)
-    started = time.time() - seconds
-    while plan.progress(step, seconds) < 1.0:
-        frac = plan.progress(step, seconds)
+    bar = _progress_bar(plan, run.step, run.seconds)
+    started = time.time() - run.seconds
+    skipped_in_a_row = 0
+    while plan.progress(run.step, run.seconds) < 1.0:
+        frac = plan.progress(run.step, run.seconds)
         loss, terms = _loss(net, _batch(frames, crop, rng, plan.batch, device), plan)
-        seconds = time.time() - started
+        run.seconds = time.time() - started
         if not math.isfinite(float(loss.detach())):
-            skipped, skipped_in_a_row = skipped + 1, skipped_in_a_row + 1
-            _say_skipped(step, skipped, skipped_in_a_row)
+            run.skipped, skipped_in_a_row = run.skipped + 1, skipped_in_a_row + 1
+            _say_skipped(run.step, run.skipped, skipped_in_a_row)
             continue
         skipped_in_a_row = 0
         # warm-up over 5 %, then linearly down to 0
         _optimise(net, opt, loss, plan.lr * min(1.0, frac / 0.05 + 0.01) * (1.0 - frac))
-        step += 1
-        seconds = time.time() - started
-        bar.update(min(round(seconds), bar.total) - bar.n if by_time else 1)
-        bar.set_postfix(step=step, loss=f"{float(loss.detach()):.4f}",
+        run.step += 1
+        run.seconds = time.time() - started
+        bar.update(min(round(run.seconds), bar.total) - bar.n if by_time else 1)
+        bar.set_postfix(step=run.step, loss=f"{float(loss.detach()):.4f}",
                         **{TERM_NAMES.get(k, k): f"{v:.4f}" for k, v in terms.items()})
-        if step % plan.ckpt_every == 0:
-            save(last)
+        if run.step % plan.ckpt_every == 0:
+            run.save(last)
     bar.close()
-    save(last)
+    run.save(last)
     out = work / "adapted.pt"
-    save(out, optimizer=False)
-    return out, summary()
+    run.save(out, optimizer=False)
+    return out, run.summary()
 
 
 def _say_skipped(step: int, skipped: int, in_a_row: int) -> None:

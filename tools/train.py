@@ -24,6 +24,7 @@ import math
 import os
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -375,16 +376,38 @@ def finite_on_every_rank(loss: torch.Tensor, world: int, device: torch.device) -
     return float(bad) == 0
 
 
-def _train(argv: list[str] | None) -> int:
-    args = parse_args(argv, __doc__.splitlines()[0])
-    from tqdm import tqdm
+@dataclass
+class _Run:
+    """A training run's network, optimiser and place, from its start to its last step."""
 
+    args: argparse.Namespace
+    net: torch.nn.Module  # what the steps call: the network, wrapped on several ranks
+    model: SparseStereoNet  # the network itself
+    opt: torch.optim.Optimizer
+    sched: torch.optim.lr_scheduler.LRScheduler
+    step: int
+    config: ModelConfig
+    device: torch.device
+    rank: int
+    world: int
+
+    @property
+    def main_rank(self) -> bool:
+        return self.rank == 0
+
+    def save(self, path: Path) -> None:
+        if self.main_rank:
+            save_checkpoint(path, self.model, self.opt, self.sched, self.step, self.config,
+                            self.args, self.device)
+
+
+def _start(args: argparse.Namespace) -> _Run:
+    """The network (from --init or --resume), its optimiser and schedule at the step the run
+    starts from, on this rank's device."""
     rank, world = setup_distributed()
-    main_rank = rank == 0
     args.out.mkdir(parents=True, exist_ok=True)
     if args.threads:
         torch.set_num_threads(args.threads)
-    cw, ch = (int(v) for v in args.crop.split("x"))
     init = None if args.init is None else \
         torch.load(args.init, weights_only=False, map_location="cpu")
     config = model_config(args, init)
@@ -393,52 +416,57 @@ def _train(argv: list[str] | None) -> int:
     weights = init_weights(init, args.refine) if init is not None else None
     opt, sched = optimizer(net, args, weights)
     step = load_start(net, opt, sched, args, weights)
+    model = net
     if world > 1:
         net = torch.nn.parallel.DistributedDataParallel(
             net, device_ids=[device.index] if device.type == "cuda" else None)
-    model = net.module if world > 1 else net
-    loader = batches(args, (cw, ch), step, rank, world, device)
+    return _Run(args, net, model, opt, sched, step, config, device, rank, world)
+
+
+def _train(argv: list[str] | None) -> int:
+    args = parse_args(argv, __doc__.splitlines()[0])
+    from tqdm import tqdm
+
+    run = _start(args)
+    cw, ch = (int(v) for v in args.crop.split("x"))
+    loader = batches(args, (cw, ch), run.step, run.rank, run.world, run.device)
     log_path = args.out / "metrics.csv"
-    log, writer = open_log(log_path, step, main_rank)
-
-    def save(path: Path) -> None:
-        if main_rank:
-            save_checkpoint(path, model, opt, sched, step, config, args, device)
-
-    set_train_mode(model, args.freeze_trunk)
-    teacher = None if args.teacher is None else load_teacher(args.teacher, device)
-    bar = tqdm(total=args.steps, initial=step, desc="train", dynamic_ncols=True,
-               disable=not main_rank)
+    log, writer = open_log(log_path, run.step, run.main_rank)
+    set_train_mode(run.model, args.freeze_trunk)
+    teacher = None if args.teacher is None else load_teacher(args.teacher, run.device)
+    bar = tqdm(total=args.steps, initial=run.step, desc="train", dynamic_ncols=True,
+               disable=not run.main_rank)
     start = time.time()
-    while step < args.steps:
-        batch = to_device(next(loader), device)
-        loss, terms, final = batch_loss(net, batch, args, teacher)
-        if not finite_on_every_rank(loss, world, device):
-            print(f"step {step}: non-finite loss, batch skipped", file=sys.stderr)
+    while run.step < args.steps:
+        batch = to_device(next(loader), run.device)
+        loss, terms, final = batch_loss(run.net, batch, args, teacher)
+        if not finite_on_every_rank(loss, run.world, run.device):
+            print(f"step {run.step}: non-finite loss, batch skipped", file=sys.stderr)
             continue
-        optimise(net, opt, sched, loss)
-        step += 1
+        optimise(run.net, run.opt, run.sched, loss)
+        run.step += 1
         epe = batch_epe(final, batch["gt"])
-        row = dict(step=step, loss=float(loss.detach()), epe=epe, lr_now=sched.get_last_lr()[0],
-                   seconds=round(time.time() - start, 1), **terms)
-        if args.val_every and (step % args.val_every == 0 or step == args.steps):
-            row.update(validate(model, 4))
-            set_train_mode(model, args.freeze_trunk)
+        row = dict(step=run.step, loss=float(loss.detach()), epe=epe,
+                   lr_now=run.sched.get_last_lr()[0], seconds=round(time.time() - start, 1),
+                   **terms)
+        if args.val_every and (run.step % args.val_every == 0 or run.step == args.steps):
+            row.update(validate(run.model, 4))
+            set_train_mode(run.model, args.freeze_trunk)
         writer.writerow(row)
         log.flush()
         bar.update(1)
         bar.set_postfix(loss=f"{float(loss.detach()):.3f}", epe=f"{epe:.2f}",
                         **{k: f"{v:.3f}" for k, v in terms.items()})
-        if step % args.ckpt_every == 0 or step == args.steps:
-            save(args.out / "last.pt")
+        if run.step % args.ckpt_every == 0 or run.step == args.steps:
+            run.save(args.out / "last.pt")
     bar.close()
     log.close()
-    save(args.out / "final.pt")
-    if world > 1:
-        finish_distributed(model, args, main_rank, world)
-    if main_rank:
+    run.save(args.out / "final.pt")
+    if run.world > 1:
+        finish_distributed(run.model, args, run.main_rank, run.world)
+    if run.main_rank:
         plot_metrics(log_path, args.out / "loss.png")
-        print(f"done: {step} steps, checkpoint {args.out / 'final.pt'}")
+        print(f"done: {run.step} steps, checkpoint {args.out / 'final.pt'}")
     return 0
 
 
