@@ -15,6 +15,7 @@ spawned ones read them from the environment.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -45,6 +46,24 @@ def one_thread_each() -> Iterator[None]:
                 os.environ.pop(k, None)
             else:
                 os.environ[k] = v
+
+
+@functools.cache
+def one_openblas_thread() -> list[str]:
+    """Sets every OpenBLAS loaded in this process (numpy's, scipy's and the one OpenCV's wheel
+    bundles for `cv2.gemm`) to one thread, once; the libraries set. Their worker threads spin
+    for ~0.1 s after each multi-threaded call: on a 2-core host the LiDAR projection's matmul
+    and the selections' gemm left one spinning through what came next, so the engine's graphs
+    and OpenCV's own parallel calls ran on one core for part of every frame (SGBM 14 → 20–27
+    ms after them, the engine 3–5 ms slower; `experiments/blas_threads_ab.py`,
+    docs/experiments.md). Every BLAS call of the pipeline is small. Called by the engine:
+    an application that loads one gets this for its whole process."""
+    from threadpoolctl import ThreadpoolController
+
+    libs = ThreadpoolController().select(internal_api="openblas").lib_controllers
+    for lib in libs:
+        lib.set_num_threads(1)
+    return [lib.filepath for lib in libs]
 
 
 def thread_counts() -> dict[str, int]:

@@ -1,11 +1,13 @@
 """The engine against OpenCV's SGBM as `tools/bench.py` times them (its frames, its blocks of
-every stage, then engine and SGBM back to back frame by frame), with the OpenBLAS that OpenCV's
-wheel bundles (what `cv2.gemm` runs on) at its own thread count and at one, each in a process
-of its own: the paired rounds' median ms of each, their ratio, and how many SGBM calls took
-over 20 ms (its steady time here is ~14: a core lost to a spinning thread).
+every stage, then engine and SGBM back to back frame by frame) with the process's OpenBLAS
+libraries (numpy's, scipy's, the one OpenCV's wheel bundles for `cv2.gemm`) at two threads
+each, with only OpenCV's at one, and at one each (what the engine sets:
+`edge.workers.one_openblas_thread`), each in a process of its own: the paired rounds' median
+ms of each, their ratio, and how many SGBM calls took over 20 ms (its steady time here is ~14:
+a core lost to a spinning thread).
 
     python experiments/blas_threads_ab.py [--rounds 3]
-    python experiments/blas_threads_ab.py --opencv-blas-threads 1   # one setting, this process
+    python experiments/blas_threads_ab.py --openblas opencv-one   # one setting, this process
 """
 
 from __future__ import annotations
@@ -22,19 +24,21 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 import bench  # noqa: E402  (tools/bench.py: the frames and blocks it times)
 
+SETTINGS = ("two", "opencv-one", "engine")
 
-def opencv_blas(threads: int) -> list[str]:
-    """Sets the OpenBLAS libraries OpenCV's wheel bundles to `threads`; their paths."""
+
+def set_openblas(setting: str) -> None:
+    """After the engines are built (which sets every OpenBLAS to one thread): two threads
+    each again, or two but OpenCV's, or (the engine's) as they are."""
     from threadpoolctl import ThreadpoolController
 
-    libs = [lib for lib in ThreadpoolController().lib_controllers
-            if lib.internal_api == "openblas" and "opencv" in lib.filepath]
-    for lib in libs:
-        lib.set_num_threads(threads)
-    return [Path(lib.filepath).name for lib in libs]
+    if setting == "engine":
+        return
+    for lib in ThreadpoolController().select(internal_api="openblas").lib_controllers:
+        lib.set_num_threads(1 if setting == "opencv-one" and "opencv" in lib.filepath else 2)
 
 
-def one_setting(threads: int | None, rounds: int) -> None:
+def one_setting(setting: str, rounds: int) -> None:
     import cv2
 
     from edge_depth.capture.sim import SimSource
@@ -43,10 +47,10 @@ def one_setting(threads: int | None, rounds: int) -> None:
     from edge_depth.runtime.engine import Engine
 
     cv2.setNumThreads(2)
-    libs = opencv_blas(threads) if threads else []
     rig, samples, dense, inputs = bench.bench_frames(640, 400, 4)
     matcher = bench.make_sgbm()
     engines = {p: Engine(precision=p, threads=2) for p in ("fp32", "int8")}
+    set_openblas(setting)
     clock = bench.StageClock(engines, 4)
     with tempfile.TemporaryDirectory() as tmp:
         logger = McapLogger(Path(tmp) / "bench.mcap")
@@ -57,8 +61,9 @@ def one_setting(threads: int | None, rounds: int) -> None:
         methods = bench.timed_methods(stages, samples, inputs, matcher, clock, [4])
         for fn, args_list in methods.values():  # one block of every stage, as the bench
             bench._timed(fn, args_list, [])
-        label = f"OpenCV's OpenBLAS at {threads} thread(s) {libs}" if threads else \
-            "OpenCV's OpenBLAS at its own thread count"
+        label = {"two": "every OpenBLAS at two threads",
+                 "opencv-one": "OpenCV's OpenBLAS at one thread, the others at two",
+                 "engine": "every OpenBLAS at one thread (the engine's)"}[setting]
         for r in range(rounds):
             ms: dict[str, list[float]] = {"engine": [], "sgbm": []}
             for k in range(3 * len(inputs)):
@@ -80,19 +85,19 @@ def one_setting(threads: int | None, rounds: int) -> None:
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("--rounds", type=int, default=3)
-    p.add_argument("--opencv-blas-threads", type=int, default=None,
-                   help="run one setting in this process (0: leave it as it is)")
+    p.add_argument("--openblas", choices=SETTINGS, default=None,
+                   help="run one setting in this process")
     args = p.parse_args()
-    if args.opencv_blas_threads is not None:
-        one_setting(args.opencv_blas_threads, args.rounds)
+    if args.openblas is not None:
+        one_setting(args.openblas, args.rounds)
         return
     from edge_depth.runtime.backends import cpu_description
 
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}", flush=True)
-    for threads in (0, 1):
+    for setting in SETTINGS:
         subprocess.run([sys.executable, __file__, "--rounds", str(args.rounds),
-                        "--opencv-blas-threads", str(threads)], check=True)
+                        "--openblas", setting], check=True)
 
 
 if __name__ == "__main__":

@@ -479,17 +479,3 @@ def test_the_vectorised_helpers_match_numpy():
     assert not np.shares_memory(feature_matrix([np.zeros(9000)] * 2, scratch), again)
     keys = np.arange(0, 2**24, 97, dtype=np.float32)
     np.testing.assert_array_equal(key_disparity(keys), unpack_key(keys)[0])
-
-
-def test_the_scorer_leaves_opencvs_blas_on_one_thread_and_numpys_alone():
-    # OpenCV's bundled OpenBLAS spins its threads after each gemm; a scorer sets it to one
-    from threadpoolctl import threadpool_info
-
-    before = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
-    Perceptron(np.zeros(3), np.ones(3), np.ones((3, 4)), np.zeros(4), np.ones(4), 0.0)
-    after = {i["filepath"]: i["num_threads"] for i in threadpool_info()}
-    opencv = [path for path in after if "opencv" in path and "openblas" in path]
-    if not opencv:
-        pytest.skip("this OpenCV wheel bundles no OpenBLAS")
-    assert all(after[path] == 1 for path in opencv)
-    assert all(after[path] == before[path] for path in before if path not in opencv)

@@ -28,3 +28,15 @@ def test_workers_started_inside_one_thread_each_run_one_thread_and_the_parent_ge
             counts = pool.submit(thread_counts).result(timeout=120)
         assert counts["opencv"] == 1 and blas_threads(counts) == {1}, (method, counts)
     assert thread_counts() == before
+
+
+def test_an_engine_leaves_every_openblas_in_its_process_on_one_thread():
+    # their threads spin after each call and took a core from the engine's graphs
+    from threadpoolctl import threadpool_info
+
+    from edge_depth.runtime.engine import Engine
+
+    np.ones((300, 300)) @ np.ones((300, 300))  # the BLAS pool busy before, as a renderer's
+    Engine(precision="fp32")
+    openblas = [pool for pool in threadpool_info() if pool["internal_api"] == "openblas"]
+    assert openblas and all(pool["num_threads"] == 1 for pool in openblas), openblas

@@ -9,7 +9,6 @@ Pure numpy + OpenCV (robot side, no torch).
 
 from __future__ import annotations
 
-import functools
 import threading
 
 import cv2
@@ -244,23 +243,6 @@ def cell_pixels(cells: np.ndarray, shape: tuple[int, int]) -> tuple[np.ndarray, 
     return ys[inside] * w + xs[inside], owner[inside]
 
 
-@functools.cache
-def one_thread_for_opencv_blas() -> list[str]:
-    """Sets the OpenBLAS that OpenCV's wheel bundles (what `cv2.gemm` runs on) to one thread,
-    once per process; the libraries set. Its worker threads spin for a while after every
-    call: on a 2-core host the scorer's gemm left one spinning through whatever came next, so
-    the rest of the frame and anything else in the process ran on one core half the time
-    (SGBM 14 → 25 ms, the engine 3–5 ms slower; `experiments/blas_threads_ab.py`,
-    docs/experiments.md). The scorer's gemms are small; numpy's own BLAS is left alone."""
-    from threadpoolctl import ThreadpoolController
-
-    libs = [lib for lib in ThreadpoolController().lib_controllers
-            if lib.internal_api == "openblas" and "opencv" in lib.filepath]
-    for lib in libs:
-        lib.set_num_threads(1)
-    return [lib.filepath for lib in libs]
-
-
 class Perceptron:
     """A fitted scorer, standardise → ReLU layer → linear outputs, with the standardisation
     folded into the first layer: logits for (N, F) features in two OpenCV gemms, each adding
@@ -268,12 +250,11 @@ class Perceptron:
     pass over the hidden layer cost ~0.7 ms a frame more than gemm's add and OpenCV's
     threshold). OpenCV's gemm, not numpy's `@`: (N, F) · (F, K) in numpy, its feature-major
     transpose took 3 ms, not 0.7 (docs/experiments.md). Both run on an OpenBLAS whose threads
-    spin after each call and take a core from what follows: OpenCV's is set to one thread
-    (`one_thread_for_opencv_blas`)."""
+    spin after each call and take a core from what follows: the engine sets every OpenBLAS
+    in its process to one thread (`edge.workers.one_openblas_thread`)."""
 
     def __init__(self, mean: np.ndarray, std: np.ndarray, w1: np.ndarray, b1: np.ndarray,
                  w2: np.ndarray, b2) -> None:
-        one_thread_for_opencv_blas()
         self.w1 = np.ascontiguousarray(w1 / std[:, None], np.float32)
         self.b1 = (b1 - (mean / std) @ w1).astype(np.float32)
         self.w2 = np.ascontiguousarray(np.reshape(w2, (len(b1), -1)), np.float32)

@@ -39,6 +39,7 @@ from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
 from edge_depth.types import DepthResult
+from edge_depth.workers import one_openblas_thread
 
 DEFAULT_BUNDLE = Path(__file__).resolve().parents[1] / "models" / "default"
 MIN_DISPARITY = 0.5  # px: below this the depth is reported invalid (beyond f·B/0.5)
@@ -60,10 +61,13 @@ class Engine:
     size (model.json's "any_size"), "budget" scales them to the bundle's pixel count at their
     own aspect and "native" runs them at their own size, padded to the network's stride; the
     outputs come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s;
-    when the matching's block matching runs is `edge.runtime.match_schedule`'s."""
+    when the matching's block matching runs is `edge.runtime.match_schedule`'s. Every
+    OpenBLAS in the process runs one thread from the first engine on
+    (`edge.workers.one_openblas_thread`: their spinning threads took a core from it)."""
 
     def __init__(self, bundle: Path | str | None = None, options: EngineOptions | None = None,
                  meta: dict | None = None, **overrides) -> None:
+        one_openblas_thread()
         options = EngineOptions.with_overrides(options, bundle=bundle, **overrides)
         self.options = options
         self.runtime = resolve_runtime(options.runtime)
