@@ -47,6 +47,9 @@ def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monk
     assert backends.cpu_description("") == dict(model="arm", int8_dot_product=None, isa=[])
     machine = dict(others_cpu_share=0.0, load_avg_1min=0.1, sgbm_p90_over_p10=1.2, busy=False)
     assert "int8 dot product" not in machine_line(machine)  # benches saved before the field
+    assert "UNSTEADY" not in machine_line(machine)
+    # SGBM bimodal (a spinning thread took a core from it half the time): flagged
+    assert "SGBM UNSTEADY" in machine_line(dict(machine, sgbm_p90_over_p10=1.6))
     line = machine_line(dict(machine, cpu=backends.cpu_description(epyc)))
     assert line.endswith("; CPU AMD EPYC 7B13 (AVX2), int8 dot product (VNNI/AMX): no")
     assert host_line(backends.cpu_description(xeon)).startswith(

@@ -8,6 +8,10 @@ import os
 import numpy as np
 
 BUSY_SHARE = 0.10  # other processes' share of the CPU above which a run is flagged busy
+# SGBM's p90 / p10 above which its times are flagged: steady it spreads 1.03–1.09; with a
+# spinning thread of the bench's own process taking a core half the time, 1.5–1.8 (its
+# calls bimodal, 14 or 25 ms; docs/speed.md, 2026-12-06 18:10)
+SGBM_SPREAD = 1.3
 
 
 def markdown(summary: dict) -> str:
@@ -115,6 +119,9 @@ def machine_line(m: dict) -> str:
     others = "n/a" if m["others_cpu_share"] is None else f"{m['others_cpu_share']:.0%}"
     load = "n/a" if m["load_avg_1min"] is None else f"{m['load_avg_1min']:.2f}"
     flag = " — BUSY" if m["busy"] else ""
+    if m["sgbm_p90_over_p10"] > SGBM_SPREAD:
+        flag += (" — SGBM UNSTEADY: something in or beside this process took a core from it "
+                 "part of the time; do not trust the ratio")
     line = (f"machine: other processes {others} of the CPU during the run, load average "
             f"{load} before it, SGBM p90/p10 {m['sgbm_p90_over_p10']:.2f}{flag}")
     if "cpu" in m:  # ratios from CPUs with and without int8 dot products differ ~2x
