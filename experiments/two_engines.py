@@ -9,14 +9,17 @@ from __future__ import annotations
 
 import argparse
 import statistics
+import sys
 import threading
 import time
+from pathlib import Path
 
-import numpy as np
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
-from edge_depth.runtime.backends import cpu_description
-from edge_depth.runtime.engine import Engine
-from edge_depth.sim import RigConfig, make_sample
+import bench  # noqa: E402  (tools/bench.py: the frames it times)
+
+from edge_depth.runtime.backends import cpu_description  # noqa: E402
+from edge_depth.runtime.engine import Engine  # noqa: E402
 
 
 def serial(engine: Engine, frames: list, count: int) -> float:
@@ -51,11 +54,7 @@ def main() -> None:
     args = p.parse_args()
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
-    frames = []
-    for i in range(4):
-        sample = make_sample(1_000_000 + i, RigConfig(), "beams16")
-        sparse, valid = sample.sparse_disparity("left")
-        frames.append((sample.left, sample.right, (sparse * valid).astype(np.float32)))
+    frames = bench.bench_frames(640, 400, 4)[3]  # the bench's engine inputs
     one = Engine(threads=2)
     two = [Engine(threads=1), Engine(threads=1)]
     for engine in (one, *two):
