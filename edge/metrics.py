@@ -16,19 +16,36 @@ def disparity_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None 
     pred, gt: (H, W) disparity in pixels; gt non-finite or <= 0 is unknown. mask: optional
     (H, W) bool restricting the evaluated pixels (e.g. non-occluded).
     """
-    valid = np.isfinite(gt) & (gt > 0)
+    with np.errstate(invalid="ignore"):
+        valid = np.isfinite(gt) & (gt > 0)
     if mask is not None:
         valid &= mask
-    g = gt[valid].astype(np.float64)
-    p = pred[valid].astype(np.float64)
-    if g.size == 0:
+    # in the inputs' own precision, float32 for float32 maps (float64 copies made this 3x
+    # slower: 4.3 against 1.4 ms a 640x400 frame, which the daemon pays on every sim frame);
+    # the sum is accumulated in float64
+    dtype = np.result_type(pred, gt, np.float32)
+    g = gt[valid].astype(dtype, copy=False)
+    p = pred[valid].astype(dtype, copy=False)
+    n = g.size
+    if n == 0:
         return dict(epe=float("nan"), bad1=float("nan"), bad2=float("nan"),
                     bad3=float("nan"), density=0.0)
-    has = np.isfinite(p) & (p > 0)
-    err = np.where(has, np.abs(p - g), g)
-    return dict(epe=float(err.mean()), bad1=float((err > 1).mean() * 100),
-                bad2=float((err > 2).mean() * 100), bad3=float((err > 3).mean() * 100),
-                density=float(has.mean() * 100))
+    with np.errstate(invalid="ignore"):
+        has = np.isfinite(p) & (p > 0)
+    err = np.abs(p - g)
+    np.copyto(err, g, where=~has)
+    bad = {f"bad{t}": 100.0 * _count_over(err, p, g, has, t) / n for t in (1, 2, 3)}
+    return dict(epe=float(err.sum(dtype=np.float64) / n), **bad,
+                density=float(100.0 * np.count_nonzero(has) / n))
+
+
+def _count_over(err: np.ndarray, p: np.ndarray, g: np.ndarray, has: np.ndarray,
+                t: int) -> int:
+    """How many errors exceed `t` px, exactly: a float32 difference rounds to `t` itself
+    from just above it, so those few are compared again in float64."""
+    tie = np.flatnonzero((err == t) & has)
+    exact = np.abs(p[tie].astype(np.float64) - g[tie]) > t
+    return int(np.count_nonzero(err > t) + np.count_nonzero(exact))
 
 
 def depth_metrics(pred_disp: np.ndarray, gt_disp: np.ndarray, focal_px: float,

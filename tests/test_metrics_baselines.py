@@ -18,6 +18,25 @@ def test_disparity_metrics_count_holes_as_errors():
     assert np.isclose(m["bad3"], 50.0) and np.isclose(m["density"], 75.0)
 
 
+def test_disparity_metrics_in_float32_count_as_float64_would():
+    rng = np.random.default_rng(3)
+    gt = (rng.random((60, 80)) * 60).astype(np.float32)
+    gt[rng.random(gt.shape) < 0.1] = np.nan
+    pred = (gt + rng.normal(0, 2, gt.shape)).astype(np.float32)
+    pred[rng.random(gt.shape) < 0.05] = 0
+    # 3 px and a hair: the float32 difference rounds to exactly 3, the pixel is still bad-3
+    pred[0, 0], gt[0, 0] = np.nextafter(np.float32(3), np.float32(4)), np.float32(1.5e-7)
+    assert np.float32(pred[0, 0]) - np.float32(gt[0, 0]) == 3.0
+    ok = np.isfinite(gt) & (gt > 0)
+    g, p = gt[ok].astype(np.float64), pred[ok].astype(np.float64)
+    err = np.where(p > 0, np.abs(p - g), g)
+    m = disparity_metrics(pred, gt)
+    assert m["bad3"] == 100.0 * np.count_nonzero(err > 3) / err.size
+    assert m["bad1"] == 100.0 * np.count_nonzero(err > 1) / err.size
+    assert np.isclose(m["epe"], err.mean(), rtol=1e-7)
+    assert disparity_metrics(pred.astype(np.float64), gt)["bad3"] == m["bad3"]
+
+
 def test_depth_metrics_in_mm_and_inverse_km():
     gt = np.full((1, 1), 10.0, np.float32)  # f B = 1 -> 0.1 m
     pred = np.full((1, 1), 5.0, np.float32)  # 0.2 m
