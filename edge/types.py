@@ -122,6 +122,8 @@ class DepthResult:
     replaced by a side's value (None when it did not run). matched_px: pixels the
     full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
+    photometry_distance: the pair's grey-level histogram distance (`edge.runtime.photometry`;
+    above its threshold the right image was matched to the left's), None when not measured.
     """
 
     stamp_ns: int
@@ -135,6 +137,7 @@ class DepthResult:
     edge_px: int | None = None
     matched_px: int | None = None
     match_beyond_px: int | None = None
+    photometry_distance: float | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

@@ -8,7 +8,8 @@
 # second time with REFERENCE= the first run's folder for the tables:
 #     bash experiments/judge_engine_change.sh runs/judge_ref
 #     REFERENCE=runs/judge_ref bash experiments/judge_engine_change.sh runs/judge_change
-# PATHS="avx2 native ort": the paths to run (default all three).
+# PATHS="avx2 native ort": the paths to run (default all three); FLAGS="…": more evaluate
+# flags (e.g. an engine option off, for a reference run on the same commit).
 set -euo pipefail
 OUT=$1
 BIN=${BIN:-.venv/bin}
@@ -19,7 +20,8 @@ PATHS=${PATHS:-avx2 native ort}
 [ -d data/motorcycle_r8 ] || "$BIN/python" tools/real_pairs.py --motorcycle --rows 8 --out data/motorcycle_r8
 [ -d data/test16 ] || "$BIN/edge-depth" synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
 [ -d data/variants/aloe_noise ] || "$BIN/python" experiments/pair_variants.py data/aloe data/motorcycle --out data/variants
-DATA="data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16 $(ls -d data/variants/* | tr '\n' ' ')"
+[ -d data/photo_variants/aloe_gain09 ] || "$BIN/python" experiments/photometric_variants.py data/aloe data/motorcycle --out data/photo_variants
+DATA="data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16 $(ls -d data/variants/* data/photo_variants/* | tr '\n' ' ')"
 mkdir -p "$OUT"
 echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores); paths $PATHS; commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- edge || echo ' + uncommitted changes to edge/')"
 for path in $PATHS; do
@@ -31,7 +33,7 @@ for path in $PATHS; do
   esac
   for data in $DATA; do
     "${run[@]}" tools/evaluate.py "$data" --methods net --no-lidar "${flags[@]}" \
-      --precision int8 --iters 4 --json "$OUT/eval_${path}_$(basename "$data").json" > /dev/null
+      --precision int8 --iters 4 ${FLAGS:-} --json "$OUT/eval_${path}_$(basename "$data").json" > /dev/null
   done
 done
 [ -n "${REFERENCE:-}" ] || exit 0

@@ -38,6 +38,7 @@ from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
+from edge_depth.runtime.photometry import PhotometricMatch
 from edge_depth.types import DepthResult
 from edge_depth.workers import one_openblas_thread
 
@@ -105,6 +106,7 @@ class Engine:
             if options.lidar_select and "lidar_select" in self.meta else None
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if options.edge_select and "edge_select" in self.meta else None
+        self.photometry = PhotometricMatch() if options.match_photometry else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
         self.edge_match = make_edge_match(resolved, self.width)
@@ -212,7 +214,7 @@ class Engine:
         if iters < 1:
             raise ConfigError("iters", ">= 1", iters)
         frame = _Frame(t_engine if started is None else started, record)
-        plan, has_points = self._prepare(left, right, sparse)
+        plan, has_points = self._prepare(frame, left, right, sparse)
         matching = self._start_matching(iters)
         enc = self._encode(frame)
         self._last = (enc, plan)
@@ -232,7 +234,8 @@ class Engine:
         frame.timings["engine"] = (time.perf_counter() - t_engine) * 1000
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=frame.steps, timings_ms=frame.timings,
-                           confidence=confidence, **frame.counts)
+                           confidence=confidence,
+                           photometry_distance=frame.photometry_distance, **frame.counts)
 
     def stereo_only(self, iters: int = 2) -> np.ndarray:
         """The last frame's network disparity without the LiDAR, (H, W) float32 at the
@@ -251,16 +254,19 @@ class Engine:
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
         return disp if plan.identity else plan.restore(disp, disparity=True)
 
-    def _prepare(self, left: np.ndarray, right: np.ndarray, sparse: np.ndarray
-                 ) -> tuple[FitPlan, bool]:
-        """Checks, then the frame scaled and padded to the bundle into the graphs' input
-        buffers; (the plan to restore it, whether it has LiDAR points)."""
+    def _prepare(self, frame: _Frame, left: np.ndarray, right: np.ndarray,
+                 sparse: np.ndarray) -> tuple[FitPlan, bool]:
+        """Checks, the cameras' grey levels matched where they disagree
+        (`edge.runtime.photometry`), then the frame scaled and padded to the bundle into the
+        graphs' input buffers; (the plan to restore it, whether it has LiDAR points)."""
         for name, image in (("right", right), ("sparse", sparse)):
             if image.shape != left.shape:
                 raise InvalidDataError(f"{name} image", f"the left image's shape {left.shape}",
                                        image.shape)
         if left.ndim != 2 or min(left.shape) < 8:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
+        if self.photometry is not None:  # the right camera's grey levels onto the left's
+            right, frame.photometry_distance = self.photometry.apply(left, right)
         plan = self.plan_for((left.shape[1], left.shape[0]))
         if not plan.identity:
             left, right, sparse = plan.prepare(left, right, sparse)
@@ -387,6 +393,7 @@ class _Frame:
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
         selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None))
     steps: int = 0
+    photometry_distance: float | None = None  # the pair's histogram distance, where measured
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction
 
     def feed(self, part: str, feeds: dict) -> dict:

@@ -1,0 +1,66 @@
+"""The two cameras' grey levels made to agree before anything matches them.
+
+A pair whose cameras differ in exposure, gain or response (auto-exposure per sensor, a dirty
+lens) shows the same surface at different grey levels, which the network (trained with the
+two cameras' gain within ±12 % and gamma ±6 %), StereoBM and the selections' warp costs all
+read as a mismatch. Where the two images' grey-level histograms disagree by more than two
+views of one scene do — their Kolmogorov–Smirnov distance, the largest gap between the
+cumulative histograms, above `threshold` — the right image is mapped onto the left's
+histogram (each level to the left's level at the same mid-rank, a 256-entry table); the left
+image, whose disparity the engine returns, is never changed. Below the threshold nothing is
+changed: matching two cameras that already agree moves the result by noise
+(docs/experiments.md, 2026-12-06 19:25).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+# the real pairs' own distance is 0.033-0.036, a right camera 20 % darker with gamma 1.15
+# 0.18-0.38 (docs/experiments.md)
+THRESHOLD = 0.08
+
+
+def grey8(image: np.ndarray) -> np.ndarray:
+    """(H, W) grey levels as uint8 (rounded and saturated when they are not)."""
+    if image.dtype == np.uint8:
+        return image
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+
+
+def cumulative(image8: np.ndarray) -> np.ndarray:
+    """The cumulative share of pixels at or below each grey level, (256,) float64."""
+    counts = cv2.calcHist([image8], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+    return np.cumsum(counts) / max(image8.size, 1)
+
+
+def histogram_distance(left8: np.ndarray, right8: np.ndarray) -> float:
+    """The largest gap between the two images' cumulative histograms, 0 … 1."""
+    return float(np.abs(cumulative(left8) - cumulative(right8)).max())
+
+
+def matching_table(left8: np.ndarray, right8: np.ndarray) -> np.ndarray:
+    """(256,) float32: each right grey level's value at the same mid-rank in the left image."""
+    left_c, right_c = cumulative(left8), cumulative(right8)
+    left_mid = left_c - 0.5 * np.diff(left_c, prepend=0.0)
+    right_mid = right_c - 0.5 * np.diff(right_c, prepend=0.0)
+    return np.interp(right_mid, left_mid, np.arange(256.0)).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class PhotometricMatch:
+    """`apply(left, right)` -> (right, its histogram distance from the left)."""
+
+    threshold: float = THRESHOLD
+
+    def apply(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
+        """The right image mapped onto the left's grey levels (float32) where the two
+        histograms are more than `threshold` apart, else as given; and that distance."""
+        left8, right8 = grey8(left), grey8(right)
+        distance = histogram_distance(left8, right8)
+        if distance <= self.threshold:
+            return right, distance
+        return cv2.LUT(right8, matching_table(left8, right8)), distance
