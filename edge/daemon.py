@@ -33,6 +33,7 @@ from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
@@ -336,6 +337,8 @@ class Pipeline:
             timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
         if result.match_beyond_px is not None:  # ... and the share beyond its reach
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
+        if result.photometry_distance is not None:  # [engine] match_photometry
+            timings["photometry_distance"] = result.photometry_distance
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -396,7 +399,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
-               "match_beyond_pct")
+               "match_beyond_pct", "photometry_distance")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching"}
@@ -405,7 +408,8 @@ SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge sele
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
-    "match_beyond_pct" (the % beyond the edge matching's disparity count)."""
+    "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
+    "photometry_distance" (0-1)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -427,6 +431,11 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
                      "edge_match to a multiple of 16 above the scene's largest disparity, or "
                      "set it to \"auto\" (each frame's count from the network's own)")
+    if distances := replaced_shares(timings, "photometry_distance"):
+        matched = sum(1 for d in distances if d > PHOTOMETRY_THRESHOLD)
+        lines.append(f"Photometry: the right image matched to the left's grey levels in "
+                     f"{matched} of {len(distances)} frames (histogram distance median "
+                     f"{np.median(distances):.2f}, matched above {PHOTOMETRY_THRESHOLD})")
     return "\n".join(lines) or None
 
 

@@ -60,10 +60,10 @@ class EngineOptions:
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
                                  "this (ms from the frame's start); 0 = no deadline",
                                  bounds=(0.0, 60_000.0))
-    match_photometry: bool = _option(True, "the right image's grey levels mapped onto the "
-                                     "left's where the two cameras' histograms disagree "
-                                     "(exposure, gain or response), before anything matches "
-                                     "them")
+    match_photometry: bool = _option(False, "the right image's grey levels mapped onto the "
+                                     "left's where the two cameras' histograms disagree, "
+                                     "for a pair whose exposure, gain or response differ "
+                                     "(docs/results.md: 2-11 % on such real pairs)")
     pipelined: bool = _option(False, "live: rectification, the engine and logging overlap in "
                               "threads (more frames/s at a higher latency)")
     lidar_select: bool = _option(True, "the bundle's per-cell choice between the network and "

@@ -9,7 +9,7 @@ cumulative histograms, above `threshold` — the right image is mapped onto the 
 histogram (each level to the left's level at the same mid-rank, a 256-entry table); the left
 image, whose disparity the engine returns, is never changed. Below the threshold nothing is
 changed: matching two cameras that already agree moves the result by noise
-(docs/experiments.md, 2026-12-06 19:25).
+(docs/experiments.md, 2026-12-06 19:15).
 """
 
 from __future__ import annotations
