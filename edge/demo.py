@@ -96,15 +96,18 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
     from edge_depth.daemon import Pipeline, format_latency, summarise
     from edge_depth.loggers import open_logger
     from edge_depth.runner import run
-    from edge_depth.runtime.engine import Engine
+    from edge_depth.runtime.backends import cpu_description
+    from edge_depth.runtime.engine import Engine, usable_cores
 
     out.mkdir(parents=True, exist_ok=True)
     source = SimSource(frames, seed)
     stereo, lidar = source.calibration
     engine = Engine(precision=precision, threads=2)
+    cpu = cpu_description()
     print(f"edge-depth demo: synthetic rig {engine.width}x{engine.height}, 16-beam LiDAR, "
           f"{engine.describe()}, {iters or engine.default_iters} iterations"
-          + (f", deadline {deadline_ms:g} ms" if deadline_ms else ""))
+          + (f", deadline {deadline_ms:g} ms" if deadline_ms else "")
+          + f"; CPU {cpu['model']} ({', '.join(cpu['isa'])}, {usable_cores()} cores)")
     matcher = make_sgbm()
     sgbm_rows: list[dict] = []
     picture: list[np.ndarray] = []

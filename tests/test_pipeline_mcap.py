@@ -310,6 +310,9 @@ def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
     # what runs, said first: the shipped bundle's own matching included
     assert ("edge matching auto on every 2nd row, weighted median 9x9/2 (the bundle's)"
             in out.splitlines()[0])
+    # and on which CPU, so its milliseconds can be compared with like
+    from edge_depth.runtime.backends import cpu_description
+    assert f"({', '.join(cpu_description()['isa'])}, " in out.splitlines()[0]
     net = float(out.split("network (int8) EPE ")[1].split()[0])
     sgbm = float(out.split("OpenCV SGBM     EPE ")[1].split()[0])
     assert net < sgbm
