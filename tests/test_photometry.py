@@ -77,3 +77,15 @@ def test_the_closing_summary_counts_the_frames_whose_right_image_was_matched():
     assert selection_summary(timings) == (
         "Photometry: the right image matched to the left's grey levels in 2 of 3 frames "
         f"(histogram distance median 0.20, matched above {THRESHOLD})")
+
+
+def test_float_and_strided_images_are_measured_as_their_grey_levels():
+    left = _texture(3)
+    right = _darker(left)
+    wide = np.zeros((left.shape[0], 2 * left.shape[1]), np.uint8)
+    wide[:, ::2] = right  # every other column: a view with a stride of 2
+    view = wide[:, ::2]
+    assert histogram_distance(left, view) == histogram_distance(left, right)
+    out, distance = PhotometricMatch().apply(left.astype(np.float32), view)
+    assert distance == histogram_distance(left, right)
+    assert np.array_equal(out, PhotometricMatch().apply(left, right)[0])

@@ -27,7 +27,7 @@ THRESHOLD = 0.08
 def grey8(image: np.ndarray) -> np.ndarray:
     """(H, W) grey levels as uint8 (rounded and saturated when they are not)."""
     if image.dtype == np.uint8:
-        return image
+        return np.ascontiguousarray(image)  # OpenCV reads rows with a unit stride
     return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
