@@ -339,6 +339,11 @@ class Pipeline:
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
         if result.photometry_distance is not None:  # [engine] match_photometry
             timings["photometry_distance"] = result.photometry_distance
+        if (found := result.lidar_offset) is not None:  # [engine] align_lidar
+            timings["lidar_put_back"] = float(found.moves)
+            if found.moves:
+                timings.update(lidar_dx_px=float(found.dx), lidar_dy_px=float(found.dy),
+                               lidar_turn_deg=found.turn_deg)
         metrics = None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
@@ -399,7 +404,8 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
-               "match_beyond_pct", "photometry_distance")
+               "match_beyond_pct", "photometry_distance", "lidar_put_back", "lidar_dx_px",
+               "lidar_dy_px", "lidar_turn_deg")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching"}
@@ -409,7 +415,7 @@ def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[floa
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
     "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
-    "photometry_distance" (0-1)."""
+    "photometry_distance" (0-1), or "lidar_put_back" (1: the LiDAR map was put back)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -436,6 +442,15 @@ def selection_summary(timings: list[dict]) -> str | None:
         lines.append(f"Photometry: the right image matched to the left's grey levels in "
                      f"{matched} of {len(distances)} frames (histogram distance median "
                      f"{np.median(distances):.2f}, matched above {PHOTOMETRY_THRESHOLD})")
+    if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):
+        moves = [(t["lidar_dx_px"], t["lidar_dy_px"], t["lidar_turn_deg"]) for t in timings
+                 if t.get("lidar_put_back")]
+        dx, dy, turn = (float(np.median(m)) for m in zip(*moves, strict=True))
+        lines.append(f"LiDAR map: put back onto the image's edges in {len(moves)} of "
+                     f"{len(put_back)} frames (it sat turned {turn:+.2f}° and moved "
+                     f"({dx:+.0f}, {dy:+.0f}) px off them, medians): the LiDAR–camera "
+                     "calibration looks off; refine it (edge-depth calibrate lidar --refine, "
+                     "as the calibration watch's line says)")
     return "\n".join(lines) or None
 
 

@@ -7,6 +7,7 @@ dataclass that validates its arrays on construction, so a bad frame is rejected 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -124,6 +125,8 @@ class DepthResult:
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
     photometry_distance: the pair's grey-level histogram distance (`edge.runtime.photometry`;
     above its threshold the right image was matched to the left's), None when not measured.
+    lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
+    it (`edge.runtime.lidar_align.Offset`; put back where `.moves`), None when not looked for.
     """
 
     stamp_ns: int
@@ -138,6 +141,7 @@ class DepthResult:
     matched_px: int | None = None
     match_beyond_px: int | None = None
     photometry_distance: float | None = None
+    lidar_offset: Any = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

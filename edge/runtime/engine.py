@@ -35,6 +35,7 @@ from edge_depth.runtime.edge_median import OFF
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
+from edge_depth.runtime.lidar_align import LidarAlign, Offset
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
@@ -107,6 +108,7 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if options.edge_select and "edge_select" in self.meta else None
         self.photometry = PhotometricMatch() if options.match_photometry else None
+        self.lidar_align = LidarAlign() if options.align_lidar else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
         self.edge_match = make_edge_match(resolved, self.width)
@@ -235,7 +237,8 @@ class Engine:
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=frame.steps, timings_ms=frame.timings,
                            confidence=confidence,
-                           photometry_distance=frame.photometry_distance, **frame.counts)
+                           photometry_distance=frame.photometry_distance,
+                           lidar_offset=frame.lidar_offset, **frame.counts)
 
     def stereo_only(self, iters: int = 2) -> np.ndarray:
         """The last frame's network disparity without the LiDAR, (H, W) float32 at the
@@ -257,8 +260,10 @@ class Engine:
     def _prepare(self, frame: _Frame, left: np.ndarray, right: np.ndarray,
                  sparse: np.ndarray) -> tuple[FitPlan, bool]:
         """Checks, the cameras' grey levels matched where they disagree
-        (`edge.runtime.photometry`), then the frame scaled and padded to the bundle into the
-        graphs' input buffers; (the plan to restore it, whether it has LiDAR points)."""
+        (`edge.runtime.photometry`), the LiDAR map moved back onto the image's edges where it
+        sits off them (`edge.runtime.lidar_align`), then the frame scaled and padded to the
+        bundle into the graphs' input buffers; (the plan to restore it, whether it has LiDAR
+        points)."""
         for name, image in (("right", right), ("sparse", sparse)):
             if image.shape != left.shape:
                 raise InvalidDataError(f"{name} image", f"the left image's shape {left.shape}",
@@ -267,6 +272,9 @@ class Engine:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
         if self.photometry is not None:  # the right camera's grey levels onto the left's
             right, frame.photometry_distance = self.photometry.apply(left, right)
+        if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
+            sparse, found = self.lidar_align.apply(left, sparse)
+            frame.lidar_offset = found
         plan = self.plan_for((left.shape[1], left.shape[0]))
         if not plan.identity:
             left, right, sparse = plan.prepare(left, right, sparse)
@@ -394,6 +402,7 @@ class _Frame:
         selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None))
     steps: int = 0
     photometry_distance: float | None = None  # the pair's histogram distance, where measured
+    lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction
 
     def feed(self, part: str, feeds: dict) -> dict:

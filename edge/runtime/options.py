@@ -64,6 +64,9 @@ class EngineOptions:
                                      "left's where the two cameras' histograms disagree, "
                                      "for a pair whose exposure, gain or response differ "
                                      "(docs/results.md: 2-11 % on such real pairs)")
+    align_lidar: bool = _option(True, "a LiDAR map that sits off the image (a calibration "
+                                "off by a fraction of a degree) moved back by the offset at "
+                                "which its depth edges meet the left image's edges")
     pipelined: bool = _option(False, "live: rectification, the engine and logging overlap in "
                               "threads (more frames/s at a higher latency)")
     lidar_select: bool = _option(True, "the bundle's per-cell choice between the network and "
