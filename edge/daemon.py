@@ -33,6 +33,7 @@ from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
 from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
@@ -339,6 +340,8 @@ class Pipeline:
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
         if result.photometry_distance is not None:  # [engine] match_photometry
             timings["photometry_distance"] = result.photometry_distance
+        if result.lidar_noise_px is not None:  # [engine] denoise_lidar
+            timings["lidar_noise_px"] = result.lidar_noise_px
         if (found := result.lidar_offset) is not None:  # [engine] align_lidar
             timings["lidar_put_back"] = float(found.moves)
             if found.moves:
@@ -405,7 +408,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
                "match_beyond_pct", "photometry_distance", "lidar_put_back", "lidar_dx_px",
-               "lidar_dy_px", "lidar_turn_deg")
+               "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching"}
@@ -415,7 +418,8 @@ def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[floa
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
     "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
-    "photometry_distance" (0-1), or "lidar_put_back" (1: the LiDAR map was put back)."""
+    "photometry_distance" (0-1), "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was
+    put back)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -442,6 +446,11 @@ def selection_summary(timings: list[dict]) -> str | None:
         lines.append(f"Photometry: the right image matched to the left's grey levels in "
                      f"{matched} of {len(distances)} frames (histogram distance median "
                      f"{np.median(distances):.2f}, matched above {PHOTOMETRY_THRESHOLD})")
+    if levels := replaced_shares(timings, "lidar_noise_px"):
+        smoothed = sum(1 for v in levels if v > NOISE_THRESHOLD_PX)
+        lines.append(f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} "
+                     f"frames (noise median {np.median(levels):.2f} px, smoothed above "
+                     f"{NOISE_THRESHOLD_PX} px)")
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):
         moves = [(t["lidar_dx_px"], t["lidar_dy_px"], t["lidar_turn_deg"]) for t in timings
                  if t.get("lidar_put_back")]

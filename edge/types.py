@@ -127,6 +127,8 @@ class DepthResult:
     above its threshold the right image was matched to the left's), None when not measured.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
     it (`edge.runtime.lidar_align.Offset`; put back where `.moves`), None when not looked for.
+    lidar_noise_px: the LiDAR map's noise level (`edge.runtime.lidar_denoise`; smoothed above
+    its threshold), None when not measured.
     """
 
     stamp_ns: int
@@ -142,6 +144,7 @@ class DepthResult:
     match_beyond_px: int | None = None
     photometry_distance: float | None = None
     lidar_offset: Any = None
+    lidar_noise_px: float | None = None
 
     def __post_init__(self) -> None:
         shape = getattr(self.disparity, "shape", None)

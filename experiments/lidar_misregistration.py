@@ -9,7 +9,6 @@ ground truth; the points keep their disparities, only their pixels move.
 from __future__ import annotations
 
 import argparse
-import shutil
 import sys
 from pathlib import Path
 
@@ -18,8 +17,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tools"))
 
 from evaluate import read_scene_folder  # noqa: E402
-
-from edge_depth.sim.folder import write_pfm  # noqa: E402
+from scene_variants import write_lidar_variants  # noqa: E402
 
 MOVES = {"left2": (-2, 0), "down2": (0, 2), "r3u1": (3, -1), "l1u2": (-1, -2), "right1": (1, 0)}
 # turned about the image centre (degrees), then moved
@@ -55,13 +53,7 @@ def main() -> None:
         variants = {name: moved(sparse, dx, dy) for name, (dx, dy) in MOVES.items()}
         variants.update({name: moved(sparse, dx, dy, turn)
                          for name, (turn, dx, dy) in TURNS.items()})
-        for name, changed in variants.items():
-            dst = args.out / f"{folder.name}_{name}"
-            if dst.exists():
-                shutil.rmtree(dst)
-            shutil.copytree(folder, dst)
-            write_pfm(dst / "sparse.pfm", changed.astype(np.float32))
-            print(dst)
+        write_lidar_variants(folder, variants, args.out)
 
 
 if __name__ == "__main__":

@@ -36,6 +36,7 @@ from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
 from edge_depth.runtime.lidar_align import LidarAlign, Offset
+from edge_depth.runtime.lidar_denoise import LidarDenoise
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
@@ -108,6 +109,7 @@ class Engine:
         self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
             if options.edge_select and "edge_select" in self.meta else None
         self.photometry = PhotometricMatch() if options.match_photometry else None
+        self.lidar_denoise = LidarDenoise() if options.denoise_lidar else None
         self.lidar_align = LidarAlign() if options.align_lidar else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
@@ -238,7 +240,8 @@ class Engine:
                            iterations=frame.steps, timings_ms=frame.timings,
                            confidence=confidence,
                            photometry_distance=frame.photometry_distance,
-                           lidar_offset=frame.lidar_offset, **frame.counts)
+                           lidar_offset=frame.lidar_offset,
+                           lidar_noise_px=frame.lidar_noise_px, **frame.counts)
 
     def stereo_only(self, iters: int = 2) -> np.ndarray:
         """The last frame's network disparity without the LiDAR, (H, W) float32 at the
@@ -260,8 +263,9 @@ class Engine:
     def _prepare(self, frame: _Frame, left: np.ndarray, right: np.ndarray,
                  sparse: np.ndarray) -> tuple[FitPlan, bool]:
         """Checks, the cameras' grey levels matched where they disagree
-        (`edge.runtime.photometry`), the LiDAR map moved back onto the image's edges where it
-        sits off them (`edge.runtime.lidar_align`), then the frame scaled and padded to the
+        (`edge.runtime.photometry`), a noisy LiDAR map smoothed (`edge.runtime.lidar_denoise`)
+        and moved back onto the image's edges where it sits off them
+        (`edge.runtime.lidar_align`), then the frame scaled and padded to the
         bundle into the graphs' input buffers; (the plan to restore it, whether it has LiDAR
         points)."""
         for name, image in (("right", right), ("sparse", sparse)):
@@ -272,6 +276,8 @@ class Engine:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
         if self.photometry is not None:  # the right camera's grey levels onto the left's
             right, frame.photometry_distance = self.photometry.apply(left, right)
+        if self.lidar_denoise is not None:  # a noisy LiDAR map smoothed along its rows
+            sparse, frame.lidar_noise_px = self.lidar_denoise.apply(sparse)
         if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
             sparse, found = self.lidar_align.apply(left, sparse)
             frame.lidar_offset = found
@@ -403,6 +409,7 @@ class _Frame:
     steps: int = 0
     photometry_distance: float | None = None  # the pair's histogram distance, where measured
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
+    lidar_noise_px: float | None = None  # the LiDAR map's noise level, where measured
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction
 
     def feed(self, part: str, feeds: dict) -> dict:
