@@ -89,6 +89,19 @@ def demo_picture(left, sparse, pred, gt, sgbm, depth, confidence=None) -> np.nda
     return np.vstack(rows)
 
 
+def _header(engine, iters: int | None, deadline_ms: float | None) -> str:
+    """The demo's first line: what runs, and on which CPU (its milliseconds compare with
+    like only)."""
+    from edge_depth.runtime.backends import cpu_description
+    from edge_depth.runtime.engine import usable_cores
+
+    cpu = cpu_description()
+    return (f"edge-depth demo: synthetic rig {engine.width}x{engine.height}, 16-beam LiDAR, "
+            f"{engine.describe()}, {iters or engine.default_iters} iterations"
+            + (f", deadline {deadline_ms:g} ms" if deadline_ms else "")
+            + f"; CPU {cpu['model']} ({', '.join(cpu['isa'])}, {usable_cores()} cores)")
+
+
 def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str = "auto",
                  iters: int | None = None, deadline_ms: float | None = None,
                  profile: str = "foxglove") -> int:
@@ -96,18 +109,13 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
     from edge_depth.daemon import Pipeline, format_latency, summarise
     from edge_depth.loggers import open_logger
     from edge_depth.runner import run
-    from edge_depth.runtime.backends import cpu_description
-    from edge_depth.runtime.engine import Engine, usable_cores
+    from edge_depth.runtime.engine import Engine
 
     out.mkdir(parents=True, exist_ok=True)
     source = SimSource(frames, seed)
     stereo, lidar = source.calibration
     engine = Engine(precision=precision, threads=2)
-    cpu = cpu_description()
-    print(f"edge-depth demo: synthetic rig {engine.width}x{engine.height}, 16-beam LiDAR, "
-          f"{engine.describe()}, {iters or engine.default_iters} iterations"
-          + (f", deadline {deadline_ms:g} ms" if deadline_ms else "")
-          + f"; CPU {cpu['model']} ({', '.join(cpu['isa'])}, {usable_cores()} cores)")
+    print(_header(engine, iters, deadline_ms))
     matcher = make_sgbm()
     sgbm_rows: list[dict] = []
     picture: list[np.ndarray] = []
