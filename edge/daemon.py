@@ -338,8 +338,8 @@ class Pipeline:
             timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
         if result.match_beyond_px is not None:  # ... and the share beyond its reach
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
-        if result.photometry_distance is not None:  # [engine] match_photometry
-            timings["photometry_distance"] = result.photometry_distance
+        if result.photometry_change is not None:  # [engine] match_photometry
+            timings["photometry_change"] = result.photometry_change
         if result.lidar_noise_px is not None:  # [engine] denoise_lidar
             timings["lidar_noise_px"] = result.lidar_noise_px
         if (found := result.lidar_offset) is not None:  # [engine] align_lidar
@@ -407,7 +407,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
-               "match_beyond_pct", "photometry_distance", "lidar_put_back", "lidar_dx_px",
+               "match_beyond_pct", "photometry_change", "lidar_put_back", "lidar_dx_px",
                "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
@@ -418,7 +418,7 @@ def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[floa
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
     "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
-    "photometry_distance" (0-1), "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was
+    "photometry_change" (grey levels), "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was
     put back)."""
     return [t[key] for t in timings if key in t]
 
@@ -441,11 +441,12 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
                      "edge_match to a multiple of 16 above the scene's largest disparity, or "
                      "set it to \"auto\" (each frame's count from the network's own)")
-    if distances := replaced_shares(timings, "photometry_distance"):
-        matched = sum(1 for d in distances if d > PHOTOMETRY_THRESHOLD)
+    if changes := replaced_shares(timings, "photometry_change"):
+        matched = sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD)
         lines.append(f"Photometry: the right image matched to the left's grey levels in "
-                     f"{matched} of {len(distances)} frames (histogram distance median "
-                     f"{np.median(distances):.2f}, matched above {PHOTOMETRY_THRESHOLD})")
+                     f"{matched} of {len(changes)} frames (the match would move them by a "
+                     f"median {np.median(changes):.1f} levels; made above "
+                     f"{PHOTOMETRY_THRESHOLD:g})")
     if levels := replaced_shares(timings, "lidar_noise_px"):
         smoothed = sum(1 for v in levels if v > NOISE_THRESHOLD_PX)
         lines.append(f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} "

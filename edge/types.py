@@ -123,8 +123,9 @@ class DepthResult:
     replaced by a side's value (None when it did not run). matched_px: pixels the
     full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
-    photometry_distance: the pair's grey-level histogram distance (`edge.runtime.photometry`;
-    above its threshold the right image was matched to the left's), None when not measured.
+    photometry_change: the grey levels the photometric match moves the right image by, on
+    average (`edge.runtime.photometry`; above its threshold the match was made), None when not
+    measured.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
     it (`edge.runtime.lidar_align.Offset`; put back where `.moves`), None when not looked for.
     lidar_noise_px: the LiDAR map's noise level (`edge.runtime.lidar_denoise`; smoothed above
@@ -142,7 +143,7 @@ class DepthResult:
     edge_px: int | None = None
     matched_px: int | None = None
     match_beyond_px: int | None = None
-    photometry_distance: float | None = None
+    photometry_change: float | None = None
     lidar_offset: Any = None
     lidar_noise_px: float | None = None
 

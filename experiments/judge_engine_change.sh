@@ -22,8 +22,9 @@ PATHS=${PATHS:-avx2 native ort}
 [ -d data/variants/aloe_noise ] || "$BIN/python" experiments/pair_variants.py data/aloe data/motorcycle --out data/variants
 [ -d data/photo_variants/aloe_gain09 ] || "$BIN/python" experiments/photometric_variants.py data/aloe data/motorcycle --out data/photo_variants
 [ -d data/misregistered/aloe_left2 ] || "$BIN/python" experiments/lidar_misregistration.py data/aloe data/motorcycle --out data/misregistered
+[ -d data/photo_strong/aloe_gain075 ] || "$BIN/python" experiments/photometric_variants.py data/aloe data/motorcycle --strong --out data/photo_strong
 [ -d data/noisy/aloe_n040 ] || "$BIN/python" experiments/lidar_noise.py data/aloe data/motorcycle --out data/noisy
-DATA="data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16 $(ls -d data/variants/* data/photo_variants/* data/misregistered/* data/noisy/* | tr '\n' ' ')"
+DATA="data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16 $(ls -d data/variants/* data/photo_variants/* data/misregistered/* data/noisy/* data/photo_strong/* | tr '\n' ' ')"
 mkdir -p "$OUT"
 echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores); paths $PATHS; commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- edge || echo ' + uncommitted changes to edge/')"
 for path in $PATHS; do

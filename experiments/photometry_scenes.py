@@ -1,5 +1,6 @@
-"""Per scene of a folder of scene folders: the pair's grey-level histogram distance and the
-engine's EPE with `match_photometry` off and on, with LiDAR and stereo only (int8, 4
+"""Per scene of a folder of scene folders: the pair's grey-level histogram distance, how far
+the photometric match would move the right image (grey levels: its gate) and the engine's
+EPE with `match_photometry` off and on, with LiDAR and stereo only (int8, 4
 iterations, the engine's defaults otherwise).
 
     python experiments/photometry_scenes.py data/test16 --runtime onnxruntime
@@ -22,7 +23,11 @@ from evaluate import read_scene_folder  # noqa: E402
 from edge_depth.metrics import disparity_metrics  # noqa: E402
 from edge_depth.runtime.engine import Engine  # noqa: E402
 from edge_depth.runtime.options import EngineOptions  # noqa: E402
-from edge_depth.runtime.photometry import grey8, histogram_distance  # noqa: E402
+from edge_depth.runtime.photometry import (  # noqa: E402
+    PhotometricMatch,
+    grey8,
+    histogram_distance,
+)
 
 
 def main() -> None:
@@ -37,13 +42,14 @@ def main() -> None:
     for folder in sorted(d for d in args.data.iterdir() if d.is_dir()):
         scene = read_scene_folder(folder)
         distance = histogram_distance(grey8(scene.left), grey8(scene.right))
+        change = PhotometricMatch().apply(scene.left, scene.right)[1]
         epe = [disparity_metrics(e.infer(scene.left, scene.right, sparse).disparity,
                                  scene.disp)["epe"]
                for e in engines for sparse in (scene.sparse, np.zeros_like(scene.sparse))]
         rows.append((distance, *epe))
-        print(f"{folder.name} distance {distance:.3f}  with LiDAR {epe[0]:.3f} -> {epe[2]:.3f} "
-              f"({epe[2] - epe[0]:+.3f})  stereo only {epe[1]:.3f} -> {epe[3]:.3f} "
-              f"({epe[3] - epe[1]:+.3f})")
+        print(f"{folder.name} distance {distance:.3f} change {change:4.1f}  with LiDAR "
+              f"{epe[0]:.3f} -> {epe[2]:.3f} ({epe[2] - epe[0]:+.3f})  stereo only "
+              f"{epe[1]:.3f} -> {epe[3]:.3f} ({epe[3] - epe[1]:+.3f})")
     mean = np.mean(rows, axis=0)
     print(f"mean of {len(rows)}: with LiDAR {mean[1]:.4f} -> {mean[3]:.4f} "
           f"({100 * (mean[3] / mean[1] - 1):+.2f} %), stereo only {mean[2]:.4f} -> {mean[4]:.4f} "

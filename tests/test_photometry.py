@@ -37,15 +37,24 @@ def test_the_histogram_distance_is_the_largest_gap_of_the_cumulative_histograms(
 def test_a_right_camera_that_agrees_is_left_as_it_is():
     left = _texture()
     right = np.roll(left, 3, axis=1)  # the same scene, seen 3 px over
-    out, distance = PhotometricMatch().apply(left, right)
-    assert distance <= THRESHOLD and out is right
+    out, change = PhotometricMatch().apply(left, right)
+    assert change <= THRESHOLD and out is right
+
+
+def test_a_camera_within_the_trained_range_is_left_as_it_is():
+    left = _texture(5)
+    right = np.clip(np.roll(left, 3, axis=1) * 1.08, 0, 255).astype(np.uint8)  # 8 % brighter
+    out, change = PhotometricMatch().apply(left, right)
+    assert 5 < change <= THRESHOLD and out is right
 
 
 def test_a_darker_right_camera_is_mapped_back_onto_the_left_grey_levels():
     left = _texture(1)
     right = _darker(np.roll(left, 3, axis=1))
-    out, distance = PhotometricMatch().apply(left, right)
-    assert distance > 0.15 and out.dtype == np.float32
+    out, change = PhotometricMatch().apply(left, right)
+    assert change > THRESHOLD and out.dtype == np.float32
+    # the change is what the match moves the right image by, on average
+    assert change == pytest.approx(np.abs(out - right).mean(), rel=1e-4)
     before = np.abs(right[:, 3:].astype(np.float32) - left[:, :-3]).mean()
     after = np.abs(out[:, 3:] - left[:, :-3]).mean()
     assert before > 15 and after < 1.5
@@ -53,18 +62,18 @@ def test_a_darker_right_camera_is_mapped_back_onto_the_left_grey_levels():
     assert np.all(np.diff(matching_table(left, right)) >= 0)
 
 
-def test_the_engine_matches_only_when_asked_and_says_how_far_apart_the_pair_was():
+def test_the_engine_matches_unless_told_not_to_and_says_by_how_much():
     from edge_depth.runtime.engine import Engine
 
     left = _texture(2, (400, 640))
     right = _darker(np.roll(left, 4, axis=1))
     sparse = np.zeros(left.shape, np.float32)
-    plain, matched = Engine(runtime="onnxruntime"), Engine(runtime="onnxruntime",
-                                                           match_photometry=True)
-    assert plain.infer(left, right, sparse, iters=1).photometry_distance is None
+    plain = Engine(runtime="onnxruntime", match_photometry=False)
+    assert plain.infer(left, right, sparse, iters=1).photometry_change is None
     assert plain._inputs["right"][0, 0].max() == right.max()  # as given
+    matched = Engine(runtime="onnxruntime")
     result = matched.infer(left, right, sparse, iters=1)
-    assert result.photometry_distance == pytest.approx(histogram_distance(left, right))
+    assert result.photometry_change == pytest.approx(PhotometricMatch().apply(left, right)[1])
     fed = matched._inputs["right"][0, 0]
     assert np.abs(fed[:, 4:] - left[:, :-4]).mean() < 1.5
 
@@ -72,11 +81,11 @@ def test_the_engine_matches_only_when_asked_and_says_how_far_apart_the_pair_was(
 def test_the_closing_summary_counts_the_frames_whose_right_image_was_matched():
     from edge_depth.daemon import selection_summary, summarise
 
-    timings = [dict(engine=50.0, photometry_distance=d) for d in (0.03, 0.2, 0.3)]
-    assert "photometry_distance" not in summarise(timings)
+    timings = [dict(engine=50.0, photometry_change=d) for d in (3.0, 25.0, 30.0)]
+    assert "photometry_change" not in summarise(timings)
     assert selection_summary(timings) == (
-        "Photometry: the right image matched to the left's grey levels in 2 of 3 frames "
-        f"(histogram distance median 0.20, matched above {THRESHOLD})")
+        "Photometry: the right image matched to the left's grey levels in 2 of 3 frames (the "
+        f"match would move them by a median 25.0 levels; made above {THRESHOLD:g})")
 
 
 def test_float_and_strided_images_are_measured_as_their_grey_levels():
@@ -86,6 +95,6 @@ def test_float_and_strided_images_are_measured_as_their_grey_levels():
     wide[:, ::2] = right  # every other column: a view with a stride of 2
     view = wide[:, ::2]
     assert histogram_distance(left, view) == histogram_distance(left, right)
-    out, distance = PhotometricMatch().apply(left.astype(np.float32), view)
-    assert distance == histogram_distance(left, right)
+    out, change = PhotometricMatch().apply(left.astype(np.float32), view)
+    assert change == PhotometricMatch().apply(left, right)[1] > THRESHOLD
     assert np.array_equal(out, PhotometricMatch().apply(left, right)[0])

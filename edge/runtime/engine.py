@@ -239,7 +239,7 @@ class Engine:
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=frame.steps, timings_ms=frame.timings,
                            confidence=confidence,
-                           photometry_distance=frame.photometry_distance,
+                           photometry_change=frame.photometry_change,
                            lidar_offset=frame.lidar_offset,
                            lidar_noise_px=frame.lidar_noise_px, **frame.counts)
 
@@ -275,7 +275,7 @@ class Engine:
         if left.ndim != 2 or min(left.shape) < 8:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
         if self.photometry is not None:  # the right camera's grey levels onto the left's
-            right, frame.photometry_distance = self.photometry.apply(left, right)
+            right, frame.photometry_change = self.photometry.apply(left, right)
         if self.lidar_denoise is not None:  # a noisy LiDAR map smoothed along its rows
             sparse, frame.lidar_noise_px = self.lidar_denoise.apply(sparse)
         if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
@@ -407,7 +407,7 @@ class _Frame:
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
         selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None))
     steps: int = 0
-    photometry_distance: float | None = None  # the pair's histogram distance, where measured
+    photometry_change: float | None = None  # grey levels the match moves the right image by
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
     lidar_noise_px: float | None = None  # the LiDAR map's noise level, where measured
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction

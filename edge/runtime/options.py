@@ -60,10 +60,10 @@ class EngineOptions:
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
                                  "this (ms from the frame's start); 0 = no deadline",
                                  bounds=(0.0, 60_000.0))
-    match_photometry: bool = _option(False, "the right image's grey levels mapped onto the "
-                                     "left's where the two cameras' histograms disagree, "
-                                     "for a pair whose exposure, gain or response differ "
-                                     "(docs/results.md: 2-11 % on such real pairs)")
+    match_photometry: bool = _option(True, "the right image's grey levels mapped onto the "
+                                     "left's where the match would move them by more than "
+                                     "20 levels on average (cameras further apart in "
+                                     "exposure, gain or response than the rig trains for)")
     denoise_lidar: bool = _option(False, "a noisy LiDAR map (its points off the line through "
                                   "their row neighbours by more than 0.3 px, robustly) "
                                   "smoothed along its rows, depth edges kept (docs/results.md: "
