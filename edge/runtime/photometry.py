@@ -30,9 +30,15 @@ def grey8(image: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
-def cumulative(image8: np.ndarray) -> np.ndarray:
-    """The cumulative share of pixels at or below each grey level, (256,) float64."""
-    counts = cv2.calcHist([image8], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+def histogram(image8: np.ndarray) -> np.ndarray:
+    """Pixels at each grey level, (256,) float64."""
+    return cv2.calcHist([image8], [0], None, [256], [0, 256]).ravel().astype(np.float64)
+
+
+def cumulative(image8: np.ndarray, counts: np.ndarray | None = None) -> np.ndarray:
+    """The cumulative share of pixels at or below each grey level, (256,) float64; `counts`:
+    `histogram(image8)`, if at hand."""
+    counts = histogram(image8) if counts is None else counts
     return np.cumsum(counts) / max(image8.size, 1)
 
 
@@ -41,14 +47,11 @@ def histogram_distance(left8: np.ndarray, right8: np.ndarray) -> float:
     return float(np.abs(cumulative(left8) - cumulative(right8)).max())
 
 
-def histogram(image8: np.ndarray) -> np.ndarray:
-    """Pixels at each grey level, (256,) float64."""
-    return cv2.calcHist([image8], [0], None, [256], [0, 256]).ravel().astype(np.float64)
-
-
-def matching_table(left8: np.ndarray, right8: np.ndarray) -> np.ndarray:
-    """(256,) float32: each right grey level's value at the same mid-rank in the left image."""
-    left_c, right_c = cumulative(left8), cumulative(right8)
+def matching_table(left8: np.ndarray, right8: np.ndarray,
+                   right_counts: np.ndarray | None = None) -> np.ndarray:
+    """(256,) float32: each right grey level's value at the same mid-rank in the left image;
+    `right_counts`: `histogram(right8)`, if at hand."""
+    left_c, right_c = cumulative(left8), cumulative(right8, right_counts)
     left_mid = left_c - 0.5 * np.diff(left_c, prepend=0.0)
     right_mid = right_c - 0.5 * np.diff(right_c, prepend=0.0)
     return np.interp(right_mid, left_mid, np.arange(256.0)).astype(np.float32)
@@ -64,8 +67,8 @@ class PhotometricMatch:
         """The right image mapped onto the left's grey levels (float32) where that moves them
         by more than `threshold` on average, else as given; and that mean move (levels)."""
         left8, right8 = grey8(left), grey8(right)
-        table = matching_table(left8, right8)
         counts = histogram(right8)
+        table = matching_table(left8, right8, counts)
         change = float(counts @ np.abs(table - np.arange(256)) / max(counts.sum(), 1.0))
         if change <= self.threshold:
             return right, change
