@@ -441,14 +441,14 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
                      "edge_match to a multiple of 16 above the scene's largest disparity, or "
                      "set it to \"auto\" (each frame's count from the network's own)")
-    if changes := replaced_shares(timings, "photometry_change"):
-        matched = sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD)
+    changes = replaced_shares(timings, "photometry_change")
+    if matched := sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD):  # none: nothing to say
         lines.append(f"Photometry: the right image matched to the left's grey levels in "
                      f"{matched} of {len(changes)} frames (the match would move them by a "
                      f"median {np.median(changes):.1f} levels; made above "
                      f"{PHOTOMETRY_THRESHOLD:g})")
-    if levels := replaced_shares(timings, "lidar_noise_px"):
-        smoothed = sum(1 for v in levels if v > NOISE_THRESHOLD_PX)
+    levels = replaced_shares(timings, "lidar_noise_px")
+    if smoothed := sum(1 for v in levels if v > NOISE_THRESHOLD_PX):
         lines.append(f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} "
                      f"frames (noise median {np.median(levels):.2f} px, smoothed above "
                      f"{NOISE_THRESHOLD_PX} px)")

@@ -64,3 +64,4 @@ def test_the_engine_smooths_only_when_asked_and_the_summary_says_so():
     assert selection_summary([dict(lidar_noise_px=1.0), dict(lidar_noise_px=0.1)]) == (
         "LiDAR noise: smoothed along the rows in 1 of 2 frames (noise median 0.55 px, "
         f"smoothed above {THRESHOLD_PX} px)")
+    assert selection_summary([dict(lidar_noise_px=0.1)]) is None  # none smoothed

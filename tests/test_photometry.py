@@ -86,6 +86,7 @@ def test_the_closing_summary_counts_the_frames_whose_right_image_was_matched():
     assert selection_summary(timings) == (
         "Photometry: the right image matched to the left's grey levels in 2 of 3 frames (the "
         f"match would move them by a median 25.0 levels; made above {THRESHOLD:g})")
+    assert selection_summary([dict(photometry_change=3.0)]) is None  # none matched
 
 
 def test_float_and_strided_images_are_measured_as_their_grey_levels():
