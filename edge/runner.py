@@ -238,6 +238,9 @@ class Runner:
                                          replaced_shares(window, "matched_pct")],
                 edge_match_beyond_pct=[round(s, 2) for s in
                                        replaced_shares(window, "match_beyond_pct")],
+                photometry_change=[round(s, 1) for s in
+                                   replaced_shares(window, "photometry_change")],
+                lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
                 output_health=pipeline.health.diagnostics(),
                 **({} if pipeline.watch is None else
                    dict(calibration_watch=pipeline.watch.estimate().as_dict()))))

@@ -195,6 +195,11 @@ def test_replay_says_it_in_one_line_and_on_diagnostics(small_recording, tmp_path
         diagnostics = [json.loads(m.data) for _, _, m in
                        make_reader(f).iter_messages(topics=["/diagnostics"])]
     assert diagnostics[-1]["calibration_watch"]["level"] == SETTLING
+    # the engine's two checks, per frame: how far the photometric match would move the right
+    # image (grey levels) and whether the LiDAR map was put back (0: the sim's never is)
+    frames = sum(len(d["iterations"]) for d in diagnostics)
+    assert sum(len(d["photometry_change"]) for d in diagnostics) == frames > 0
+    assert all(v == 0 for d in diagnostics for v in d["lidar_put_back"])
 
 
 def test_the_ros2_profile_gives_it_a_diagnostic_status_of_its_own():
