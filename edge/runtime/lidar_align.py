@@ -22,6 +22,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge_depth.runtime.edge_match import as_grey8
+
 REACH_PX = 4  # the largest offset searched, each way
 JUMP_PX = 1.5  # disparity between neighbouring points that marks a depth edge
 GAP_PX = 3  # the farthest apart two points of a row may be to count as neighbours
@@ -42,6 +44,14 @@ def map_points(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return ys, xs
 
 
+def row_runs(ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """Per point (row-major order), the index of its run: consecutive points of one row at
+    most GAP_PX apart, each the neighbour of the next."""
+    breaks = np.ones(len(ys), bool)
+    breaks[1:] = (ys[1:] != ys[:-1]) | (xs[1:] - xs[:-1] > GAP_PX)
+    return np.cumsum(breaks)
+
+
 def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns) of the depth edges between neighbouring points of one row: where two
@@ -49,15 +59,15 @@ def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
     `points`: `map_points(sparse)`, if at hand."""
     ys, xs = map_points(sparse) if points is None else points
     d = sparse[ys, xs]
-    jump = (ys[1:] == ys[:-1]) & (xs[1:] - xs[:-1] <= GAP_PX) & \
-        (np.abs(d[1:] - d[:-1]) > JUMP_PX)
+    run = row_runs(ys, xs)
+    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > JUMP_PX)
     return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2
 
 
 def edge_strength(left: np.ndarray) -> np.ndarray:
     """|∂I/∂x| + |∂I/∂y| of the left image (3×3 Sobel), in whole grey levels (int16: at most
     2 × 1020)."""
-    grey = left if left.dtype == np.uint8 else np.clip(np.rint(left), 0, 255).astype(np.uint8)
+    grey = as_grey8(left)
     zero = np.zeros(grey.shape, np.int16)
     gx = cv2.absdiff(cv2.Sobel(grey, cv2.CV_16S, 1, 0, ksize=3), zero)
     gy = cv2.absdiff(cv2.Sobel(grey, cv2.CV_16S, 0, 1, ksize=3), zero)

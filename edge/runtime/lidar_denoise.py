@@ -5,10 +5,11 @@ line, scaled by the deviation's spread for unit noise, measures the range noise,
 absolute value (× 1.4826) does so robustly: the few triples that straddle a depth edge do not
 move it. Where that level is above THRESHOLD_PX on at least MIN_TRIPLES points, each point
 becomes the mean of the points among itself and its NEIGHBOURS neighbours each side along its
-row (consecutive points at most GAP_PX apart) that lie within TOLERANCE × the level of it — so
-a depth edge's far side stays out. A map at or below the level (the rig's, ground truth
-sampled) is left as it is. `[engine] denoise_lidar`, off by default: at 0.5 px of noise it
-gains the real pairs 0–1 %, at 0.75–1.5 px 1–21 % (docs/experiments.md, 2026-12-06 20:05).
+row (`lidar_align.row_runs`: consecutive points at most GAP_PX apart) that lie within
+TOLERANCE × the level of it — so a depth edge's far side stays out. A map at or below the
+level (the rig's, ground truth sampled) is left as it is. `[engine] denoise_lidar`, off by
+default: at 0.5 px of noise it gains the real pairs 0–1 %, at 0.75–1.5 px 1–21 %
+(docs/experiments.md, 2026-12-06 20:05).
 """
 
 from __future__ import annotations
@@ -17,21 +18,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_depth.runtime.lidar_align import map_points
+from edge_depth.runtime.lidar_align import map_points, row_runs
 
 THRESHOLD_PX = 0.3  # the real pairs' sampled maps read 0.11-0.15, 0.5 px of noise 0.54
 MIN_TRIPLES = 50
-GAP_PX = 3
 NEIGHBOURS = 2
 TOLERANCE = 2.5
-
-
-def _row_runs(ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-    """Per point (row-major order), the index of its run: consecutive points of one row at
-    most GAP_PX apart."""
-    breaks = np.ones(len(ys), bool)
-    breaks[1:] = (ys[1:] != ys[:-1]) | (xs[1:] - xs[:-1] > GAP_PX)
-    return np.cumsum(breaks)
 
 
 def noise_level(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
@@ -42,7 +34,7 @@ def noise_level(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
     if len(ys) < 3:
         return 0.0, 0
     d = sparse[ys, xs].astype(np.float64)
-    run = _row_runs(ys, xs)
+    run = row_runs(ys, xs)
     inner = (run[1:-1] == run[:-2]) & (run[1:-1] == run[2:])
     xl, xm, xr = xs[:-2][inner], xs[1:-1][inner], xs[2:][inner]
     dl, dm, dr = d[:-2][inner], d[1:-1][inner], d[2:][inner]
@@ -59,7 +51,7 @@ def smoothed(sparse: np.ndarray, level: float,
     within TOLERANCE × `level` of it."""
     ys, xs = map_points(sparse) if points is None else points
     d = sparse[ys, xs].astype(np.float64)
-    run = _row_runs(ys, xs)
+    run = row_runs(ys, xs)
     total, count = d.copy(), np.ones(len(d))
     for k in range(1, NEIGHBOURS + 1):
         for a, b in ((slice(k, None), slice(None, -k)), (slice(None, -k), slice(k, None))):

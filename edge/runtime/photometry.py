@@ -18,16 +18,16 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge_depth.runtime.edge_match import as_grey8
+
 # grey levels the match would move the right image by, on average: the real pairs 3.0-3.2, the
 # rig's test frames median 7.9 (p95 18.6), a right camera 20 % darker with gamma 1.15 23-35
 THRESHOLD = 20.0
 
 
 def grey8(image: np.ndarray) -> np.ndarray:
-    """(H, W) grey levels as uint8 (rounded and saturated when they are not)."""
-    if image.dtype == np.uint8:
-        return np.ascontiguousarray(image)  # OpenCV reads rows with a unit stride
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+    """(H, W) grey levels as uint8 (`as_grey8`), with the unit stride OpenCV reads rows with."""
+    return np.ascontiguousarray(as_grey8(image))
 
 
 def histogram(image8: np.ndarray) -> np.ndarray:
