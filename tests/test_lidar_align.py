@@ -6,13 +6,15 @@ import numpy as np
 import pytest
 
 from edge_depth.runtime.lidar_align import (
+    JUMP_PX,
     MIN_JUMPS,
     LidarAlign,
     depth_jumps,
-    map_points,
+    jump_px,
     offset,
     shifted,
 )
+from edge_depth.runtime.lidar_rows import map_points, noise_level
 
 H, W = 240, 320
 
@@ -118,3 +120,30 @@ def test_the_engine_puts_the_map_back_unless_told_not_to_and_the_summary_says_so
     assert selection_summary(timings).startswith(
         "LiDAR map: put back onto the image's edges in 1 of 2 frames (it sat turned +0.00° "
         "and moved (+2, +1) px off them, medians)")
+
+
+def _noisy(sparse: np.ndarray, sigma: float, seed: int = 0) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    out = sparse.copy()
+    points = out > 0
+    out[points] = np.maximum(out[points] + rng.normal(0, sigma, points.sum()), 0.1)
+    return out
+
+
+def test_a_noisy_map_finds_its_edges_not_its_noise_and_is_not_moved():
+    left, disparity = _scene(5)
+    sparse = _rows(disparity)
+    noisy = _noisy(sparse, 0.75)
+    assert jump_px(*noise_level(sparse)) == JUMP_PX
+    assert 3.5 < jump_px(*noise_level(noisy)) < 5.0  # 4·√2·0.75 = 4.2
+    # the same depth edges as the clean map's, not one neighbour pair in six
+    assert abs(len(depth_jumps(noisy)[0]) - len(depth_jumps(sparse)[0])) <= 3
+    out, found = LidarAlign().apply(left, noisy)
+    assert not found.moves and out is noisy
+
+
+def test_a_noisy_moved_map_is_still_put_back():
+    left, disparity = _scene(6)
+    noisy = _noisy(shifted(_rows(disparity), 2, 1), 0.5)
+    found = offset(left, noisy)
+    assert found.moves and (found.dx, found.dy, found.turn_deg) == (2, 1, 0.0)

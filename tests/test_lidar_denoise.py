@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge_depth.runtime.lidar_denoise import THRESHOLD_PX, LidarDenoise, noise_level
+from edge_depth.runtime.lidar_denoise import THRESHOLD_PX, LidarDenoise
+from edge_depth.runtime.lidar_rows import noise_level
 
 
 def _map(seed: int = 0, sigma: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

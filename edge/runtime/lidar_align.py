@@ -3,16 +3,18 @@
 A LiDAR–camera calibration that is off by a fraction of a degree moves the whole projected map
 by a pixel or a few (an error in the LiDAR's pitch or yaw) or turns it about the image's
 centre (one in its roll), and every point at a depth edge then lands on the wrong side of it.
-Where two neighbouring points of one image row (at most GAP_PX apart) differ by more than
-JUMP_PX of disparity, the scene has a depth edge between them, and the left image an intensity
-edge there. Over the map's turns (TURNS_DEG) and shifts within ±REACH_PX, the mean edge
-strength (Sobel magnitude) of the left image at where the jumps would be without them peaks at
-the map's misregistration; where that peak is not the identity, rests on at least MIN_JUMPS
-jumps and beats the identity's score by MIN_GAIN, the map is put back by it. A map whose
-occlusion filter left no such jumps (the background hidden beside every near edge removed) is
-left as it is. The calibration watch (`edge.calibration_watch`) is what finds the
-calibration's error over many frames and says how to fix it; this keeps each frame's depth
-edges where the image has them meanwhile (docs/experiments.md, 2026-12-06 19:32).
+Where two neighbouring points of one image row (`lidar_rows.row_runs`) differ by more than
+JUMP_PX of disparity — or, on a noisy map, by more than JUMP_SIGMAS standard deviations of two
+points' difference (`lidar_rows.noise_level`) — the scene has a depth edge between them, and
+the left image an intensity edge there. Over the map's turns (TURNS_DEG) and shifts within
+±REACH_PX, the mean edge strength (Sobel magnitude) of the left image at where the jumps would
+be without them peaks at the map's misregistration; where that peak is not the identity, rests
+on at least MIN_JUMPS jumps and beats the identity's score by MIN_GAIN, the map is put back by
+it. A map whose occlusion filter left no such jumps (the background hidden beside every near
+edge removed), or too noisy to show its edges, is left as it is. The calibration watch
+(`edge.calibration_watch`) is what finds the calibration's error over many frames and says how
+to fix it; this keeps each frame's depth edges where the image has them meanwhile
+(docs/experiments.md, 2026-12-06 19:32 and 21:45).
 """
 
 from __future__ import annotations
@@ -23,45 +25,42 @@ import cv2
 import numpy as np
 
 from edge_depth.runtime.edge_match import as_grey8
+from edge_depth.runtime.lidar_rows import MIN_TRIPLES, map_points, row_noise, row_runs
 
 REACH_PX = 4  # the largest offset searched, each way
-JUMP_PX = 1.5  # disparity between neighbouring points that marks a depth edge
-GAP_PX = 3  # the farthest apart two points of a row may be to count as neighbours
+JUMP_PX = 1.5  # disparity between neighbouring points that marks a depth edge ...
+# ... or this many standard deviations of two noisy points' difference, if more: on a noisy
+# map (σ 0.75 px) one neighbour pair in six differs by 1.5 px on no edge, and the search's
+# peak fell on a random offset (docs/experiments.md, 2026-12-06 21:45)
+JUMP_SIGMAS = 4.0
 MIN_JUMPS = 40
 MIN_GAIN = 1.15  # the peak's score over the score at (0, 0)
 TURNS_DEG = tuple(np.arange(-4, 5) * 0.25)  # the turns searched, about the image centre
 MAX_JUMPS = 200  # the most jumps the search reads (an even subset of a dense LiDAR's)
 
 
-def map_points(sparse: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(rows, columns) of the map's points (finite and > 0), in row-major order."""
-    # NaN and inf fail the range; OpenCV's scan is ~3x numpy's isfinite & > 0 & nonzero
-    found = cv2.findNonZero(cv2.inRange(np.asarray(sparse, np.float32), float(np.finfo(
-        np.float32).tiny), float(np.finfo(np.float32).max)))
-    if found is None:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    xs, ys = found.reshape(-1, 2).astype(np.int64).T
-    return ys, xs
-
-
-def row_runs(ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
-    """Per point (row-major order), the index of its run: consecutive points of one row at
-    most GAP_PX apart, each the neighbour of the next."""
-    breaks = np.ones(len(ys), bool)
-    breaks[1:] = (ys[1:] != ys[:-1]) | (xs[1:] - xs[:-1] > GAP_PX)
-    return np.cumsum(breaks)
-
-
 def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns) of the depth edges between neighbouring points of one row: where two
-    points at most GAP_PX apart differ by more than JUMP_PX (px), the pixel between them.
+    row neighbours differ by more than `jump_px` at the map's noise level, the pixel between
+    them.
     `points`: `map_points(sparse)`, if at hand."""
     ys, xs = map_points(sparse) if points is None else points
     d = sparse[ys, xs]
     run = row_runs(ys, xs)
-    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > JUMP_PX)
+    threshold = jump_px(*row_noise(d, xs, run))
+    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > threshold)
     return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2
+
+
+def jump_px(level: float, triples: int) -> float:
+    """The difference between row neighbours that marks a depth edge on a map of this noise
+    level (`lidar_rows.noise_level`, read from `triples`): JUMP_PX, or JUMP_SIGMAS standard
+    deviations of two points' difference if more (a level read from at least MIN_TRIPLES
+    triples: on fewer, edges may be half of them)."""
+    if triples < MIN_TRIPLES:
+        return JUMP_PX
+    return max(JUMP_PX, JUMP_SIGMAS * float(np.sqrt(2.0)) * level)
 
 
 def edge_strength(left: np.ndarray) -> np.ndarray:

@@ -1,15 +1,13 @@
 """A noisy LiDAR map smoothed along its rows, where its own points say it is noisy.
 
-On a surface, a point lies on the line through its two row neighbours; its deviation from that
-line, scaled by the deviation's spread for unit noise, measures the range noise, and its median
-absolute value (× 1.4826) does so robustly: the few triples that straddle a depth edge do not
-move it. Where that level is above THRESHOLD_PX on at least MIN_TRIPLES points, each point
-becomes the mean of the points among itself and its NEIGHBOURS neighbours each side along its
-row (`lidar_align.row_runs`: consecutive points at most GAP_PX apart) that lie within
-TOLERANCE × the level of it — so a depth edge's far side stays out. A map at or below the
-level (the rig's, ground truth sampled) is left as it is. `[engine] denoise_lidar`, off by
-default: at 0.5 px of noise it gains the real pairs 0–1 %, at 0.75–1.5 px 1–21 %
-(docs/experiments.md, 2026-12-06 20:05).
+Where the map's robust noise level (`lidar_rows.noise_level`) is above THRESHOLD_PX on at
+least MIN_TRIPLES points, each point becomes the mean of the points among itself and its
+NEIGHBOURS neighbours each side along its row (`lidar_rows.row_runs`: consecutive points at
+most GAP_PX apart) that lie within TOLERANCE × the level of it — so a depth edge's far side
+stays out. A map at or below the level (the rig's, ground truth sampled) is left as it is.
+`[engine] denoise_lidar`, off by default: at 0.5 px of noise it gains the real pairs 0–1 %,
+at 0.75–1.5 px 1–21 %, but the rig's test split at 1 px loses 2–3 % (docs/experiments.md,
+2026-12-06 20:05 and 21:27).
 """
 
 from __future__ import annotations
@@ -18,31 +16,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_depth.runtime.lidar_align import map_points, row_runs
+from edge_depth.runtime.lidar_rows import MIN_TRIPLES, map_points, noise_level, row_runs
 
 THRESHOLD_PX = 0.3  # the real pairs' sampled maps read 0.11-0.15, 0.5 px of noise 0.54
-MIN_TRIPLES = 50
 NEIGHBOURS = 2
 TOLERANCE = 2.5
-
-
-def noise_level(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
-                ) -> tuple[float, int]:
-    """(the map's range noise in px, how many triples measured it); `points`:
-    `map_points(sparse)`, if at hand."""
-    ys, xs = map_points(sparse) if points is None else points
-    if len(ys) < 3:
-        return 0.0, 0
-    d = sparse[ys, xs].astype(np.float64)
-    run = row_runs(ys, xs)
-    inner = (run[1:-1] == run[:-2]) & (run[1:-1] == run[2:])
-    xl, xm, xr = xs[:-2][inner], xs[1:-1][inner], xs[2:][inner]
-    dl, dm, dr = d[:-2][inner], d[1:-1][inner], d[2:][inner]
-    t = (xm - xl) / (xr - xl)
-    deviation = (dm - (dl + (dr - dl) * t)) / np.sqrt(1 + t ** 2 + (1 - t) ** 2)
-    if len(deviation) == 0:
-        return 0.0, 0
-    return float(1.4826 * np.median(np.abs(deviation))), int(len(deviation))
 
 
 def smoothed(sparse: np.ndarray, level: float,
