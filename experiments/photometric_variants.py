@@ -7,6 +7,12 @@ the right image × 0.9, × 1.2 (clipped), gamma 0.85, 20 grey levels darker, × 
         --out data/photo_strong
 
 `--strong`: the right image × 0.75, × 1.3, gamma 1.3, 30 grey levels darker, and the left × 0.75.
+`--fresh`: milder, other than the first six: the right × 0.93, × 1.1, gamma 0.9, gamma 1.12,
+12 grey levels brighter, and the left × 0.88. A folder of scenes (the rig's splits) becomes one
+folder of the same scenes per variant.
+
+    python experiments/photometric_variants.py data/aloe data/motorcycle data/test16 --fresh \
+        --out data/photo_fresh
 """
 
 from __future__ import annotations
@@ -41,22 +47,37 @@ STRONG = {  # `--strong`: further apart
     "minus30": ("right", dict(offset=-30.0)),
     "leftdark075": ("left", dict(gain=0.75)),
 }
+FRESH = {  # `--fresh`
+    "gain093": ("right", dict(gain=0.93)),
+    "gain11": ("right", dict(gain=1.1)),
+    "gamma09": ("right", dict(gamma=0.9)),
+    "gamma112": ("right", dict(gamma=1.12)),
+    "plus12": ("right", dict(offset=12.0)),
+    "leftdark088": ("left", dict(gain=0.88)),
+}
 
 
 def main() -> None:
     p = argparse.ArgumentParser()
     p.add_argument("folders", nargs="+", type=Path)
     p.add_argument("--out", type=Path, default=Path("data/photo_variants"))
-    p.add_argument("--strong", action="store_true", help="the further-apart set")
+    which = p.add_mutually_exclusive_group()
+    which.add_argument("--strong", action="store_true", help="the further-apart set")
+    which.add_argument("--fresh", action="store_true", help="the milder second set")
     args = p.parse_args()
+    variants = STRONG if args.strong else FRESH if args.fresh else VARIANTS
     for folder in args.folders:
-        for name, (side, change) in (STRONG if args.strong else VARIANTS).items():
+        for name, (side, change) in variants.items():
             dst = args.out / f"{folder.name}_{name}"
             if dst.exists():
                 shutil.rmtree(dst)
             shutil.copytree(folder, dst)
-            image = cv2.imread(str(folder / f"{side}.png"), cv2.IMREAD_UNCHANGED)
-            cv2.imwrite(str(dst / f"{side}.png"), _levels(image, **change))
+            # a scene folder, or a split's scenes
+            scenes = [dst] if (dst / f"{side}.png").exists() else \
+                sorted(q.parent for q in dst.glob(f"*/{side}.png"))
+            for scene in scenes:
+                image = cv2.imread(str(scene / f"{side}.png"), cv2.IMREAD_UNCHANGED)
+                cv2.imwrite(str(scene / f"{side}.png"), _levels(image, **change))
             print(dst)
 
 
