@@ -10,7 +10,7 @@
 #     REFERENCE=runs/judge_ref bash experiments/judge_engine_change.sh runs/judge_change
 # PATHS="avx2 native ort": the paths to run (default all three); FLAGS="…": more evaluate
 # flags (e.g. an engine option off, for a reference run on the same commit); MORE="…": more
-# data folders after the standard ones.
+# data folders after the standard ones; ONLY="…": these folders instead of all the others.
 set -euo pipefail
 OUT=$1
 BIN=${BIN:-.venv/bin}
@@ -26,6 +26,7 @@ PATHS=${PATHS:-avx2 native ort}
 [ -d data/photo_strong/aloe_gain075 ] || "$BIN/python" experiments/photometric_variants.py data/aloe data/motorcycle --strong --out data/photo_strong
 [ -d data/noisy/aloe_n040 ] || "$BIN/python" experiments/lidar_noise.py data/aloe data/motorcycle --out data/noisy
 DATA="data/aloe data/motorcycle data/aloe_r8 data/motorcycle_r8 data/test16 $(ls -d data/variants/* data/photo_variants/* data/misregistered/* data/noisy/* data/photo_strong/* | tr '\n' ' ')${MORE:-}"
+[ -z "${ONLY:-}" ] || DATA=$ONLY
 mkdir -p "$OUT"
 echo "host: $(grep -o -w 'avx2\|avx512f\|avx512_vnni\|avx_vnni\|avx512_bf16' /proc/cpuinfo | sort -u | tr '\n' ' ')($(nproc) cores); paths $PATHS; commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD -- edge || echo ' + uncommitted changes to edge/')"
 for path in $PATHS; do
