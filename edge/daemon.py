@@ -33,7 +33,9 @@ from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
+from edge_depth.runtime.lidar_rows import MIN_TRIPLES
 from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
@@ -340,8 +342,11 @@ class Pipeline:
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
         if result.photometry_change is not None:  # [engine] match_photometry
             timings["photometry_change"] = result.photometry_change
-        if result.lidar_noise_px is not None:  # [engine] denoise_lidar
+        if result.lidar_noise_px is not None:  # [engine] align_lidar, denoise_lidar
             timings["lidar_noise_px"] = result.lidar_noise_px
+            timings["lidar_smoothed"] = float(self.engine is not None and
+                                              self.engine.lidar_denoise is not None and
+                                              result.lidar_noise_px > NOISE_THRESHOLD_PX)
         if (found := result.lidar_offset) is not None:  # [engine] align_lidar
             timings["lidar_put_back"] = float(found.moves)
             if found.moves:
@@ -408,7 +413,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
                "match_beyond_pct", "photometry_change", "lidar_put_back", "lidar_dx_px",
-               "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px")
+               "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching"}
@@ -447,11 +452,8 @@ def selection_summary(timings: list[dict]) -> str | None:
                      f"{matched} of {len(changes)} frames (the match would move them by a "
                      f"median {np.median(changes):.1f} levels; made above "
                      f"{PHOTOMETRY_THRESHOLD:g})")
-    levels = replaced_shares(timings, "lidar_noise_px")
-    if smoothed := sum(1 for v in levels if v > NOISE_THRESHOLD_PX):
-        lines.append(f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} "
-                     f"frames (noise median {np.median(levels):.2f} px, smoothed above "
-                     f"{NOISE_THRESHOLD_PX} px)")
+    if line := noise_line(timings):
+        lines.append(line)
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):
         moves = [(t["lidar_dx_px"], t["lidar_dy_px"], t["lidar_turn_deg"]) for t in timings
                  if t.get("lidar_put_back")]
@@ -462,6 +464,26 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "calibration looks off; refine it (edge-depth calibrate lidar --refine, "
                      "as the calibration watch's line says)")
     return "\n".join(lines) or None
+
+
+def noise_line(timings: list[dict]) -> str | None:
+    """The closing line about the LiDAR map's range noise, where frames measured it above
+    NOISE_THRESHOLD_PX: smoothed (`denoise_lidar`), or only said (the map's own noise then
+    sets which jumps between row neighbours the alignment reads as depth edges)."""
+    levels = replaced_shares(timings, "lidar_noise_px")
+    noisy = [v for v in levels if v > NOISE_THRESHOLD_PX]
+    if not noisy:
+        return None
+    median = float(np.median(noisy))
+    if smoothed := int(sum(replaced_shares(timings, "lidar_smoothed"))):
+        return (f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} frames "
+                f"(noise median {median:.2f} px, smoothed above {NOISE_THRESHOLD_PX} px)")
+    return (f"LiDAR noise: {len(noisy)} of {len(levels)} frames' maps above "
+            f"{NOISE_THRESHOLD_PX} px of range noise (median {median:.2f} px; a calibrated "
+            f"LiDAR's read 0.1-0.15): their depth edges are read from jumps above "
+            f"{jump_px(median, MIN_TRIPLES):.1f} px only. Check the LiDAR's range noise and its "
+            "timing; [engine] denoise_lidar = true smooths such a map (docs/results.md: where "
+            "that helps)")
 
 
 def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:

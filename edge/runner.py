@@ -241,6 +241,7 @@ class Runner:
                 photometry_change=[round(s, 1) for s in
                                    replaced_shares(window, "photometry_change")],
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
+                lidar_noise_px=[round(s, 2) for s in replaced_shares(window, "lidar_noise_px")],
                 output_health=pipeline.health.diagnostics(),
                 **({} if pipeline.watch is None else
                    dict(calibration_watch=pipeline.watch.estimate().as_dict()))))

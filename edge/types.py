@@ -128,8 +128,9 @@ class DepthResult:
     measured.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
     it (`edge.runtime.lidar_align.Offset`; put back where `.moves`), None when not looked for.
-    lidar_noise_px: the LiDAR map's noise level (`edge.runtime.lidar_denoise`; smoothed above
-    its threshold), None when not measured.
+    lidar_noise_px: the LiDAR map's range noise, px (`edge.runtime.lidar_rows.noise_level`,
+    measured by the alignment or the smoothing; with `denoise_lidar` smoothed above its
+    threshold), None when not measured.
     """
 
     stamp_ns: int

@@ -140,6 +140,7 @@ def test_a_noisy_map_finds_its_edges_not_its_noise_and_is_not_moved():
     assert abs(len(depth_jumps(noisy)[0]) - len(depth_jumps(sparse)[0])) <= 3
     out, found = LidarAlign().apply(left, noisy)
     assert not found.moves and out is noisy
+    assert 0.6 < found.noise_px < 0.9 and offset(left, sparse).noise_px < 0.1  # measured
 
 
 def test_a_noisy_moved_map_is_still_put_back():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX, LidarDenoise
 from edge_depth.runtime.lidar_rows import noise_level
@@ -58,11 +59,24 @@ def test_the_engine_smooths_only_when_asked_and_the_summary_says_so():
     left = rng.integers(0, 255, (400, 640), np.uint8)
     noisy = np.zeros((400, 640), np.float32)
     noisy[::20, ::2] = 20 + rng.normal(0, 1.0, noisy[::20, ::2].shape)
-    off = Engine(runtime="onnxruntime").infer(left, left, noisy, iters=1)
-    assert off.lidar_noise_px is None
+    unmeasured = Engine(runtime="onnxruntime", align_lidar=False).infer(left, left, noisy,
+                                                                         iters=1)
+    assert unmeasured.lidar_noise_px is None
+    # the alignment measures the level (to tell the map's depth edges from its noise) ...
+    measured = Engine(runtime="onnxruntime").infer(left, left, noisy, iters=1)
+    assert 0.9 < measured.lidar_noise_px < 1.1
+    # ... and the smoothing, when on, the same
     on = Engine(runtime="onnxruntime", denoise_lidar=True).infer(left, left, noisy, iters=1)
-    assert 0.9 < on.lidar_noise_px < 1.1
-    assert selection_summary([dict(lidar_noise_px=1.0), dict(lidar_noise_px=0.1)]) == (
-        "LiDAR noise: smoothed along the rows in 1 of 2 frames (noise median 0.55 px, "
+    assert on.lidar_noise_px == pytest.approx(measured.lidar_noise_px)
+    assert selection_summary([dict(lidar_noise_px=1.0, lidar_smoothed=1.0),
+                              dict(lidar_noise_px=0.1, lidar_smoothed=0.0)]) == (
+        "LiDAR noise: smoothed along the rows in 1 of 2 frames (noise median 1.00 px, "
         f"smoothed above {THRESHOLD_PX} px)")
-    assert selection_summary([dict(lidar_noise_px=0.1)]) is None  # none smoothed
+    # measured, not smoothed: said, with what the alignment then reads as a depth edge
+    said = selection_summary([dict(lidar_noise_px=0.8, lidar_smoothed=0.0),
+                              dict(lidar_noise_px=0.7, lidar_smoothed=0.0),
+                              dict(lidar_noise_px=0.1, lidar_smoothed=0.0)])
+    assert said.startswith("LiDAR noise: 2 of 3 frames' maps above 0.3 px of range noise "
+                           "(median 0.75 px; a calibrated LiDAR's read 0.1-0.15): their depth "
+                           "edges are read from jumps above 4.2 px only.")  # 4·√2·0.75
+    assert selection_summary([dict(lidar_noise_px=0.1, lidar_smoothed=0.0)]) is None

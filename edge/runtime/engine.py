@@ -281,6 +281,8 @@ class Engine:
         if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
             sparse, found = self.lidar_align.apply(left, sparse)
             frame.lidar_offset = found
+            if frame.lidar_noise_px is None:  # its noise level, measured for the edges
+                frame.lidar_noise_px = found.noise_px
         plan = self.plan_for((left.shape[1], left.shape[0]))
         if not plan.identity:
             left, right, sparse = plan.prepare(left, right, sparse)

@@ -43,14 +43,19 @@ def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
                 ) -> tuple[np.ndarray, np.ndarray]:
     """(rows, columns) of the depth edges between neighbouring points of one row: where two
     row neighbours differ by more than `jump_px` at the map's noise level, the pixel between
-    them.
-    `points`: `map_points(sparse)`, if at hand."""
+    them. `points`: `map_points(sparse)`, if at hand."""
+    return _jumps_and_noise(sparse, points)[:2]
+
+
+def _jumps_and_noise(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
+                     ) -> tuple[np.ndarray, np.ndarray, tuple[float, int]]:
+    """`depth_jumps`' rows and columns, and the map's `noise_level` they were told by."""
     ys, xs = map_points(sparse) if points is None else points
     d = sparse[ys, xs]
     run = row_runs(ys, xs)
-    threshold = jump_px(*row_noise(d, xs, run))
-    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > threshold)
-    return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2
+    noise = row_noise(d, xs, run)
+    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > jump_px(*noise))
+    return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2, noise
 
 
 def jump_px(level: float, triples: int) -> float:
@@ -98,13 +103,15 @@ def undone(xs: np.ndarray, ys: np.ndarray, shape: tuple[int, ...], turn_deg: flo
 class Offset:
     """The map's misregistration as the jumps see it: turned by `turn_deg` about the image
     centre and moved by (dx, dy) px (the move once the turn is undone); the peak's score over
-    the identity's, and how many jumps it rests on."""
+    the identity's, how many jumps it rests on, and the map's noise level that told its jumps
+    (`lidar_rows.noise_level`, px; None on a map too sparse to measure it)."""
 
     dx: int
     dy: int
     turn_deg: float
     gain: float
     jumps: int
+    noise_px: float | None = None
 
     @property
     def moves(self) -> bool:
@@ -132,9 +139,10 @@ def offset(left: np.ndarray, sparse: np.ndarray,
            points: tuple[np.ndarray, np.ndarray] | None = None) -> Offset:
     """How the map's depth edges sit against the left image's edges. `points`:
     `map_points(sparse)`, if at hand."""
-    ys, xs = depth_jumps(sparse, points)
+    ys, xs, (level, triples) = _jumps_and_noise(sparse, points)
+    noise_px = level if triples >= MIN_TRIPLES else None
     if len(ys) < MIN_JUMPS:
-        return Offset(0, 0, 0.0, 1.0, len(ys))
+        return Offset(0, 0, 0.0, 1.0, len(ys), noise_px)
     if len(ys) > MAX_JUMPS:  # a dense LiDAR: an even subset bounds the search's time
         keep = np.linspace(0, len(ys) - 1, MAX_JUMPS).astype(np.int64)
         ys, xs = ys[keep], xs[keep]
@@ -158,7 +166,7 @@ def offset(left: np.ndarray, sparse: np.ndarray,
     t, i = np.unravel_index(int(np.argmax(scores)), scores.shape)
     at_identity = float(scores[len(TURNS_DEG) // 2, len(dx) // 2])
     gain = float(scores[t, i]) / at_identity if at_identity > 0 else 1.0
-    return Offset(int(dx[i]), int(dy[i]), float(TURNS_DEG[t]), gain, len(ys))
+    return Offset(int(dx[i]), int(dy[i]), float(TURNS_DEG[t]), gain, len(ys), noise_px)
 
 
 @dataclass(frozen=True)
