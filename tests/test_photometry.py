@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from edge_depth.runtime.photometry import (
+    STAGES_THRESHOLD,
     THRESHOLD,
     PhotometricMatch,
     histogram_distance,
@@ -99,3 +100,26 @@ def test_float_and_strided_images_are_measured_as_their_grey_levels():
     out, change = PhotometricMatch().apply(left.astype(np.float32), view)
     assert change == PhotometricMatch().apply(left, right)[1] > THRESHOLD
     assert np.array_equal(out, PhotometricMatch().apply(left, right)[0])
+
+
+def test_between_the_two_thresholds_only_the_stages_after_the_network_read_it_matched():
+    from edge_depth.runtime.engine import Engine
+
+    left = _texture(5, (400, 640))
+    sparse = np.zeros(left.shape, np.float32)
+    engine = Engine(runtime="onnxruntime")
+    # 12 % brighter: beyond a calibrated pair (STAGES_THRESHOLD), within the network's range
+    right = np.clip(np.roll(left, 3, axis=1) * 1.12, 0, 255).astype(np.uint8)
+    result = engine.infer(left, right, sparse, iters=1)
+    assert STAGES_THRESHOLD < result.photometry_change <= THRESHOLD
+    assert np.array_equal(engine._inputs["right"][0, 0], right)  # the network's: as given
+    stages_right = engine._stage_pair()[1]  # the selections' and the matching's: matched
+    np.testing.assert_array_equal(stages_right,
+                                  PhotometricMatch().measure(left, right).mapped())
+    assert np.abs(right[:, 3:].astype(np.float32) - left[:, :-3]).mean() > 10
+    assert np.abs(stages_right[:, 3:] - left[:, :-3]).mean() < 1.5
+    # 3 % brighter, as a calibrated pair: the stages read the graphs' buffer, as given
+    agrees = np.clip(np.roll(left, 3, axis=1) * 1.03, 0, 255).astype(np.uint8)
+    assert engine.infer(left, agrees, sparse, iters=1).photometry_change <= STAGES_THRESHOLD
+    assert np.shares_memory(engine._stage_pair()[1], engine._inputs["right"])
+    np.testing.assert_array_equal(engine._stage_pair()[1], agrees)

@@ -40,7 +40,7 @@ from edge_depth.runtime.lidar_denoise import LidarDenoise
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
-from edge_depth.runtime.photometry import PhotometricMatch
+from edge_depth.runtime.photometry import Levels, PhotometricMatch
 from edge_depth.types import DepthResult
 from edge_depth.workers import one_openblas_thread
 
@@ -103,6 +103,8 @@ class Engine:
         self.sessions = self.graphs.sessions
         self.has_confidence = self.graphs.has_confidence
         self._inputs: dict[str, np.ndarray] = {}
+        self._matched_right = np.zeros((0, 0), np.float32)
+        self._stage_right = self._matched_right  # what `_stage_pair` gives, set per frame
         self._buffers((self.width, self.height))
         self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
             if options.lidar_select and "lidar_select" in self.meta else None
@@ -161,7 +163,27 @@ class Engine:
             shape = (1, 1, size[1], size[0])
             self._inputs = {k: np.zeros(shape, np.float32)
                             for k in ("left", "right", "sparse", "valid")}
+            self._matched_right = np.zeros(shape[2:], np.float32)
         return self._inputs
+
+    def _stage_pair(self) -> tuple[np.ndarray, np.ndarray]:
+        """The (left, right) pair the stages after the network read, at the graphs' size."""
+        return self._inputs["left"][0, 0], self._stage_right
+
+    def _matched_for_stages(self, levels: Levels | None, plan: FitPlan) -> np.ndarray:
+        """The right image the stages after the network read: the graphs' (as given, or
+        matched above the photometric match's threshold), or — where the cameras disagree
+        beyond `stages_threshold` but not that far — matched for the stages alone (they
+        compare grey levels across the cameras directly: `edge.runtime.photometry`)."""
+        network_right = self._inputs["right"][0, 0]
+        match = self.photometry
+        if levels is None or match is None or levels.change > match.threshold or \
+                levels.change <= match.stages_threshold:
+            return network_right
+        if plan.identity:
+            return levels.mapped(out=self._matched_right)
+        np.copyto(self._matched_right, plan.image(levels.mapped()), casting="unsafe")
+        return self._matched_right
 
     def warm_up(self, iters: int = 1, camera: tuple[int, int] | None = None) -> None:
         """One untimed inference on a blank frame of the camera's (w, h) (default: the
@@ -274,8 +296,13 @@ class Engine:
                                        image.shape)
         if left.ndim != 2 or min(left.shape) < 8:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
-        if self.photometry is not None:  # the right camera's grey levels onto the left's
-            right, frame.photometry_change = self.photometry.apply(left, right)
+        levels = None
+        if self.photometry is not None:  # the right camera's grey levels onto the left's: for
+            # the network beyond its threshold, for the stages after it beyond theirs
+            levels = self.photometry.measure(left, right)
+            frame.photometry_change = levels.change
+            if levels.change > self.photometry.threshold:
+                right = levels.mapped()
         if self.lidar_denoise is not None:  # a noisy LiDAR map smoothed along its rows
             sparse, frame.lidar_noise_px = self.lidar_denoise.apply(sparse)
         if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
@@ -289,6 +316,7 @@ class Engine:
         buf = self._buffers(plan.bundle)
         np.copyto(buf["left"][0, 0], left, casting="unsafe")
         np.copyto(buf["right"][0, 0], right, casting="unsafe")
+        self._stage_right = self._matched_for_stages(levels, plan)
         finite = np.isfinite(sparse) & (sparse > 0)
         np.copyto(buf["valid"][0, 0], finite, casting="unsafe")
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
@@ -299,9 +327,8 @@ class Engine:
         confidence: none without it)."""
         if self.match_schedule is None or not self.has_confidence:
             return None
-        buf = self._inputs
-        return self.match_schedule.frame(buf["left"][0, 0], buf["right"][0, 0],
-                                         buf["sparse"][0, 0], iters)
+        return self.match_schedule.frame(*self._stage_pair(), self._inputs["sparse"][0, 0],
+                                         iters)
 
     def _encode(self, frame: _Frame) -> dict[str, np.ndarray]:
         t = time.perf_counter()
@@ -363,7 +390,7 @@ class Engine:
         both, so the slowest frame's time does not grow); each where the bundle has it."""
         if confidence is None:
             return disp, confidence
-        left, right = self._inputs["left"][0, 0], self._inputs["right"][0, 0]
+        left, right = self._stage_pair()
         t = time.perf_counter()
         if self.edge_select is not None and not has_points:
             disp, confidence, frame.counts["edge_px"] = self.edge_select.apply(

@@ -57,13 +57,18 @@ class FitPlan:
         sw, sh = self.scaled
         bw, bh = self.bundle
         if (sw, sh) != self.camera:
-            interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
-            left = cv2.resize(left, (sw, sh), interpolation=interp)
-            right = cv2.resize(right, (sw, sh), interpolation=interp)
             sparse = self._scale_sparse(sparse)
         pad = ((0, bh - sh), (0, bw - sw))
-        return (np.pad(left, pad, mode="edge"), np.pad(right, pad, mode="edge"),
-                np.pad(sparse.astype(np.float32), pad))
+        return self.image(left), self.image(right), np.pad(sparse.astype(np.float32), pad)
+
+    def image(self, image: np.ndarray) -> np.ndarray:
+        """A camera-size (H, W) image → bundle-size, as `prepare` brings the pair."""
+        sw, sh = self.scaled
+        bw, bh = self.bundle
+        if (sw, sh) != self.camera:
+            interp = cv2.INTER_AREA if self.scale < 1 else cv2.INTER_LINEAR
+            image = cv2.resize(image, (sw, sh), interpolation=interp)
+        return np.pad(image, ((0, bh - sh), (0, bw - sw)), mode="edge")
 
     def _scale_sparse(self, sparse: np.ndarray) -> np.ndarray:
         sw, sh = self.scaled

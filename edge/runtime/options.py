@@ -61,9 +61,11 @@ class EngineOptions:
                                  "this (ms from the frame's start); 0 = no deadline",
                                  bounds=(0.0, 60_000.0))
     match_photometry: bool = _option(True, "the right image's grey levels mapped onto the "
-                                     "left's where the match would move them by more than "
-                                     "20 levels on average (cameras further apart in "
-                                     "exposure, gain or response than the rig trains for)")
+                                     "left's: for the network where the match would move "
+                                     "them by more than 20 levels on average (cameras further "
+                                     "apart in exposure, gain or response than the rig trains "
+                                     "for), for the stages after it from 8 (more than a "
+                                     "calibrated pair's 3)")
     denoise_lidar: bool = _option(False, "a noisy LiDAR map (its points off the line through "
                                   "their row neighbours by more than 0.3 px, robustly) "
                                   "smoothed along its rows, depth edges kept (docs/results.md: "

@@ -6,9 +6,11 @@ two cameras' gain within ±12 % and gamma ±6 %), StereoBM and the selections' w
 read as a mismatch. The right image is mapped onto the left's histogram (each level to the
 left's level at the same mid-rank, a 256-entry table) where that would move its grey levels
 by more than `threshold` on average — further than the rig's cameras differ in training; the
-left image, whose disparity the engine returns, is never changed. Below the threshold nothing
-is changed: matching cameras that differ within the trained range moves the result by noise
-(docs/experiments.md, 2026-12-06 19:15 and 20:15).
+left image, whose disparity the engine returns, is never changed. Below the threshold the
+network's input is not changed: matching cameras that differ within the trained range moves
+its result by noise (docs/experiments.md, 2026-12-06 19:15 and 20:15). The stages after the
+network (the selections, the matching) compare grey levels across the cameras directly and
+read the matched image from STAGES_THRESHOLD on (2026-12-06 22:52).
 """
 
 from __future__ import annotations
@@ -23,6 +25,9 @@ from edge_depth.runtime.edge_match import as_grey8
 # grey levels the match would move the right image by, on average: the real pairs 3.0-3.2, the
 # rig's test frames median 7.9 (p95 18.6), a right camera 20 % darker with gamma 1.15 23-35
 THRESHOLD = 20.0
+# ... and above which the stages after the network read the matched right image (they compare
+# grey levels across the cameras directly): the rig's median, above a calibrated pair's 3
+STAGES_THRESHOLD = 8.0
 
 
 def grey8(image: np.ndarray) -> np.ndarray:
@@ -58,18 +63,38 @@ def matching_table(left8: np.ndarray, right8: np.ndarray,
 
 
 @dataclass(frozen=True)
+class Levels:
+    """`PhotometricMatch.measure`'s answer: the right image in uint8, its 256-entry table onto
+    the left's grey levels, and how far that table moves it on average (levels)."""
+
+    right8: np.ndarray
+    table: np.ndarray
+    change: float
+
+    def mapped(self, out: np.ndarray | None = None) -> np.ndarray:
+        """The right image on the left's grey levels (float32; into `out`, if given)."""
+        return cv2.LUT(self.right8, self.table, dst=out)
+
+
+@dataclass(frozen=True)
 class PhotometricMatch:
-    """`apply(left, right)` -> (right, how far the match moves its grey levels)."""
+    """`measure(left, right)` -> `Levels`; `apply(left, right)` -> (the right image on the
+    left's grey levels where that moves them by more than `threshold`, else as given; the
+    move). `stages_threshold`: the move above which the stages after the network read the
+    matched image (the engine's `Engine._stage_pair`)."""
 
     threshold: float = THRESHOLD
+    stages_threshold: float = STAGES_THRESHOLD
 
-    def apply(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
-        """The right image mapped onto the left's grey levels (float32) where that moves them
-        by more than `threshold` on average, else as given; and that mean move (levels)."""
+    def measure(self, left: np.ndarray, right: np.ndarray) -> Levels:
         left8, right8 = grey8(left), grey8(right)
         counts = histogram(right8)
         table = matching_table(left8, right8, counts)
         change = float(counts @ np.abs(table - np.arange(256)) / max(counts.sum(), 1.0))
-        if change <= self.threshold:
-            return right, change
-        return cv2.LUT(right8, table), change
+        return Levels(right8, table, change)
+
+    def apply(self, left: np.ndarray, right: np.ndarray) -> tuple[np.ndarray, float]:
+        """The right image mapped onto the left's grey levels (float32) where that moves them
+        by more than `threshold` on average, else as given; and that mean move (levels)."""
+        levels = self.measure(left, right)
+        return (right if levels.change <= self.threshold else levels.mapped()), levels.change
