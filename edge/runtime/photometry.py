@@ -87,6 +87,7 @@ class PhotometricMatch:
     stages_threshold: float = STAGES_THRESHOLD
 
     def measure(self, left: np.ndarray, right: np.ndarray) -> Levels:
+        """The right image's table onto the left's grey levels and how far it moves them."""
         left8, right8 = grey8(left), grey8(right)
         counts = histogram(right8)
         table = matching_table(left8, right8, counts)
