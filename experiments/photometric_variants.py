@@ -8,8 +8,9 @@ the right image × 0.9, × 1.2 (clipped), gamma 0.85, 20 grey levels darker, × 
 
 `--strong`: the right image × 0.75, × 1.3, gamma 1.3, 30 grey levels darker, and the left × 0.75.
 `--fresh`: milder, other than the first six: the right × 0.93, × 1.1, gamma 0.9, gamma 1.12,
-12 grey levels brighter, and the left × 0.88. A folder of scenes (the rig's splits) becomes one
-folder of the same scenes per variant.
+12 grey levels brighter, and the left × 0.88. `--sensor`: the right camera noisier (+ N(0, 5)
+grey levels, seeded) or softer (a Gaussian blur of σ 1 px). A folder of scenes (the rig's
+splits) becomes one folder of the same scenes per variant.
 
     python experiments/photometric_variants.py data/aloe data/motorcycle data/test16 --fresh \
         --out data/photo_fresh
@@ -32,6 +33,18 @@ def _levels(image: np.ndarray, gain: float = 1.0, offset: float = 0.0,
     return np.clip(255.0 * out ** gamma, 0, 255).round().astype(np.uint8)
 
 
+def _changed(image: np.ndarray, change: dict | str) -> np.ndarray:
+    """The image with a variant's change: grey levels (`_levels`' keywords), or "noise" (+ N(0,
+    5), seeded) or "blur" (Gaussian, σ 1 px)."""
+    if change == "noise":
+        noise = np.random.default_rng(3).normal(0.0, 5.0, image.shape)
+        return np.clip(image.astype(np.float32) + noise, 0, 255).round().astype(np.uint8)
+    if change == "blur":
+        return cv2.GaussianBlur(image, (0, 0), 1.0)
+    assert isinstance(change, dict)
+    return _levels(image, **change)
+
+
 VARIANTS = {  # name: (the image changed, its change)
     "gain09": ("right", dict(gain=0.9)),
     "gain12": ("right", dict(gain=1.2)),
@@ -46,6 +59,10 @@ STRONG = {  # `--strong`: further apart
     "gamma13": ("right", dict(gamma=1.3)),
     "minus30": ("right", dict(offset=-30.0)),
     "leftdark075": ("left", dict(gain=0.75)),
+}
+SENSOR = {  # `--sensor`: not a grey-level mapping but the right sensor's noise or its focus
+    "noise5": ("right", "noise"),
+    "blur1": ("right", "blur"),
 }
 FRESH = {  # `--fresh`
     "gain093": ("right", dict(gain=0.93)),
@@ -64,8 +81,10 @@ def main() -> None:
     which = p.add_mutually_exclusive_group()
     which.add_argument("--strong", action="store_true", help="the further-apart set")
     which.add_argument("--fresh", action="store_true", help="the milder second set")
+    which.add_argument("--sensor", action="store_true", help="the right sensor noisier, softer")
     args = p.parse_args()
-    variants = STRONG if args.strong else FRESH if args.fresh else VARIANTS
+    variants = STRONG if args.strong else FRESH if args.fresh else \
+        SENSOR if args.sensor else VARIANTS
     for folder in args.folders:
         for name, (side, change) in variants.items():
             dst = args.out / f"{folder.name}_{name}"
@@ -77,7 +96,7 @@ def main() -> None:
                 sorted(q.parent for q in dst.glob(f"*/{side}.png"))
             for scene in scenes:
                 image = cv2.imread(str(scene / f"{side}.png"), cv2.IMREAD_UNCHANGED)
-                cv2.imwrite(str(scene / f"{side}.png"), _levels(image, **change))
+                cv2.imwrite(str(scene / f"{side}.png"), _changed(image, change))
             print(dst)
 
 
