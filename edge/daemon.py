@@ -479,8 +479,8 @@ def noise_line(timings: list[dict]) -> str | None:
         return (f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} frames "
                 f"(noise median {median:.2f} px, smoothed above {NOISE_THRESHOLD_PX} px)")
     return (f"LiDAR noise: {len(noisy)} of {len(levels)} frames' maps above "
-            f"{NOISE_THRESHOLD_PX} px of range noise (median {median:.2f} px; a calibrated "
-            f"LiDAR's read 0.1-0.15): their depth edges are read from jumps above "
+            f"{NOISE_THRESHOLD_PX} px of range noise (median {median:.2f} px; the real "
+            f"pairs' maps read 0.1-0.15): their depth edges are read from jumps above "
             f"{jump_px(median, MIN_TRIPLES):.1f} px only. Check the LiDAR's range noise and its "
             "timing; [engine] denoise_lidar = true smooths such a map (docs/results.md: where "
             "that helps)")

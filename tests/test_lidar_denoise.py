@@ -77,6 +77,6 @@ def test_the_engine_smooths_only_when_asked_and_the_summary_says_so():
                               dict(lidar_noise_px=0.7, lidar_smoothed=0.0),
                               dict(lidar_noise_px=0.1, lidar_smoothed=0.0)])
     assert said.startswith("LiDAR noise: 2 of 3 frames' maps above 0.3 px of range noise "
-                           "(median 0.75 px; a calibrated LiDAR's read 0.1-0.15): their depth "
+                           "(median 0.75 px; the real pairs' maps read 0.1-0.15): their depth "
                            "edges are read from jumps above 4.2 px only.")  # 4·√2·0.75
     assert selection_summary([dict(lidar_noise_px=0.1, lidar_smoothed=0.0)]) is None

@@ -108,7 +108,7 @@ def test_between_the_two_thresholds_only_the_stages_after_the_network_read_it_ma
     left = _texture(5, (400, 640))
     sparse = np.zeros(left.shape, np.float32)
     engine = Engine(runtime="onnxruntime")
-    # 12 % brighter: beyond a calibrated pair (STAGES_THRESHOLD), within the network's range
+    # 12 % brighter: beyond cameras that agree (STAGES_THRESHOLD), within the network's range
     right = np.clip(np.roll(left, 3, axis=1) * 1.12, 0, 255).astype(np.uint8)
     result = engine.infer(left, right, sparse, iters=1)
     assert STAGES_THRESHOLD < result.photometry_change <= THRESHOLD
@@ -118,7 +118,7 @@ def test_between_the_two_thresholds_only_the_stages_after_the_network_read_it_ma
                                   PhotometricMatch().measure(left, right).mapped())
     assert np.abs(right[:, 3:].astype(np.float32) - left[:, :-3]).mean() > 10
     assert np.abs(stages_right[:, 3:] - left[:, :-3]).mean() < 1.5
-    # 3 % brighter, as a calibrated pair: the stages read the graphs' buffer, as given
+    # 3 % brighter, as the real pairs' cameras: the stages read the graphs' buffer, as given
     agrees = np.clip(np.roll(left, 3, axis=1) * 1.03, 0, 255).astype(np.uint8)
     assert engine.infer(left, agrees, sparse, iters=1).photometry_change <= STAGES_THRESHOLD
     assert np.shares_memory(engine._stage_pair()[1], engine._inputs["right"])

@@ -64,8 +64,8 @@ class EngineOptions:
                                      "left's: for the network where the match would move "
                                      "them by more than 20 levels on average (cameras further "
                                      "apart in exposure, gain or response than the rig trains "
-                                     "for), for the stages after it from 8 (more than a "
-                                     "calibrated pair's 3)")
+                                     "for), for the stages after it from 8 (the real pairs "
+                                     "read 3)")
     denoise_lidar: bool = _option(False, "a noisy LiDAR map (its points off the line through "
                                   "their row neighbours by more than 0.3 px, robustly) "
                                   "smoothed along its rows, depth edges kept (docs/results.md: "

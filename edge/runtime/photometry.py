@@ -26,7 +26,7 @@ from edge_depth.runtime.edge_match import as_grey8
 # rig's test frames median 7.9 (p95 18.6), a right camera 20 % darker with gamma 1.15 23-35
 THRESHOLD = 20.0
 # ... and above which the stages after the network read the matched right image (they compare
-# grey levels across the cameras directly): the rig's median, above a calibrated pair's 3
+# grey levels across the cameras directly): the rig's median, above the real pairs' 3
 STAGES_THRESHOLD = 8.0
 
 
