@@ -39,7 +39,7 @@ def main() -> None:
         before = float(np.abs(sparse - clean)[points].mean())
         after = float(np.abs(smoothed - clean)[points].mean())
         change = 100 * (epe[1] / epe[0] - 1)
-        print(f"| {scene.name} | {epe[0]:.3f} | {epe[1]:.3f} | {change:+.1f} % | {level:.2f} "
+        print(f"| {scene.name} | {epe[0]:.3f} | {epe[1]:.3f} | {change:+.1f} % | {level or 0:.2f} "
               f"| {before:.3f} | {after:.3f} |")
 
 

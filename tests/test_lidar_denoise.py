@@ -80,3 +80,10 @@ def test_the_engine_smooths_only_when_asked_and_the_summary_says_so():
                            "(median 0.75 px; the real pairs' maps read 0.1-0.15): their depth "
                            "edges are read from jumps above 4.2 px only.")  # 4·√2·0.75
     assert selection_summary([dict(lidar_noise_px=0.1, lidar_smoothed=0.0)]) is None
+
+
+def test_a_map_too_sparse_to_measure_is_left_as_it_is_and_its_level_unknown():
+    sparse = np.zeros((100, 200), np.float32)
+    sparse[50, 10:40:2] = 5.0 + np.arange(15) % 2 * 3.0  # 15 points: 13 triples, zig-zagging
+    out, level = LidarDenoise().apply(sparse)
+    assert out is sparse and level is None

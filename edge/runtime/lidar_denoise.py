@@ -43,11 +43,14 @@ def smoothed(sparse: np.ndarray, level: float,
 
 @dataclass(frozen=True)
 class LidarDenoise:
-    """`apply(sparse)` -> (the map, smoothed where it is noisy; its noise level in px)."""
+    """`apply(sparse)` -> (the map, smoothed where it is noisy; its noise level in px, None on
+    a map too sparse to measure it: fewer than MIN_TRIPLES triples)."""
 
-    def apply(self, sparse: np.ndarray) -> tuple[np.ndarray, float]:
+    def apply(self, sparse: np.ndarray) -> tuple[np.ndarray, float | None]:
         points = map_points(sparse)
         level, triples = noise_level(sparse, points)
-        if level <= THRESHOLD_PX or triples < MIN_TRIPLES:
+        if triples < MIN_TRIPLES:
+            return sparse, None
+        if level <= THRESHOLD_PX:
             return sparse, level
         return smoothed(sparse, level, points), level
