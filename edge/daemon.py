@@ -35,7 +35,7 @@ from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
-from edge_depth.runtime.lidar_rows import MIN_TRIPLES
+from edge_depth.runtime.lidar_denoise import smooths
 from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
@@ -346,7 +346,7 @@ class Pipeline:
             timings["lidar_noise_px"] = result.lidar_noise_px
             timings["lidar_smoothed"] = float(self.engine is not None and
                                               self.engine.lidar_denoise is not None and
-                                              result.lidar_noise_px > NOISE_THRESHOLD_PX)
+                                              smooths(result.lidar_noise_px))
         if (found := result.lidar_offset) is not None:  # [engine] align_lidar
             timings["lidar_put_back"] = float(found.moves)
             if found.moves:
@@ -481,7 +481,7 @@ def noise_line(timings: list[dict]) -> str | None:
     return (f"LiDAR noise: {len(noisy)} of {len(levels)} frames' maps above "
             f"{NOISE_THRESHOLD_PX} px of range noise (median {median:.2f} px; the real "
             f"pairs' maps read 0.1-0.15): their depth edges are read from jumps above "
-            f"{jump_px(median, MIN_TRIPLES):.1f} px only. Check the LiDAR's range noise and its "
+            f"{jump_px(median):.1f} px only. Check the LiDAR's range noise and its "
             "timing; [engine] denoise_lidar = true smooths such a map (docs/results.md: where "
             "that helps)")
 

@@ -14,7 +14,7 @@ from edge_depth.runtime.lidar_align import (
     offset,
     shifted,
 )
-from edge_depth.runtime.lidar_rows import map_points, noise_level
+from edge_depth.runtime.lidar_rows import map_points, measured, noise_level
 
 H, W = 240, 320
 
@@ -134,8 +134,8 @@ def test_a_noisy_map_finds_its_edges_not_its_noise_and_is_not_moved():
     left, disparity = _scene(5)
     sparse = _rows(disparity)
     noisy = _noisy(sparse, 0.75)
-    assert jump_px(*noise_level(sparse)) == JUMP_PX
-    assert 3.5 < jump_px(*noise_level(noisy)) < 5.0  # 4·√2·0.75 = 4.2
+    assert jump_px(measured(noise_level(sparse))) == JUMP_PX
+    assert 3.5 < jump_px(measured(noise_level(noisy))) < 5.0  # 4·√2·0.75 = 4.2
     # the same depth edges as the clean map's, not one neighbour pair in six
     assert abs(len(depth_jumps(noisy)[0]) - len(depth_jumps(sparse)[0])) <= 3
     out, found = LidarAlign().apply(left, noisy)

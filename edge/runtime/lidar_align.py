@@ -25,7 +25,7 @@ import cv2
 import numpy as np
 
 from edge_depth.runtime.edge_match import as_grey8
-from edge_depth.runtime.lidar_rows import MIN_TRIPLES, map_points, row_noise, row_runs
+from edge_depth.runtime.lidar_rows import map_points, measured, row_noise, row_runs
 
 REACH_PX = 4  # the largest offset searched, each way
 JUMP_PX = 1.5  # disparity between neighbouring points that marks a depth edge ...
@@ -48,22 +48,22 @@ def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
 
 
 def _jumps_and_noise(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
-                     ) -> tuple[np.ndarray, np.ndarray, tuple[float, int]]:
-    """`depth_jumps`' rows and columns, and the map's `noise_level` they were told by."""
+                     ) -> tuple[np.ndarray, np.ndarray, float | None]:
+    """`depth_jumps`' rows and columns, and the map's noise level they were told by
+    (`lidar_rows.measured`: None on a map too sparse to measure it)."""
     ys, xs = map_points(sparse) if points is None else points
     d = sparse[ys, xs]
     run = row_runs(ys, xs)
-    noise = row_noise(d, xs, run)
-    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > jump_px(*noise))
-    return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2, noise
+    level = measured(row_noise(d, xs, run))
+    jump = (run[1:] == run[:-1]) & (np.abs(d[1:] - d[:-1]) > jump_px(level))
+    return ys[:-1][jump], (xs[:-1][jump] + xs[1:][jump]) // 2, level
 
 
-def jump_px(level: float, triples: int) -> float:
+def jump_px(level: float | None) -> float:
     """The difference between row neighbours that marks a depth edge on a map of this noise
-    level (`lidar_rows.noise_level`, read from `triples`): JUMP_PX, or JUMP_SIGMAS standard
-    deviations of two points' difference if more (a level read from at least MIN_TRIPLES
-    triples: on fewer, edges may be half of them)."""
-    if triples < MIN_TRIPLES:
+    level (`lidar_rows.measured`): JUMP_PX, or JUMP_SIGMAS standard deviations of two points'
+    difference if more; JUMP_PX where the level is unknown (None)."""
+    if level is None:
         return JUMP_PX
     return max(JUMP_PX, JUMP_SIGMAS * float(np.sqrt(2.0)) * level)
 
@@ -139,8 +139,7 @@ def offset(left: np.ndarray, sparse: np.ndarray,
            points: tuple[np.ndarray, np.ndarray] | None = None) -> Offset:
     """How the map's depth edges sit against the left image's edges. `points`:
     `map_points(sparse)`, if at hand."""
-    ys, xs, (level, triples) = _jumps_and_noise(sparse, points)
-    noise_px = level if triples >= MIN_TRIPLES else None
+    ys, xs, noise_px = _jumps_and_noise(sparse, points)
     if len(ys) < MIN_JUMPS:
         return Offset(0, 0, 0.0, 1.0, len(ys), noise_px)
     if len(ys) > MAX_JUMPS:  # a dense LiDAR: an even subset bounds the search's time

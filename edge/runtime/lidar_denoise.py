@@ -16,11 +16,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from edge_depth.runtime.lidar_rows import MIN_TRIPLES, map_points, noise_level, row_runs
+from edge_depth.runtime.lidar_rows import map_points, measured, noise_level, row_runs
 
 THRESHOLD_PX = 0.3  # the real pairs' sampled maps read 0.11-0.15, 0.5 px of noise 0.54
 NEIGHBOURS = 2
 TOLERANCE = 2.5
+
+
+def smooths(level: float | None) -> bool:
+    """Whether a map of this noise level (`lidar_rows.measured`; None: unknown) is smoothed."""
+    return level is not None and level > THRESHOLD_PX
 
 
 def smoothed(sparse: np.ndarray, level: float,
@@ -48,9 +53,7 @@ class LidarDenoise:
 
     def apply(self, sparse: np.ndarray) -> tuple[np.ndarray, float | None]:
         points = map_points(sparse)
-        level, triples = noise_level(sparse, points)
-        if triples < MIN_TRIPLES:
-            return sparse, None
-        if level <= THRESHOLD_PX:
+        level = measured(noise_level(sparse, points))
+        if level is None or not smooths(level):
             return sparse, level
         return smoothed(sparse, level, points), level

@@ -45,6 +45,13 @@ def noise_level(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None
     return row_noise(sparse[ys, xs], xs, row_runs(ys, xs))
 
 
+def measured(noise: tuple[float, int]) -> float | None:
+    """A `noise_level` (or `row_noise`) answer's level, None where it rests on fewer than
+    MIN_TRIPLES triples: on so few, depth edges may be half of them."""
+    level, triples = noise
+    return level if triples >= MIN_TRIPLES else None
+
+
 def row_noise(d: np.ndarray, xs: np.ndarray, run: np.ndarray) -> tuple[float, int]:
     """`noise_level` from the points' disparities, columns and `row_runs`, in row-major
     order."""
