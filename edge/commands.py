@@ -21,16 +21,9 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig
-from edge_depth.daemon import (
-    Pipeline,
-    PipelineStats,
-    format_latency,
-    lidar_summary,
-    selection_summary,
-    summarise,
-    watch_summary,
-)
+from edge_depth.daemon import Pipeline, PipelineStats, lidar_summary, watch_summary
 from edge_depth.errors import ConfigError
+from edge_depth.frame_summary import format_latency, selection_summary, summarise
 from edge_depth.loggers import open_logger
 from edge_depth.runner import StopFlag, run
 from edge_depth.runtime.engine import Engine

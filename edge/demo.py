@@ -106,7 +106,8 @@ def demo_command(out: Path, frames: int, seed: int = DEMO_SEED, precision: str =
                  iters: int | None = None, deadline_ms: float | None = None,
                  profile: str = "foxglove") -> int:
     from edge_depth.capture.sim import SimSource
-    from edge_depth.daemon import Pipeline, format_latency, summarise
+    from edge_depth.daemon import Pipeline
+    from edge_depth.frame_summary import format_latency, summarise
     from edge_depth.loggers import open_logger
     from edge_depth.runner import run
     from edge_depth.runtime.engine import Engine

@@ -24,14 +24,9 @@ from collections import deque
 import numpy as np
 
 from edge_depth.calibration.errors import CalibrationError
-from edge_depth.daemon import (
-    FatalInputError,
-    Pipeline,
-    PipelineStats,
-    replaced_shares,
-    summarise,
-)
+from edge_depth.daemon import FatalInputError, Pipeline, PipelineStats
 from edge_depth.errors import EdgeError
+from edge_depth.frame_summary import replaced_shares, summarise
 from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)

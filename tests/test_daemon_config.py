@@ -438,7 +438,7 @@ def test_the_transform_tree_hangs_under_the_configured_parent(tmp_path, profile)
 
 
 def test_the_two_selections_are_summed_up_each_over_its_own_frames():
-    from edge_depth.daemon import replaced_shares, selection_summary, summarise
+    from edge_depth.frame_summary import replaced_shares, selection_summary, summarise
 
     # frames with LiDAR run the LiDAR selection, frames without it the edge selection
     timings = [dict(engine=50.0, select=10.0, replaced_pct=2.0),

@@ -274,7 +274,7 @@ def test_config_and_evaluate_take_it(tmp_path):
 
 
 def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
-    from edge_depth.daemon import replaced_shares, selection_summary, summarise
+    from edge_depth.frame_summary import replaced_shares, selection_summary, summarise
 
     timings = [dict(engine=50.0, edge_match=9.0, matched_pct=4.0),
                dict(engine=52.0, edge_match=11.0, matched_pct=0.0)]

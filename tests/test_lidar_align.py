@@ -105,7 +105,7 @@ def test_a_map_without_depth_jumps_is_not_searched():
 
 
 def test_the_engine_puts_the_map_back_unless_told_not_to_and_the_summary_says_so():
-    from edge_depth.daemon import selection_summary
+    from edge_depth.frame_summary import selection_summary
     from edge_depth.runtime.engine import Engine
 
     left, disparity = _scene(4, (400, 640))

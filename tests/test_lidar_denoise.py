@@ -52,7 +52,7 @@ def test_a_quiet_map_is_left_as_it_is():
 
 
 def test_the_engine_smooths_only_when_asked_and_the_summary_says_so():
-    from edge_depth.daemon import selection_summary
+    from edge_depth.frame_summary import selection_summary
     from edge_depth.runtime.engine import Engine
 
     rng = np.random.default_rng(4)

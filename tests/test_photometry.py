@@ -80,7 +80,7 @@ def test_the_engine_matches_unless_told_not_to_and_says_by_how_much():
 
 
 def test_the_closing_summary_counts_the_frames_whose_right_image_was_matched():
-    from edge_depth.daemon import selection_summary, summarise
+    from edge_depth.frame_summary import selection_summary, summarise
 
     timings = [dict(engine=50.0, photometry_change=d) for d in (3.0, 25.0, 30.0)]
     assert "photometry_change" not in summarise(timings)

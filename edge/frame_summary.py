@@ -1,0 +1,106 @@
+"""What a run's frames say, from their per-frame timings (`Pipeline.finish`'s dicts): the
+stages' median / p95 latency (`summarise`) and the closing lines about the selections, the
+matching, the photometric match and the LiDAR map's checks (`selection_summary`); the daemon,
+`replay` and the demo print them, `/diagnostics` carries the per-frame values
+(`replaced_shares`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from edge_depth.runtime.edge_match import BEYOND_PCT
+from edge_depth.runtime.lidar_align import jump_px
+from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
+from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
+
+# per-frame values in the timings that are not ms
+NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
+               "match_beyond_pct", "photometry_change", "lidar_put_back", "lidar_dx_px",
+               "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
+# the selections' per-frame shares: timings key -> the closing line's name
+SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
+              "matched_pct": "Edge matching"}
+
+
+def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
+    """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
+    the frame's pixels the stage replaced; default the LiDAR selection's) or
+    "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
+    "photometry_change" (grey levels), "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was
+    put back)."""
+    return [t[key] for t in timings if key in t]
+
+
+def selection_summary(timings: list[dict]) -> str | None:
+    """The closing lines about the selections, one each: the share of each frame's pixels
+    it replaced (None when the engine ran none)."""
+    lines = []
+    for key, name in SELECTIONS.items():
+        shares = replaced_shares(timings, key)
+        if shares:
+            none = sum(1 for s in shares if s == 0)
+            lines.append(f"{name}: replaced a median {np.median(shares):.1f} % of each "
+                         f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
+                         f"{none} of {len(shares)} frames)")
+    beyond = replaced_shares(timings, "match_beyond_pct")
+    if over := [b for b in beyond if b > BEYOND_PCT]:
+        lines.append(f"Edge matching: the scene was nearer than its disparity count "
+                     f"reaches in {len(over)} of {len(beyond)} frames (up to {max(over):.1f} % "
+                     "of a frame's pixels; StereoBM cannot match there): raise [engine] "
+                     "edge_match to a multiple of 16 above the scene's largest disparity, or "
+                     "set it to \"auto\" (each frame's count from the network's own)")
+    changes = replaced_shares(timings, "photometry_change")
+    if matched := sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD):  # none: nothing to say
+        lines.append(f"Photometry: the right image matched to the left's grey levels in "
+                     f"{matched} of {len(changes)} frames (the match would move them by a "
+                     f"median {np.median(changes):.1f} levels; made above "
+                     f"{PHOTOMETRY_THRESHOLD:g})")
+    if line := noise_line(timings):
+        lines.append(line)
+    if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):
+        moves = [(t["lidar_dx_px"], t["lidar_dy_px"], t["lidar_turn_deg"]) for t in timings
+                 if t.get("lidar_put_back")]
+        dx, dy, turn = (float(np.median(m)) for m in zip(*moves, strict=True))
+        lines.append(f"LiDAR map: put back onto the image's edges in {len(moves)} of "
+                     f"{len(put_back)} frames (it sat turned {turn:+.2f}° and moved "
+                     f"({dx:+.0f}, {dy:+.0f}) px off them, medians): the LiDAR–camera "
+                     "calibration looks off; refine it (edge-depth calibrate lidar --refine, "
+                     "as the calibration watch's line says)")
+    return "\n".join(lines) or None
+
+
+def noise_line(timings: list[dict]) -> str | None:
+    """The closing line about the LiDAR map's range noise, where frames measured it above
+    NOISE_THRESHOLD_PX: smoothed (`denoise_lidar`), or only said (the map's own noise then
+    sets which jumps between row neighbours the alignment reads as depth edges)."""
+    levels = replaced_shares(timings, "lidar_noise_px")
+    noisy = [v for v in levels if v > NOISE_THRESHOLD_PX]
+    if not noisy:
+        return None
+    median = float(np.median(noisy))
+    if smoothed := int(sum(replaced_shares(timings, "lidar_smoothed"))):
+        return (f"LiDAR noise: smoothed along the rows in {smoothed} of {len(levels)} frames "
+                f"(noise median {median:.2f} px, smoothed above {NOISE_THRESHOLD_PX} px)")
+    return (f"LiDAR noise: {len(noisy)} of {len(levels)} frames' maps above "
+            f"{NOISE_THRESHOLD_PX} px of range noise (median {median:.2f} px; the real "
+            f"pairs' maps read 0.1-0.15): their depth edges are read from jumps above "
+            f"{jump_px(median):.1f} px only. Check the LiDAR's range noise and its "
+            "timing; [engine] denoise_lidar = true smooths such a map (docs/results.md: where "
+            "that helps)")
+
+
+def summarise(timings: list[dict]) -> dict[str, dict[str, float]]:
+    """Median and p95 ms per stage, over the frames that ran it (the two selections run on
+    different frames)."""
+    keys = list(dict.fromkeys(k for t in timings for k in t if k not in NOT_LATENCY))
+    out = {}
+    for k in keys:
+        values = [t[k] for t in timings if k in t]
+        out[k] = dict(median=float(np.median(values)), p95=float(np.percentile(values, 95)))
+    return out
+
+
+def format_latency(summary: dict[str, dict[str, float]]) -> str:
+    """'encoder 9.1/10.2, steps ...': median / p95 ms of each stage of a `summarise`."""
+    return ", ".join(f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in summary.items()
+                     if k != "step_mean")
