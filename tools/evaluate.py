@@ -53,7 +53,8 @@ from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 # the engine settings a bundle is evaluated with (the others: EngineOptions' defaults)
 ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_match",
-                "edge_match_rows", "edge_matcher", "edge_median", "match_photometry",
+                "edge_match_rows", "edge_matcher", "edge_match_far_px", "edge_median",
+                "match_photometry",
                 "align_lidar", "denoise_lidar")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")

@@ -40,7 +40,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.baselines import lidar_nearest, make_sgbm
+from edge_depth.baselines import make_sgbm, nearest_valid_index
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import local_range, warped_cost
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
@@ -67,6 +67,15 @@ ROW_STEPS = (1, 2)   # StereoBM on every row, or every other row (half its time)
 # (docs/experiments.md: on Aloe past the SGBM + LiDAR fusion on both numbers)
 MATCHERS = ("bm", "sgbm")
 SGBM_BLOCK_PX = 5
+# Far from every LiDAR point the network's disparity rests on its stereo alone, which on real
+# pairs trails SGBM's (Aloe stereo only: bad-3 12.3 %): gated pixels farther than FAR_PX from
+# the nearest point take SGBM's checked match instead of StereoBM's, where it warps the right
+# view onto the left better — on frames where such pixels are at least FAR_MIN_SHARE of the
+# frame (a sparse map: 8-15 % with 12 or 8 rows; 0-3 % with 16 on the real pairs, up to 6 % on
+# the rig's), since SGBM over their rows costs the frame 10-15 ms with AVX2 kernels
+# (docs/experiments.md).
+FAR_PX = 12.0
+FAR_MIN_SHARE = 0.05
 
 
 @dataclass
@@ -86,6 +95,7 @@ class EdgeMatch:
     row_step: int = 1
     matcher: str = "bm"
     median: str = OFF  # or a pattern of edge_median.PATTERNS: the gate's weighted median
+    far_px: float = 0.0  # FAR_PX: SGBM's match for gated pixels this far from every point
 
     def __post_init__(self) -> None:
         if self.num_disparities < 0 or self.num_disparities % 16:
@@ -99,14 +109,18 @@ class EdgeMatch:
             self.point_margin = POINT_MARGIN if self._median is None else MEDIAN_POINT_MARGIN
         if self.min_texture is None:
             self.min_texture = MIN_TEXTURE if self._median is None else MEDIAN_MIN_TEXTURE
-        self._matchers: dict[int, cv2.StereoMatcher] = {}
+        if self.far_px < 0:
+            raise ConfigError("edge_match_far_px", "0 (off) or a distance in pixels", self.far_px)
+        self._matchers: dict[tuple[str, int], cv2.StereoMatcher] = {}
 
-    def _matcher(self, num_disparities: int) -> cv2.StereoMatcher:
-        if num_disparities not in self._matchers and self.matcher == "sgbm":
-            matcher = make_sgbm(num_disparities, SGBM_BLOCK_PX)  # the baseline's matcher,
-            matcher.setSpeckleWindowSize(100 // self.row_step)   # its speckle window per row
-            self._matchers[num_disparities] = matcher
-        if num_disparities not in self._matchers:  # a few counts per scene: kept
+    def _matcher(self, num_disparities: int, matcher: str = "") -> cv2.StereoMatcher:
+        """The block matcher (`matcher`, default the stage's) for a count, kept per count."""
+        key = (matcher or self.matcher, num_disparities)
+        if key not in self._matchers and key[0] == "sgbm":
+            sgbm = make_sgbm(num_disparities, SGBM_BLOCK_PX)  # the baseline's matcher,
+            sgbm.setSpeckleWindowSize(100 // self.row_step)   # its speckle window per row
+            self._matchers[key] = sgbm
+        if key not in self._matchers:  # a few counts per scene: kept
             matcher = cv2.StereoBM.create(numDisparities=num_disparities,
                                           blockSize=self.block_px)
             matcher.setTextureThreshold(10)
@@ -115,8 +129,8 @@ class EdgeMatch:
             matcher.setSpeckleWindowSize(100 // self.row_step)  # the same area of the frame
             matcher.setSpeckleRange(2)
             matcher.setPreFilterCap(31)
-            self._matchers[num_disparities] = matcher
-        return self._matchers[num_disparities]
+            self._matchers[key] = matcher
+        return self._matchers[key]
 
     def _count(self, num_disparities: int) -> int:
         """This call's count, or the stage's fixed one (one of them is required)."""
@@ -131,17 +145,18 @@ class EdgeMatch:
         return int(np.count_nonzero(disparity >= self._count(num_disparities) - 1))
 
     def matched(self, left: np.ndarray, right: np.ndarray,
-                num_disparities: int = 0) -> np.ndarray:
+                num_disparities: int = 0, matcher: str = "") -> np.ndarray:
         """The block matcher's disparity in px (StereoBM's, or SGBM's with `matcher` "sgbm"),
         (H, W) float32; 0 where it found no checked match.
         `num_disparities`: this call's count (required when the stage has none fixed). With
         `row_step` 2 it matches every other row (the columns, the disparity's own axis, at
-        full resolution) and each value also stands for the row below."""
+        full resolution) and each value also stands for the row below. `matcher`: "bm" or
+        "sgbm" instead of the stage's."""
         left, right = as_grey8(left), as_grey8(right)
         height = left.shape[0]
         if self.row_step > 1:
             left, right = left[::self.row_step], right[::self.row_step]
-        raw = self._matcher(self._count(num_disparities)).compute(left, right)
+        raw = self._matcher(self._count(num_disparities), matcher).compute(left, right)
         out = raw.astype(np.float32) * (1.0 / 16.0)
         out[raw <= 0] = 0.0
         if self.row_step > 1:
@@ -158,7 +173,9 @@ class EdgeMatch:
         if matched is None:
             matched = self.matched(left, right)
         prepared = self.prepare(left, right, disparity, confidence, sparse)
-        out, taken = self.finish(prepared, disparity, matched)
+        far = self.far_matched(left, right, prepared, self.num_disparities
+                               or disparities_for(disparity, disparity.shape[1]))
+        out, taken = self.finish(prepared, disparity, matched, far)
         return self.smooth(out, prepared), taken
 
     def prepare(self, left: np.ndarray, right: np.ndarray, disparity: np.ndarray,
@@ -175,31 +192,56 @@ class EdgeMatch:
         if terms is None:
             terms = self.pair_terms(left, right, sparse)
         network_cost = warped_cost(*terms.grey, disparity, (self.photo_window_px,))[0]
-        point_ok = None
+        point_ok = far = None
         if terms.point is not None and terms.texture is not None \
                 and terms.point_cost is not None:
             point_ok = gate & (terms.texture > float(self.min_texture or 0.0)) & \
                 (terms.point_cost < float(self.point_margin or 0.0) * network_cost)
-        return Prepared(gate, terms.grey, network_cost, terms.point, point_ok)
+        if self.far_px > 0 and terms.distance is not None:
+            far = gate & (terms.distance > self.far_px)
+            far = far if np.count_nonzero(far) >= FAR_MIN_SHARE * far.size else None
+        return Prepared(gate, terms.grey, network_cost, terms.point, point_ok, far)
 
     def pair_terms(self, left: np.ndarray, right: np.ndarray,
                    sparse: np.ndarray | None = None) -> PairTerms:
         """The choice's terms that need only the pair and the LiDAR, not the network: the grey
-        pair (float32), the nearest point's map, its 5×5 warp cost and the left image's
-        texture (the last three None without points)."""
+        pair (float32), the nearest point's map, its 5×5 warp cost, the left image's
+        texture and each pixel's distance to that point (the last four None without
+        points)."""
         grey = [np.asarray(im, np.float32) for im in (left, right)]
         if sparse is None or not (sparse > 0).any():
             return PairTerms(grey)
         window = (self.photo_window_px,)
-        point = lidar_nearest(sparse, sparse > 0)
+        valid = sparse > 0
+        index, distance = nearest_valid_index(valid)
+        point = sparse[valid].astype(np.float32)[index]
         gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
         texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
-        return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture)
+        return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture, distance)
 
-    def finish(self, prepared: Prepared | None, disparity: np.ndarray,
-               matched: np.ndarray) -> tuple[np.ndarray, int]:
-        """The choice: `prepare`'s gate and costs with StereoBM's answer (the median, a stage
-        of its own, is `smooth`)."""
+    def far_matched(self, left: np.ndarray, right: np.ndarray, prepared: Prepared | None,
+                    num_disparities: int) -> np.ndarray | None:
+        """SGBM's checked disparity (0: no match) over the rows and columns the gate's far
+        pixels span (`Prepared.far`), zeros elsewhere; None where there are none. The
+        columns reach `num_disparities` further left, so each far pixel sees its whole
+        range."""
+        if prepared is None or prepared.far is None:
+            return None
+        rows, cols = np.flatnonzero(prepared.far.any(1)), np.flatnonzero(prepared.far.any(0))
+        top = rows[0] - rows[0] % self.row_step  # on the row grid `matched` keeps
+        x0, x1 = max(0, int(cols[0]) - num_disparities), int(cols[-1]) + 1
+        if x1 - x0 <= num_disparities:  # SGBM needs columns beyond its count
+            x0, x1 = 0, left.shape[1]
+        box = (slice(top, int(rows[-1]) + 1), slice(x0, x1))
+        out = np.zeros(left.shape, np.float32)
+        out[box] = self.matched(left[box], right[box], num_disparities, "sgbm")
+        return out
+
+    def finish(self, prepared: Prepared | None, disparity: np.ndarray, matched: np.ndarray,
+               far_matched: np.ndarray | None = None) -> tuple[np.ndarray, int]:
+        """The choice: `prepare`'s gate and costs with StereoBM's answer, and far from the
+        LiDAR SGBM's (`far_matched`) instead (the median, a stage of its own, is
+        `smooth`)."""
         if prepared is None:
             return disparity.astype(np.float32, copy=True), 0
         found = matched > 0
@@ -213,6 +255,12 @@ class EdgeMatch:
             hole_take = prepared.point_ok & ~found
             out[hole_take] = prepared.point[hole_take]
             take |= hole_take
+        if prepared.far is not None and far_matched is not None:  # far from every point
+            far_take = prepared.far & (far_matched > 0) & \
+                (warped_cost(*prepared.grey, far_matched, (self.photo_window_px,))[0] <
+                 prepared.network_cost)
+            out[far_take] = far_matched[far_take]
+            take |= far_take
         return out, int(take.sum())
 
     def smooth(self, disparity: np.ndarray, prepared: Prepared | None) -> np.ndarray:
@@ -232,19 +280,22 @@ class PairTerms:
     point: np.ndarray | None = None
     point_cost: np.ndarray | None = None
     texture: np.ndarray | None = None
+    distance: np.ndarray | None = None  # px to the nearest point
 
 
 @dataclass
 class Prepared:
     """`EdgeMatch.prepare`'s answer: the gate, the grey pair (float32), the network's 5×5
-    warp cost, and the nearest point's map with where it may fill a hole (None without
-    LiDAR)."""
+    warp cost, the nearest point's map with where it may fill a hole (None without LiDAR),
+    and the gate's pixels far from every point (None: under FAR_MIN_SHARE of the frame, or
+    `far_px` off)."""
 
     gate: np.ndarray
     grey: list[np.ndarray]
     network_cost: np.ndarray
     point: np.ndarray | None
     point_ok: np.ndarray | None
+    far: np.ndarray | None = None
 
 
 def check_matcher(matcher: str) -> None:

@@ -216,7 +216,8 @@ class Engine:
         rows = " on every 2nd row" if m.row_step == 2 else ""
         sgbm = " with SGBM" if m.matcher == "sgbm" else ""
         median = f", weighted median {m.median}" if m.median != OFF else ""
-        return text + f", edge matching {count}{sgbm}{rows}{median}{source}"
+        far = f", SGBM beyond {m.far_px:g} px of the LiDAR" if m.far_px and not sgbm else ""
+        return text + f", edge matching {count}{sgbm}{rows}{median}{source}{far}"
 
     @property
     def size(self) -> tuple[int, int]:
@@ -456,7 +457,7 @@ def make_edge_match(options: EngineOptions, width: int) -> EdgeMatch | None:
     """The matching stage the resolved options ask for (None: off; EngineOptions has checked
     every value, off or not); ConfigError for a count as wide as the bundle's input."""
     settings = dict(row_step=options.edge_match_rows, matcher=options.edge_matcher,
-                    median=options.edge_median)
+                    median=options.edge_median, far_px=options.edge_match_far_px)
     count = options.edge_match
     if count == AUTO:  # the count per frame, from the network's own disparity
         return EdgeMatch(0, **settings)

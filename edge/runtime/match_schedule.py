@@ -9,7 +9,8 @@ the GIL, so it runs on the matching's own thread while the graphs run:
   with the count guessed from the disparity one step before the last, beside that step
   (after the encoder with a single step); should the final disparity need another count it
   matches again after the graphs (`starts` counts both);
-- otherwise after the graphs, beside the choice's preparation (`EdgeMatch.prepare`).
+- otherwise after the graphs, beside the choice's preparation (`EdgeMatch.prepare`) and,
+  where the gate reaches far from the LiDAR, SGBM's matching there (`EdgeMatch.far_matched`).
 
 With every core in the graphs, StereoBM beside them slowed them by as much as it saved, and
 beside the memory-bound upsampling by more (docs/experiments.md). The outputs are the same
@@ -111,6 +112,7 @@ class FrameMatch:
         # late (no guess, or a missed one): StereoBM matches while the choice prepares
         late = None if found is not None else schedule.submit(match.matched, *self.pair, count)
         prepared = match.prepare(*self.pair, disparity, confidence, self.sparse, terms)
+        far = match.far_matched(*self.pair, prepared, count)  # SGBM here, StereoBM beside it
         found = found if late is None else late.result()
-        out, taken = match.finish(prepared, disparity, found)
+        out, taken = match.finish(prepared, disparity, found, far)
         return out, taken, beyond, prepared

@@ -89,6 +89,12 @@ class EngineOptions:
     edge_matcher: str = _option("bm", "the matching's block matcher: bm (StereoBM) or sgbm "
                                 "(fewer holes, about SGBM's time more a frame)",
                                 choices=("bm", "sgbm"))
+    edge_match_far_px: float = _option(12.0, "on a sparse LiDAR map (its gated pixels this "
+                                       "far, in px, from every point are 5 % of the frame or "
+                                       "more), those take SGBM's checked match instead of "
+                                       "StereoBM's where it explains the pair better: there "
+                                       "the network has only its stereo; 0 = off",
+                                       bounds=(0.0, 10_000.0))
     edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the matching's "
                                'gate (window/step), or off; "bundle" (the shipped one: 9x9/2)',
                                choices=(BUNDLE, "off", *MEDIAN_PATTERNS))
