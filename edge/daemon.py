@@ -336,6 +336,8 @@ class Pipeline:
             timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
         if result.match_beyond_px is not None:  # ... and the share beyond its reach
             timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
+        if result.match_far_px is not None:  # ... and far from the LiDAR, SGBM's (sparse maps)
+            timings["match_far_pct"] = 100.0 * result.match_far_px / result.disparity.size
         if result.photometry_change is not None:  # [engine] match_photometry
             timings["photometry_change"] = result.photometry_change
         if result.lidar_noise_px is not None:  # [engine] align_lidar, denoise_lidar

@@ -15,8 +15,8 @@ from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 
 # per-frame values in the timings that are not ms
 NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
-               "match_beyond_pct", "photometry_change", "lidar_put_back", "lidar_dx_px",
-               "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
+               "match_beyond_pct", "match_far_pct", "photometry_change", "lidar_put_back",
+               "lidar_dx_px", "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
               "matched_pct": "Edge matching"}
@@ -49,6 +49,12 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "of a frame's pixels; StereoBM cannot match there): raise [engine] "
                      "edge_match to a multiple of 16 above the scene's largest disparity, or "
                      "set it to \"auto\" (each frame's count from the network's own)")
+    far = replaced_shares(timings, "match_far_pct")
+    if sparse := [f for f in far if f > 0]:
+        lines.append(f"Edge matching: the LiDAR map left {np.median(sparse):.1f} % of the frame "
+                     f"(median) unsure and far from every point in {len(sparse)} of {len(far)} "
+                     "frames; SGBM matched those pixels (a sparse map: it costs SGBM's time "
+                     "over their rows; [engine] edge_match_far_px = 0 turns it off)")
     changes = replaced_shares(timings, "photometry_change")
     if matched := sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD):  # none: nothing to say
         lines.append(f"Photometry: the right image matched to the left's grey levels in "

@@ -233,6 +233,8 @@ class Runner:
                                          replaced_shares(window, "matched_pct")],
                 edge_match_beyond_pct=[round(s, 2) for s in
                                        replaced_shares(window, "match_beyond_pct")],
+                edge_match_far_pct=[round(s, 2) for s in
+                                    replaced_shares(window, "match_far_pct")],
                 photometry_change=[round(s, 1) for s in
                                    replaced_shares(window, "photometry_change")],
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],

@@ -122,7 +122,9 @@ class DepthResult:
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
     replaced by a side's value (None when it did not run). matched_px: pixels the
     full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
-    match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off).
+    match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off);
+    match_far_px: its gated pixels far from every LiDAR point that SGBM matched (0: a map
+    dense enough that it did not run; None when off).
     photometry_change: the grey levels the photometric match moves the right image by, on
     average (`edge.runtime.photometry`; above its threshold the match was made), None when not
     measured.
@@ -144,6 +146,7 @@ class DepthResult:
     edge_px: int | None = None
     matched_px: int | None = None
     match_beyond_px: int | None = None
+    match_far_px: int | None = None
     photometry_change: float | None = None
     lidar_offset: Any = None
     lidar_noise_px: float | None = None

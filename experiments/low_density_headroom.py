@@ -4,7 +4,8 @@ For each scene folder: the engine's output (the shipped bundle, ONNX Runtime, in
 iterations) and OpenCV SGBM's (the fusion's), each pixel's distance to the nearest LiDAR point
 and whether it lies within 2 px of a depth edge of the ground truth (a 1 px step). Prints the
 engine's bad-3 split by those, and the share of its bad pixels that SGBM matched within 3 px.
-    python experiments/low_density_headroom.py data/aloe data/aloe_r8 data/motorcycle data/motorcycle_r8
+    python experiments/low_density_headroom.py data/aloe data/aloe_r8 data/motorcycle \
+        data/motorcycle_r8
 """
 
 from __future__ import annotations
@@ -15,8 +16,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from edge_depth.baselines import (make_sgbm, nearest_valid_index, sgbm_disparities_for,
-                                  sgbm_disparity)
+from edge_depth.baselines import (
+    make_sgbm,
+    nearest_valid_index,
+    sgbm_disparities_for,
+    sgbm_disparity,
+)
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.options import EngineOptions
 from edge_depth.sim.folder import read_scene_folder
@@ -42,21 +47,23 @@ def main() -> None:
         gt = scene.disp
         known = np.isfinite(gt) & (gt > 0)
         net = engine.infer(scene.left, scene.right, scene.sparse, iters=4).disparity
-        sgbm = sgbm_disparity(scene.left, scene.right, make_sgbm(sgbm_disparities_for(float(gt[known].max()))))
+        matcher = make_sgbm(sgbm_disparities_for(float(gt[known].max())))
+        sgbm = sgbm_disparity(scene.left, scene.right, matcher)
         _, dist = nearest_valid_index(scene.sparse > 0)
         edges = depth_edges(gt)
         bad = known & (np.abs(net - gt) > 3)
         sgbm_good = known & (sgbm > 0) & (np.abs(sgbm - gt) <= 3)
         n = known.sum()
-        print(f"\n{folder.name}: engine bad-3 {100 * bad.sum() / n:.2f} %, SGBM matched within 3 px "
-              f"on {100 * (bad & sgbm_good).sum() / max(bad.sum(), 1):.0f} % of those")
+        print(f"\n{folder.name}: engine bad-3 {100 * bad.sum() / n:.2f} %, SGBM matched within "
+              f"3 px on {100 * (bad & sgbm_good).sum() / max(bad.sum(), 1):.0f} % of those")
         for name, part in (("near a depth edge", edges), ("away from edges", ~edges)):
             print(f"  {name:18s} {100 * (part & known).sum() / n:5.1f} % of pixels, "
                   f"bad-3 {100 * (bad & part).sum() / n:.2f} points, SGBM right on "
                   f"{100 * (bad & part & sgbm_good).sum() / n:.2f}")
         for lo, hi in ((0, 4), (4, 12), (12, 25), (25, 1e9)):
             part = (dist >= lo) & (dist < hi)
-            print(f"  LiDAR {lo:>2.0f}-{hi:<4.0f}px away {100 * (part & known).sum() / n:5.1f} % of pixels, "
+            print(f"  LiDAR {lo:>2.0f}-{hi:<4.0f}px away "
+                  f"{100 * (part & known).sum() / n:5.1f} % of pixels, "
                   f"bad-3 {100 * (bad & part).sum() / n:.2f} points, SGBM right on "
                   f"{100 * (bad & part & sgbm_good).sum() / n:.2f}")
 

@@ -48,3 +48,17 @@ def test_without_depthai_the_oak_names_its_extra_in_one_line(monkeypatch, capsys
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "depthai" in err and "edge-depth[oak]" in err
     assert not (tmp_path / "o.mcap").exists()
+
+
+def test_every_subcommands_help_renders(capsys):
+    # an option's doc with a bare "%" broke argparse's help (its own % formatting)
+    from edge_depth.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.choices and "replay" in a.choices)
+    for name, command in sub.choices.items():
+        if name in TOOL_COMMANDS:
+            continue  # the tools parse their own arguments (the test above)
+        text = command.format_help()
+        assert text.startswith(f"usage: edge-depth {name}"), name
+    assert "5 % of the frame" in sub.choices["replay"].format_help()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.edge_match import EdgeMatch, disparities_for, parse_count
+from edge_depth.runtime.edge_match import FAR_PX, EdgeMatch, disparities_for, parse_count
 
 BAR = slice(150, 162)      # a thin foreground bar's columns in the left view
 BACKGROUND, FOREGROUND = 10, 30
@@ -100,6 +100,36 @@ def test_the_lidar_point_fills_the_matchers_holes_where_the_image_has_texture():
              for im in (left, right)]
     _, faint_count = stage.apply(*faint, network, confidence, lidar_rows(gt), matched=nothing)
     assert faint_count == 0
+
+
+def test_far_from_every_point_sgbms_match_stands_in_on_a_sparse_map():
+    left, right, gt, network, confidence = thin_bar_pair()
+    nothing = np.zeros_like(gt)          # StereoBM found nothing: only SGBM's match can help
+    sparse = np.zeros_like(gt)
+    sparse[:30:10, :100] = gt[:30:10, :100]   # points on the wall, far from the bar
+    inner = (slice(60, 180), slice(BAR.start + 2, BAR.stop - 2))
+    far, taken = EdgeMatch(64, far_px=FAR_PX).apply(left, right, network, confidence, sparse,
+                                                    matched=nothing)
+    off, off_taken = EdgeMatch(64).apply(left, right, network, confidence, sparse,
+                                         matched=nothing)
+    assert np.mean(np.abs(far[inner] - FOREGROUND) < 1.0) > 0.8     # SGBM's 30 px
+    assert np.mean(np.abs(off[inner] - FOREGROUND) < 1.0) < 0.5     # the network's blur
+    assert taken > off_taken
+    sure = confidence >= 0.9
+    np.testing.assert_array_equal(far[sure], network[sure])          # only inside the gate
+    # a map that reaches every gated pixel within 12 px, or leaves under FAR_MIN_SHARE of the
+    # frame beyond it, is matched as without the option
+    for points in (lidar_rows(gt, every=20), lidar_rows(gt, every=20)[:180]):
+        dense = np.zeros_like(gt)
+        dense[:len(points)] = points
+        beyond = EdgeMatch(64, far_px=FAR_PX).prepare(left, right, network, confidence, dense)
+        assert beyond is not None and beyond.far is None
+        with_far = EdgeMatch(64, far_px=FAR_PX).apply(left, right, network, confidence, dense,
+                                                      matched=nothing)
+        without = EdgeMatch(64).apply(left, right, network, confidence, dense, matched=nothing)
+        np.testing.assert_array_equal(with_far[0], without[0])
+    with pytest.raises(ConfigError, match="edge_match_far_px"):
+        EdgeMatch(64, far_px=-1.0)
 
 
 @pytest.mark.parametrize("count", [-16, 50])
@@ -293,6 +323,27 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
         "of 2 frames (up to 12.5 % of a frame's pixels; StereoBM cannot match there): raise "
         "[engine] edge_match to a multiple of 16 above the scene's largest disparity, or set "
         "it to \"auto\" (each frame's count from the network's own)")
+    # SGBM far from the LiDAR: said where it ran, with the share of the frame it matched
+    timings[0]["match_far_pct"], timings[1]["match_far_pct"] = 0.0, 0.0
+    assert set(summarise(timings)) == {"engine", "edge_match"}
+    assert "far from every point" not in selection_summary(timings)
+    timings[0]["match_far_pct"] = 9.5
+    assert selection_summary(timings).splitlines()[2].startswith(
+        "Edge matching: the LiDAR map left 9.5 % of the frame (median) unsure and far from "
+        "every point in 1 of 2 frames; SGBM matched those pixels")
+
+
+def test_a_sparse_map_reports_what_sgbm_matched_far_from_it(engine):
+    left, right, gt, _, _ = thin_bar_pair()
+    h, w = engine.size
+    left, right, gt = (cv2.resize(a, (w, h), interpolation=cv2.INTER_NEAREST)
+                       for a in (left, right, gt))
+    sparse = np.zeros_like(gt)
+    sparse[:40:10, :120] = gt[:40:10, :120]      # a few rows on one side: a sparse map
+    far = engine.infer(left, right, sparse)
+    dense = engine.infer(left, right, lidar_rows(gt, every=8))
+    assert far.match_far_px is not None and far.match_far_px >= 0.05 * gt.size
+    assert dense.match_far_px == 0
 
 
 def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recording, tmp_path,

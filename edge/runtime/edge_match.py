@@ -121,15 +121,14 @@ class EdgeMatch:
             sgbm.setSpeckleWindowSize(100 // self.row_step)   # its speckle window per row
             self._matchers[key] = sgbm
         if key not in self._matchers:  # a few counts per scene: kept
-            matcher = cv2.StereoBM.create(numDisparities=num_disparities,
-                                          blockSize=self.block_px)
-            matcher.setTextureThreshold(10)
-            matcher.setUniquenessRatio(15)
-            matcher.setDisp12MaxDiff(1)
-            matcher.setSpeckleWindowSize(100 // self.row_step)  # the same area of the frame
-            matcher.setSpeckleRange(2)
-            matcher.setPreFilterCap(31)
-            self._matchers[key] = matcher
+            bm = cv2.StereoBM.create(numDisparities=num_disparities, blockSize=self.block_px)
+            bm.setTextureThreshold(10)
+            bm.setUniquenessRatio(15)
+            bm.setDisp12MaxDiff(1)
+            bm.setSpeckleWindowSize(100 // self.row_step)  # the same area of the frame
+            bm.setSpeckleRange(2)
+            bm.setPreFilterCap(31)
+            self._matchers[key] = bm
         return self._matchers[key]
 
     def _count(self, num_disparities: int) -> int:

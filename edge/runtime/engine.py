@@ -28,6 +28,7 @@ from edge_depth.runtime.backends import (
 )
 from edge_depth.runtime.edge_match import (
     AUTO,
+    FAR_PX,
     EdgeMatch,
     Prepared,
 )
@@ -202,7 +203,8 @@ class Engine:
 
     def describe(self) -> str:
         """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
-        median 9x9/2 (the bundle's)': what runs, for the first log line."""
+        median 9x9/2 (the bundle's)': what runs, for the first log line (defaults that go
+        without saying: the "budget" scale, SGBM FAR_PX from the LiDAR on sparse maps)."""
         text = f"{self.precision} on {self.runtime}" + \
             (" (bf16 encoder)" if self.bf16_encoder else "") + \
             (" (int8 encoder)" if self.int8_encoder else "")
@@ -216,7 +218,9 @@ class Engine:
         rows = " on every 2nd row" if m.row_step == 2 else ""
         sgbm = " with SGBM" if m.matcher == "sgbm" else ""
         median = f", weighted median {m.median}" if m.median != OFF else ""
-        far = f", SGBM beyond {m.far_px:g} px of the LiDAR" if m.far_px and not sgbm else ""
+        far = f", SGBM beyond {m.far_px:g} px of the LiDAR" if m.far_px else \
+            ", SGBM far from the LiDAR off"
+        far = "" if m.far_px == FAR_PX or sgbm else far
         return text + f", edge matching {count}{sgbm}{rows}{median}{source}{far}"
 
     @property
@@ -410,8 +414,8 @@ class Engine:
         if matching is None or confidence is None:
             return disp, None
         t = time.perf_counter()
-        disp, taken, beyond, prepared = matching.finish(disp, confidence)
-        frame.counts.update(matched_px=taken, match_beyond_px=beyond)
+        disp, taken, beyond, far, prepared = matching.finish(disp, confidence)
+        frame.counts.update(matched_px=taken, match_beyond_px=beyond, match_far_px=far)
         frame.stage("edge_match", t)
         return disp, prepared
 
@@ -435,7 +439,8 @@ class _Frame:
     record: dict[str, list] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
-        selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None))
+        selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None,
+        match_far_px=None))
     steps: int = 0
     photometry_change: float | None = None  # grey levels the match moves the right image by
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for

@@ -92,9 +92,10 @@ class FrameMatch:
             self.early = self._start(self.schedule.guess_count(disparity))
 
     def finish(self, disparity: np.ndarray, confidence: np.ndarray
-               ) -> tuple[np.ndarray, int, int, Prepared | None]:
+               ) -> tuple[np.ndarray, int, int, int, Prepared | None]:
         """(disparity with the matched pixels taken, pixels taken, pixels beyond the count,
-        the choice's preparation for the median), waiting for StereoBM if it still runs."""
+        the gate's pixels SGBM matched far from the LiDAR (0: it did not run), the choice's
+        preparation for the median), waiting for StereoBM if it still runs."""
         schedule, match = self.schedule, self.schedule.match
         count = match.num_disparities or disparities_for(disparity, disparity.shape[1])
         beyond = match.beyond_px(disparity, count)
@@ -115,4 +116,6 @@ class FrameMatch:
         far = match.far_matched(*self.pair, prepared, count)  # SGBM here, StereoBM beside it
         found = found if late is None else late.result()
         out, taken = match.finish(prepared, disparity, found, far)
-        return out, taken, beyond, prepared
+        far_px = 0 if far is None or prepared is None or prepared.far is None \
+            else int(np.count_nonzero(prepared.far))
+        return out, taken, beyond, far_px, prepared

@@ -225,7 +225,7 @@ def add_engine_arguments(parser: argparse.ArgumentParser, only: tuple[str, ...] 
         if only is not None and f.name not in only:
             continue
         default = defaults.get(f.name, f.default)
-        help_ = f"{f.metadata['doc']} (default: {default!r})"
+        help_ = f"{f.metadata['doc']} (default: {default!r})".replace("%", "%%")  # argparse's
         if isinstance(f.default, bool):
             parser.add_argument(flag(f.name), action=argparse.BooleanOptionalAction,
                                 default=None, help=help_)
