@@ -196,8 +196,8 @@ class EdgeMatch:
                 and terms.point_cost is not None:
             point_ok = gate & (terms.texture > float(self.min_texture or 0.0)) & \
                 (terms.point_cost < float(self.point_margin or 0.0) * network_cost)
-        if self.far_px > 0:  # without points every pixel is far from them
-            far = gate if terms.distance is None else gate & (terms.distance > self.far_px)
+        if self.far_px > 0 and terms.distance is not None:  # frames with points only
+            far = gate & (terms.distance > self.far_px)
             far = far if np.count_nonzero(far) >= FAR_MIN_SHARE * far.size else None
         return Prepared(gate, terms.grey, network_cost, terms.point, point_ok, far)
 
