@@ -231,7 +231,8 @@ def open_sources(config, max_frames: int | None = None):
     if cam.source == "sim":
         w, h = cam.size
         sim = SimSource(max_frames or 10**9, 1_000_000, RigConfig(width=w, height=h),
-                        period_ms=1000.0 / cam.fps, realtime=True, distinct=SIM_SCENES)
+                        lidar=lid.sim_pattern, period_ms=1000.0 / cam.fps, realtime=True,
+                        distinct=SIM_SCENES)
         if stereo is None:
             stereo, lidar = sim.calibration
         if lid.model == "none":

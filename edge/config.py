@@ -10,6 +10,8 @@
     model = "ld06"              #        "sim" (with camera.source = "sim") | "none"
     port = "/dev/ttyUSB0"       # anything serial_for_url opens
     baudrate = 0                # 0 = the model's default
+    sim_pattern = "beams16"     # model "sim": "beams16" | "beams32" | "beams64" | "planar"
+                                # (one scan line, as an LD06's)
 
     [calibration]
     file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
@@ -73,6 +75,7 @@ class LidarConfig:
     model: str = "ld06"
     port: str = "/dev/ttyUSB0"
     baudrate: int = 0
+    sim_pattern: str = "beams16"  # edge.sim.lidar.PATTERNS' names
 
 
 @dataclass(frozen=True)
@@ -133,6 +136,7 @@ class RobotConfig:
 CHOICES = {
     ("camera", "source"): ("oak", "sim"),
     ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
+    ("lidar", "sim_pattern"): ("beams16", "beams32", "beams64", "planar"),
     ("sync", "mode"): ("auto", "nearest", "accumulate"),
     ("log", "compression"): ("lz4", "zstd", "none"),
     ("log", "profile"): ("foxglove", "ros2"),

@@ -45,6 +45,7 @@ def write(tmp_path, text, name="robot.toml"):
     ("[engine]\nbatch = 4\n", "engine.batch"),
     ("[motors]\n", "motors"),
     ("[camera]\nsource = 'oak'\n[lidar]\nmodel = 'sim'\n", "lidar.model"),
+    ("[lidar]\nsim_pattern = 'velodyne'\n", "lidar.sim_pattern"),
     # values that are the right type but cannot be meant (tracebacks or hangs)
     ("[camera]\nfps = 1e-300\n", "camera.fps"),
     ("[camera]\nfps = 1e-3\n", "camera.fps"),
@@ -129,6 +130,21 @@ def test_the_log_writes_only_the_result_topics_asked_for(tmp_path, capsys, monke
     bad = write(tmp_path, SIM.format(out=out) + 'results = ["depth", "dsiparity"]\n')
     with pytest.raises(ConfigError, match="log.results: expected a list of sparse, disparity"):
         load_robot_config(bad)
+
+
+def test_a_planar_sim_lidar_makes_a_sparse_map_the_matching_says_it_served(tmp_path, capsys):
+    from edge_depth.sim.lidar import PATTERNS
+
+    assert set(load_robot_config.__globals__["CHOICES"][("lidar", "sim_pattern")]) == \
+        set(PATTERNS)
+    cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap").replace(
+        'model = "sim"', 'model = "sim"\nsim_pattern = "planar"'))
+    assert main(["run", "--config", str(cfg), "--max-frames", "3"]) == 0
+    text = capsys.readouterr().out
+    # one scan line leaves most of the frame far from every point: SGBM matched there
+    far = re.search(r"Edge matching: the LiDAR map left ([0-9.]+) % of the frame \(median\) "
+                    r"unsure and far from every point in ([0-9]) of 3 frames", text)
+    assert far and float(far[1]) >= 5.0 and int(far[2]) >= 1
 
 
 def test_record_then_replay(tmp_path, capsys):
