@@ -130,6 +130,12 @@ def test_far_from_every_point_sgbms_match_stands_in_on_a_sparse_map():
         np.testing.assert_array_equal(with_far[0], without[0])
     with pytest.raises(ConfigError, match="edge_match_far_px"):
         EdgeMatch(64, far_px=-1.0)
+    # SGBM as the matcher has SGBM's match there already; the engine's default is FAR_PX
+    assert EdgeMatch(64, far_px=FAR_PX, matcher="sgbm").prepare(
+        left, right, network, confidence, sparse).far is None
+    from edge_depth.runtime.options import EngineOptions
+
+    assert EngineOptions().edge_match_far_px == FAR_PX
 
 
 @pytest.mark.parametrize("count", [-16, 50])

@@ -12,6 +12,9 @@ the frame's pixels on motorcycle), the LiDAR's nearest point is the second candi
 where the left image has texture (5×5 mean |∂x| above `min_texture`) and the point warps the
 right view onto the left clearly better (cost below `point_margin` × the network's).
 Everything else keeps the network's value; frames without points get the block matching alone.
+On a sparse LiDAR map (`far_px`: the gated pixels over FAR_PX from every point are
+FAR_MIN_SHARE of the frame or more), those take SGBM's checked match instead, by the same warp
+test: far from every point the network has only its stereo, which on real pairs trails SGBM's.
 With `median` (the shipped bundle's "9x9/2") the gate then goes through a
 grey-guided weighted median (`edge.runtime.edge_median`), which cleans the choice's
 pixel-by-pixel mix, and the point's gate is looser (`MEDIAN_POINT_MARGIN`,
@@ -72,8 +75,8 @@ SGBM_BLOCK_PX = 5
 # the nearest point take SGBM's checked match instead of StereoBM's, where it warps the right
 # view onto the left better — on frames where such pixels are at least FAR_MIN_SHARE of the
 # frame (a sparse map: 8-15 % with 12 or 8 rows; 0-3 % with 16 on the real pairs, up to 6 % on
-# the rig's), since SGBM over their rows costs the frame 10-15 ms with AVX2 kernels
-# (docs/experiments.md).
+# the rig's), since SGBM over their rows costs the frame 10-12 ms with AVX2 kernels
+# (docs/experiments.md). With SGBM as the matcher (`matcher` "sgbm") they have its match already.
 FAR_PX = 12.0
 FAR_MIN_SHARE = 0.05
 
@@ -196,7 +199,7 @@ class EdgeMatch:
                 and terms.point_cost is not None:
             point_ok = gate & (terms.texture > float(self.min_texture or 0.0)) & \
                 (terms.point_cost < float(self.point_margin or 0.0) * network_cost)
-        if self.far_px > 0 and terms.distance is not None:  # frames with points only
+        if self.far_px > 0 and self.matcher != "sgbm" and terms.distance is not None:
             far = gate & (terms.distance > self.far_px)
             far = far if np.count_nonzero(far) >= FAR_MIN_SHARE * far.size else None
         return Prepared(gate, terms.grey, network_cost, terms.point, point_ok, far)
