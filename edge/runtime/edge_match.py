@@ -79,6 +79,10 @@ SGBM_BLOCK_PX = 5
 # (docs/experiments.md). With SGBM as the matcher (`matcher` "sgbm") they have its match already.
 FAR_PX = 12.0
 FAR_MIN_SHARE = 0.05
+# A frame without points is far from them everywhere; there SGBM's match is taken only where
+# it is itself smooth (its 5x5 range at most this, px): on the rig, where the network is at
+# home, SGBM's wrong matches are its speckle (docs/experiments.md)
+FAR_SMOOTH_PX = 2.0
 
 
 @dataclass
@@ -199,10 +203,11 @@ class EdgeMatch:
                 and terms.point_cost is not None:
             point_ok = gate & (terms.texture > float(self.min_texture or 0.0)) & \
                 (terms.point_cost < float(self.point_margin or 0.0) * network_cost)
-        if self.far_px > 0 and self.matcher != "sgbm" and terms.distance is not None:
-            far = gate & (terms.distance > self.far_px)
+        if self.far_px > 0 and self.matcher != "sgbm":  # without points: far everywhere
+            far = gate if terms.distance is None else gate & (terms.distance > self.far_px)
             far = far if np.count_nonzero(far) >= FAR_MIN_SHARE * far.size else None
-        return Prepared(gate, terms.grey, network_cost, terms.point, point_ok, far)
+        return Prepared(gate, terms.grey, network_cost, terms.point, point_ok, far,
+                        far_smooth_only=terms.distance is None)
 
     def pair_terms(self, left: np.ndarray, right: np.ndarray,
                    sparse: np.ndarray | None = None) -> PairTerms:
@@ -261,6 +266,8 @@ class EdgeMatch:
             far_take = prepared.far & (far_matched > 0) & \
                 (warped_cost(*prepared.grey, far_matched, (self.photo_window_px,))[0] <
                  prepared.network_cost)
+            if prepared.far_smooth_only:
+                far_take &= local_range(far_matched, self.window_px) <= FAR_SMOOTH_PX
             out[far_take] = far_matched[far_take]
             take |= far_take
         return out, int(take.sum())
@@ -298,6 +305,7 @@ class Prepared:
     point: np.ndarray | None
     point_ok: np.ndarray | None
     far: np.ndarray | None = None
+    far_smooth_only: bool = False  # no points: SGBM's match only where it is smooth
 
 
 def check_matcher(matcher: str) -> None:
