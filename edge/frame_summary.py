@@ -51,10 +51,10 @@ def selection_summary(timings: list[dict]) -> str | None:
                      "set it to \"auto\" (each frame's count from the network's own)")
     far = replaced_shares(timings, "match_far_pct")
     if sparse := [f for f in far if f > 0]:
-        lines.append(f"Edge matching: the LiDAR map left {np.median(sparse):.1f} % of the frame "
-                     f"(median) unsure and far from every point in {len(sparse)} of {len(far)} "
-                     "frames; SGBM matched those pixels (a sparse map: it costs SGBM's time "
-                     "over their rows; [engine] edge_match_far_px = 0 turns it off)")
+        lines.append(f"Edge matching: SGBM matched the unsure pixels far from every LiDAR point "
+                     f"(a sparse map, or none) in {len(sparse)} of {len(far)} frames, a median "
+                     f"{np.median(sparse):.1f} % of the frame (it costs SGBM's time over their "
+                     "rows; [engine] edge_match_far_px = 0 turns it off)")
     changes = replaced_shares(timings, "photometry_change")
     if matched := sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD):  # none: nothing to say
         lines.append(f"Photometry: the right image matched to the left's grey levels in "

@@ -4,7 +4,7 @@ bench's rig frames and sparser real pairs); median ms of the engine and its matc
 per folder, and the share of frames where it acted.
 
     bash experiments/avx2_kernels.sh python experiments/far_match_cost.py data/test16 \\
-        data/aloe data/aloe_r8 [--frames 12]
+        data/aloe data/aloe_r8 [--frames 12] [--no-lidar]
 """
 
 from __future__ import annotations
@@ -13,6 +13,8 @@ import argparse
 import statistics
 import time
 from pathlib import Path
+
+import numpy as np
 
 from edge_depth.runtime.backends import cpu_description
 from edge_depth.runtime.edge_match import FAR_PX
@@ -24,6 +26,7 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("folders", nargs="+", type=Path)
     p.add_argument("--frames", type=int, default=12, help="frames per folder and setting")
+    p.add_argument("--no-lidar", action="store_true", help="the frames without their points")
     args = p.parse_args()
     cpu = cpu_description()
     print(f"# {cpu['model']}, {' '.join(cpu['isa'])}")
@@ -42,7 +45,8 @@ def main() -> None:
             taken = {}
             for name, engine in engines.items():
                 t = time.perf_counter()
-                result = engine.infer(s.left, s.right, s.sparse)
+                sparse = np.zeros_like(s.sparse) if args.no_lidar else s.sparse
+                result = engine.infer(s.left, s.right, sparse)
                 times[name]["engine"].append((time.perf_counter() - t) * 1000)
                 times[name]["edge_match"].append(result.timings_ms.get("edge_match", 0.0))
                 taken[name] = result.disparity

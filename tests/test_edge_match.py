@@ -4,6 +4,8 @@ bundle, or the caller)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 import pytest
@@ -128,6 +130,20 @@ def test_far_from_every_point_sgbms_match_stands_in_on_a_sparse_map():
                                                       matched=nothing)
         without = EdgeMatch(64).apply(left, right, network, confidence, dense, matched=nothing)
         np.testing.assert_array_equal(with_far[0], without[0])
+    # a frame without points is far from them everywhere: SGBM's match where it is smooth
+    alone, alone_taken = EdgeMatch(64, far_px=FAR_PX).apply(left, right, network, confidence,
+                                                            None, matched=nothing)
+    assert np.mean(np.abs(alone[inner] - FOREGROUND) < 1.0) > 0.8 and alone_taken > 0
+    np.testing.assert_array_equal(alone[sure], network[sure])
+    stage = EdgeMatch(64, far_px=FAR_PX)
+    prepared = stage.prepare(left, right, network, confidence, None)
+    assert prepared is not None and prepared.far_smooth_only
+    speckle = gt.copy()
+    speckle[::3, ::3] += 12.0          # SGBM right but for a speckle in every 3 x 3 block
+    _, rough = stage.finish(prepared, network, nothing, speckle)
+    _, trusted = stage.finish(replace(prepared, far_smooth_only=False), network, nothing,
+                              speckle)
+    assert rough == 0 < trusted        # its speckle keeps it out where there are no points
     with pytest.raises(ConfigError, match="edge_match_far_px"):
         EdgeMatch(64, far_px=-1.0)
     # SGBM as the matcher has SGBM's match there already; the engine's default is FAR_PX
@@ -335,8 +351,8 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
     assert "far from every point" not in selection_summary(timings)
     timings[0]["match_far_pct"] = 9.5
     assert selection_summary(timings).splitlines()[2].startswith(
-        "Edge matching: the LiDAR map left 9.5 % of the frame (median) unsure and far from "
-        "every point in 1 of 2 frames; SGBM matched those pixels")
+        "Edge matching: SGBM matched the unsure pixels far from every LiDAR point (a sparse "
+        "map, or none) in 1 of 2 frames, a median 9.5 % of the frame")
 
 
 def test_a_sparse_map_reports_what_sgbm_matched_far_from_it(engine):

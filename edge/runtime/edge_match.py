@@ -15,6 +15,8 @@ Everything else keeps the network's value; frames without points get the block m
 On a sparse LiDAR map (`far_px`: the gated pixels over FAR_PX from every point are
 FAR_MIN_SHARE of the frame or more), those take SGBM's checked match instead, by the same warp
 test: far from every point the network has only its stereo, which on real pairs trails SGBM's.
+A frame without points is far from them everywhere; there SGBM's match must also be smooth
+(`FAR_SMOOTH_PX`).
 With `median` (the shipped bundle's "9x9/2") the gate then goes through a
 grey-guided weighted median (`edge.runtime.edge_median`), which cleans the choice's
 pixel-by-pixel mix, and the point's gate is looser (`MEDIAN_POINT_MARGIN`,

@@ -93,7 +93,8 @@ class EngineOptions:
                                        "far, in px, from every point are 5 % of the frame or "
                                        "more), those take SGBM's checked match instead of "
                                        "StereoBM's where it explains the pair better: there "
-                                       "the network has only its stereo; 0 = off",
+                                       "the network has only its stereo; on a frame without "
+                                       "points, where SGBM's match is also smooth; 0 = off",
                                        bounds=(0.0, 10_000.0))
     edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the matching's "
                                'gate (window/step), or off; "bundle" (the shipped one: 9x9/2)',
