@@ -32,8 +32,14 @@ def lidar_nearest(sparse: np.ndarray, valid: np.ndarray) -> np.ndarray:
     """Each pixel takes the disparity of the nearest valid sparse pixel; (H, W) float32."""
     if not valid.any():
         return np.zeros_like(sparse, np.float32)
-    index, _ = nearest_valid_index(valid)
-    return sparse[valid].astype(np.float32)[index]
+    return nearest_point(sparse, valid)[0]
+
+
+def nearest_point(sparse: np.ndarray, valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """`lidar_nearest`'s map and each pixel's distance to that point (px): (H, W) float32
+    each. `valid` must have at least one True."""
+    index, distance = nearest_valid_index(valid)
+    return sparse[valid].astype(np.float32)[index], distance
 
 
 def nearest_valid_index(valid: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -45,7 +45,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.baselines import make_sgbm, nearest_valid_index
+from edge_depth.baselines import make_sgbm, nearest_point
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.cells import local_range, warped_cost
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
@@ -147,6 +147,11 @@ class EdgeMatch:
             raise ValueError("EdgeMatch(0) takes its disparity count per call")
         return count
 
+    def count_for(self, disparity: np.ndarray) -> int:
+        """The disparity count a frame's matching runs with: the stage's fixed one, or
+        "auto"'s from the network's final `disparity` (`disparities_for`)."""
+        return self.num_disparities or disparities_for(disparity, disparity.shape[1])
+
     def beyond_px(self, disparity: np.ndarray, num_disparities: int = 0) -> int:
         """Pixels whose disparity StereoBM cannot reach (≥ the count − 1): a count too small
         for the scene fails there without a sound, so the daemon counts it."""
@@ -181,8 +186,7 @@ class EdgeMatch:
         if matched is None:
             matched = self.matched(left, right)
         prepared = self.prepare(left, right, disparity, confidence, sparse)
-        far = self.far_matched(left, right, prepared, self.num_disparities
-                               or disparities_for(disparity, disparity.shape[1]))
+        far = self.far_matched(left, right, prepared, self.count_for(disparity))
         out, taken = self.finish(prepared, disparity, matched, far)
         return self.smooth(out, prepared), taken
 
@@ -221,9 +225,7 @@ class EdgeMatch:
         if sparse is None or not (sparse > 0).any():
             return PairTerms(grey)
         window = (self.photo_window_px,)
-        valid = sparse > 0
-        index, distance = nearest_valid_index(valid)
-        point = sparse[valid].astype(np.float32)[index]
+        point, distance = nearest_point(sparse, sparse > 0)
         gradient = np.abs(cv2.Sobel(grey[0], cv2.CV_32F, 1, 0, ksize=1, scale=0.5))
         texture = cv2.blur(gradient, window * 2)  # mean |d/dx| in the window
         return PairTerms(grey, point, warped_cost(*grey, point, window)[0], texture, distance)

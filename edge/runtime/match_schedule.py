@@ -97,7 +97,7 @@ class FrameMatch:
         the gate's pixels SGBM matched far from the LiDAR (0: it did not run), the choice's
         preparation for the median), waiting for StereoBM if it still runs."""
         schedule, match = self.schedule, self.schedule.match
-        count = match.num_disparities or disparities_for(disparity, disparity.shape[1])
+        count = match.count_for(disparity)
         beyond = match.beyond_px(disparity, count)
         # the terms computed beside the encoder (a deadline may have stopped the steps
         # before the guess)
@@ -116,6 +116,6 @@ class FrameMatch:
         far = match.far_matched(*self.pair, prepared, count)  # SGBM here, StereoBM beside it
         found = found if late is None else late.result()
         out, taken = match.finish(prepared, disparity, found, far)
-        far_px = 0 if far is None or prepared is None or prepared.far is None \
-            else int(np.count_nonzero(prepared.far))
+        far_px = 0 if prepared is None or prepared.far is None \
+            else int(np.count_nonzero(prepared.far))  # `far_matched` ran exactly there
         return out, taken, beyond, far_px, prepared
