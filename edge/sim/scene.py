@@ -71,6 +71,11 @@ class RigConfig:
         return replace(self, sensor_noise_std=0.0, gain_jitter=0.0, bias_jitter=0.0)
 
 
+# an outline's bounding box widened by this much before its exact test, so that rounding in
+# the test can never meet the box's edge
+BOX_MARGIN_PX = 1.0
+
+
 @dataclass(frozen=True)
 class Layer:
     """One planar surface patch.
@@ -184,15 +189,31 @@ class Scene:
 
     def nearest_disparity_at(self, view: str, u: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Disparity (px) of the nearest surface at continuous positions (u, v) of a view."""
-        u = np.asarray(u, np.float64)
-        v = np.asarray(v, np.float64)
+        u, v = np.broadcast_arrays(np.asarray(u, np.float64), np.asarray(v, np.float64))
+        shape, u, v = u.shape, u.ravel(), v.ravel()
         best = np.full(u.shape, -np.inf)
+        # positions by row, so that the rows a layer's outline spans are one run of them (a
+        # frame's occlusion query would otherwise test every pixel against every layer); a
+        # frame's positions come by row already, and their runs are slices
+        by_row = None if bool(np.all(v[1:] >= v[:-1])) else np.argsort(v, kind="stable")
+        rows = v if by_row is None else v[by_row]
         for layer in self.layers:
-            d = layer.disparity(view, u, v, self.rig.cx, self.rig.cy)
-            u_left = u + d if view == RIGHT else u
-            hit = layer.contains(u_left, v) & (d > best)
-            best[hit] = d[hit]
-        return best
+            box = layer.left_bbox()
+            lo, hi = 0, len(rows)
+            if box is not None:
+                u0, u1, v0, v1 = box
+                lo = int(np.searchsorted(rows, v0 - BOX_MARGIN_PX, "left"))
+                hi = int(np.searchsorted(rows, v1 + BOX_MARGIN_PX, "right"))
+            at = slice(lo, hi) if by_row is None else by_row[lo:hi]
+            d = layer.disparity(view, u[at], v[at], self.rig.cx, self.rig.cy)
+            u_left = u[at] + d if view == RIGHT else u[at]
+            nearer = d > best[at]
+            if box is not None:
+                nearer &= (u_left >= u0 - BOX_MARGIN_PX) & (u_left <= u1 + BOX_MARGIN_PX)
+            hit = np.flatnonzero(nearer)
+            hit = hit[layer.contains(u_left[hit], v[at][hit])]
+            best[lo + hit if by_row is None else by_row[lo:hi][hit]] = d[hit]
+        return best.reshape(shape)
 
     def occlusion(self, view: str, disparity: np.ndarray, tol_px: float = 1e-4) -> np.ndarray:
         """(H, W) bool: pixels of `view` whose surface point is not visible in the other view.
