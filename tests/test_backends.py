@@ -162,11 +162,15 @@ def test_the_engine_resolves_auto_precision_once_and_says_which(monkeypatch):
     assert engine.describe().startswith("fp32 on onnxruntime")
 
 
-def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys):
+def test_a_cpu_that_cannot_compile_bf16_runs_the_graph_in_f32_and_says_so(capsys, monkeypatch):
     """A CPU that reports bf16 and cannot compile it (OpenVINO's kernels limited to AVX2, a
     hypervisor hiding the instructions) costs a line, not the daemon."""
     pytest.importorskip("openvino")
+    from collections import OrderedDict
+
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    monkeypatch.setattr(backends, "_COMPILED", OrderedDict())  # nothing compiled before
 
     session = backends.OpenVinoSession(DEFAULT_BUNDLE / "upsample.onnx", 1, bf16=True)
     compile_model = session._core.compile_model
@@ -262,3 +266,50 @@ def test_the_engine_opens_the_bundles_int8_encoder_and_says_so(monkeypatch):
                       edge_match=0).int8_encoder
     assert Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0,
                   int8_encoder="on").int8_encoder
+
+
+def test_openvino_compiles_a_graph_once_per_process_and_a_changed_file_again(tmp_path,
+                                                                             monkeypatch):
+    """A second session of the same file, outputs, shapes and config takes the graph compiled
+    for the first (with its own infer request); other shapes, or a file rewritten with other
+    content, are compiled anew; only the latest COMPILED_KEPT stay."""
+    ov = pytest.importorskip("openvino")
+    import shutil
+    from collections import OrderedDict
+
+    import onnx
+
+    from edge_depth.runtime.engine import DEFAULT_BUNDLE
+
+    monkeypatch.setattr(backends, "_COMPILED", OrderedDict())
+    monkeypatch.setattr(backends, "COMPILED_KEPT", 2)
+    compiles = []
+    compile_model = ov.Core.compile_model
+
+    def counted(core, *args, **kwargs):
+        compiles.append(1)
+        return compile_model(core, *args, **kwargs)
+
+    monkeypatch.setattr(ov.Core, "compile_model", counted)
+    graph = tmp_path / "upsample.onnx"
+    shutil.copy(DEFAULT_BUNDLE / "upsample.onnx", graph)
+
+    def run(size: int) -> list[np.ndarray]:
+        session = backends.OpenVinoSession(graph, 1)
+        rng = np.random.default_rng(3)
+        feeds = {i.get_any_name(): rng.standard_normal(
+            [d.get_length() if d.is_static else size for d in i.get_partial_shape()]
+        ).astype(np.float32) for i in session._model.inputs}
+        return session.run(feeds)
+
+    first, again = run(8), run(8)
+    assert len(compiles) == 1  # the second session compiled nothing
+    for a, b in zip(first, again):
+        np.testing.assert_array_equal(a, b)
+    run(16)  # other shapes
+    assert len(compiles) == 2 and len(backends._COMPILED) == 2
+    model = onnx.load(str(graph))
+    model.doc_string = "rewritten"  # other content at the same path
+    onnx.save(model, str(graph))
+    run(8)
+    assert len(compiles) == 3 and len(backends._COMPILED) == 2  # the oldest dropped

@@ -15,9 +15,12 @@ to tolerate it (`BF16_GRAPHS`: the encoder, whose outputs agree within the int8 
 
 from __future__ import annotations
 
+import hashlib
 import os
 import platform
 import sys
+import threading
+from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
@@ -173,6 +176,15 @@ class OrtSession:
         return self._session.run(None, feeds)
 
 
+# OpenVINO graphs compiled in this process, the latest COMPILED_KEPT, by the file's content,
+# the outputs kept, the input shapes and the config: a process that opens a bundle again (a
+# second engine, quantization's candidates, a test suite) compiles each graph once, ~0.1-0.5 s
+# each. A compiled graph serves any number of sessions: each has its own infer request.
+COMPILED_KEPT = 16
+_COMPILED: OrderedDict[tuple, Any] = OrderedDict()
+_COMPILED_LOCK = threading.Lock()
+
+
 class OpenVinoSession:
     """`outputs`: the output names the caller reads (None: all); the others are cut from the
     graph before compiling, and what only they needed is not computed or copied out. A graph
@@ -188,6 +200,9 @@ class OpenVinoSession:
         self._core = ov.Core()
         self.path = Path(path)
         self._model = self._core.read_model(str(path))
+        # the file's content, not its name or time: quantization rewrites a file within the
+        # timestamps' resolution
+        self._digest = hashlib.blake2b(self.path.read_bytes(), digest_size=16).hexdigest()
         if outputs is not None:
             for result in list(self._model.get_results()):
                 if not result.output(0).get_names() & outputs:
@@ -204,7 +219,7 @@ class OpenVinoSession:
 
     def _compile(self) -> None:
         try:
-            compiled = self._core.compile_model(self._model, "CPU", self._config)
+            compiled = self._compiled()
         except RuntimeError as exc:
             if not self.bf16:
                 raise
@@ -215,9 +230,27 @@ class OpenVinoSession:
                   "running it in f32", file=sys.stderr)
             self.bf16 = False
             self._config["INFERENCE_PRECISION_HINT"] = "f32"
-            compiled = self._core.compile_model(self._model, "CPU", self._config)
+            compiled = self._compiled()
         self._request = compiled.create_infer_request()
         self._outputs = list(compiled.outputs)
+
+    def _compiled(self) -> Any:
+        """The graph compiled for the current shapes and config, or the same one compiled
+        before in this process (`COMPILED_KEPT`)."""
+        key = (self._digest, tuple(self.output_names),
+               tuple(str(i.get_partial_shape()) for i in self._model.inputs),
+               tuple(sorted(self._config.items())))
+        with _COMPILED_LOCK:
+            compiled = _COMPILED.get(key)
+            if compiled is not None:
+                _COMPILED.move_to_end(key)
+                return compiled
+        compiled = self._core.compile_model(self._model, "CPU", self._config)
+        with _COMPILED_LOCK:
+            _COMPILED[key] = compiled
+            while len(_COMPILED) > COMPILED_KEPT:
+                _COMPILED.popitem(last=False)
+        return compiled
 
     def run(self, feeds: dict[str, np.ndarray]) -> list[np.ndarray]:
         if self._any_size:  # a static graph (each run of a step) skips the comparison
