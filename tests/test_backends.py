@@ -304,7 +304,7 @@ def test_openvino_compiles_a_graph_once_per_process_and_a_changed_file_again(tmp
 
     first, again = run(8), run(8)
     assert len(compiles) == 1  # the second session compiled nothing
-    for a, b in zip(first, again):
+    for a, b in zip(first, again, strict=True):
         np.testing.assert_array_equal(a, b)
     run(16)  # other shapes
     assert len(compiles) == 2 and len(backends._COMPILED) == 2
