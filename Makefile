@@ -9,7 +9,7 @@ BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
 
 # the tests in parallel, one worker per core (pytest-xdist): on a 2-core AVX-512 VNNI host
-# 2 min 34 s instead of 4 min 20 s
+# 108 s instead of 185 s in one process (2026-12-07, docs/install.md)
 TEST_WORKERS ?= auto
 
 .PHONY: demo test lint bench bundle clean
