@@ -4,7 +4,7 @@
 # Runtime's included, which experiments/avx2_kernels.sh cannot limit. For what ONNX Runtime
 # computes on an AVX2-only host, never for how fast (emulated vector code runs ~1000x slower:
 # a 512x512 float matrix product 8 s against 1 ms), and not for OpenVINO: QEMU 7.2's AVX2
-# emulation runs OpenVINO's JIT kernels wrong (docs/experiments.md, 2026-12-07 02:40). A
+# emulation runs OpenVINO's JIT kernels wrong (docs/experiments.md, 2026-12-07 01:10). A
 # process the command starts runs natively again, so run pytest in one process
 # (`-p no:xdist`). Needs `apt-get install qemu-user`.
 #     bash experiments/avx2_cpu.sh .venv/bin/python experiments/ort_on_avx2.py out/avx2.npz

@@ -205,13 +205,14 @@ class Scene:
                 lo = int(np.searchsorted(rows, v0 - BOX_MARGIN_PX, "left"))
                 hi = int(np.searchsorted(rows, v1 + BOX_MARGIN_PX, "right"))
             at = slice(lo, hi) if by_row is None else by_row[lo:hi]
-            d = layer.disparity(view, u[at], v[at], self.rig.cx, self.rig.cy)
-            u_left = u[at] + d if view == RIGHT else u[at]
+            u_at, v_at = u[at], v[at]
+            d = layer.disparity(view, u_at, v_at, self.rig.cx, self.rig.cy)
+            u_left = u_at + d if view == RIGHT else u_at
             nearer = d > best[at]
             if box is not None:
                 nearer &= (u_left >= u0 - BOX_MARGIN_PX) & (u_left <= u1 + BOX_MARGIN_PX)
             hit = np.flatnonzero(nearer)
-            hit = hit[layer.contains(u_left[hit], v[at][hit])]
+            hit = hit[layer.contains(u_left[hit], v_at[hit])]
             best[lo + hit if by_row is None else by_row[lo:hi][hit]] = d[hit]
         return best.reshape(shape)
 
