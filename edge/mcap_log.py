@@ -18,13 +18,13 @@ from __future__ import annotations
 
 import json
 import logging
-import shutil
 import threading
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from edge_depth.disk_reserve import DiskReserve
 from edge_depth.foxglove_msgs import (
     CAMERA_FRAME,
     LIDAR_FRAME,
@@ -45,7 +45,7 @@ log = logging.getLogger(__name__)
 COMPRESSIONS = ("lz4", "zstd", "none")
 
 
-MIN_FREE_BYTES = 64 * 2**20  # below this much free space, a file is closed while it can be
+MIN_FREE_BYTES = 64 * 2**20  # the least free space kept (edge.disk_reserve adds a frame's)
 
 
 # the JSON channels' schemas (JSON Schema), so viewers can type their fields
@@ -89,10 +89,13 @@ def _late_joiner_listener(logger: McapLogger):
 class McapLogger:
     """Log frames, scans and results to rotating MCAP files (a context manager).
 
-    Before each frame and result it checks the free space on the log's disk: below
-    `min_free_bytes` it closes the file while its summary still fits, says so once, and
-    `stopped` holds the reason (the daemon then exits non-zero, so systemd restarts it once
-    space is made); the file stays complete and replayable.
+    At each frame's start it checks the free space on the log's disk (edge.disk_reserve: at
+    least `min_free_bytes`, and room for the largest frame written so far, the chunk in memory
+    and the summary): below it, the frame is not logged, the file is closed with its summary,
+    a rotated part that holds no frame is removed, it says so once, and `stopped` holds what
+    happened (the daemon then exits non-zero, so systemd restarts it once space is made). A
+    writer that fails all the same (another process filled the disk) leaves a file cut back
+    to its last complete chunk and ended without a summary, which every reader takes.
 
     `topics`: which keys of TOPICS to write (default all); `rotate_bytes` / `rotate_s`: start
     a new file after this many bytes (as counted on disk) or seconds of log time;
@@ -139,10 +142,9 @@ class McapLogger:
         self._next_index = 0
         self._file_start_ns: int | None = None
         self.server = None
-        self.min_free_bytes = min_free_bytes
+        self.reserve = DiskReserve(min_free_bytes, chunk_size)
         self.stopped: str | None = None  # why logging stopped early (the disk filling up)
-        self._closing_at: int | None = None  # the frame after which a full disk closes
-        self._low_space = ""
+        self._frame_stamps: list[int] = []  # the frames in the open file, by stamp (ns)
         if live:
             self.server = foxglove.start_server(context=self.context, host=live_host,
                                                 port=live_port, name="edge-depth",
@@ -172,6 +174,7 @@ class McapLogger:
         self.files.append(path)
         self._file_start_ns = stamp_ns
         self._calibration_logged = False
+        self._frame_stamps = []
 
     def _start_writer(self, path: Path):
         import foxglove
@@ -184,39 +187,33 @@ class McapLogger:
         return foxglove.open_mcap(path, allow_overwrite=True, context=self.context,
                                   writer_options=options)
 
-    def _reserve_bytes(self, total: int) -> int:
-        """The free space kept for the frame in hand and the file's summary: min_free_bytes,
-        or an eighth of a small disk (a 16 MiB tmpfs keeps 2 MiB, not more than it has)."""
-        return min(self.min_free_bytes, total // 8)
-
-    def _disk_full(self, stamp_ns: int) -> bool:
-        """True once logging has stopped for want of space. When the space falls below the
-        reserve, the frame in hand (`stamp_ns`: its images, then its result) is still
-        written, and the file is closed with its summary before the next frame."""
+    def _frame_start(self, stamp_ns: int, pixels: int) -> bool:
+        """Whether the frame at `stamp_ns` (of `pixels` pixels a view) is logged. At a new
+        frame the free space is checked first; below the reserve logging stops, and the file
+        is closed while its summary fits. A frame's result follows its images: one check."""
         if self.stopped is not None:
-            return True
-        if self._closing_at is not None:
-            if stamp_ns == self._closing_at:
-                return False  # the frame in hand: its result goes in too
-            self._stop_for_space()
-            return True
-        try:
-            usage = shutil.disk_usage(self.files[-1].parent)
-        except OSError:
             return False
-        reserve = self._reserve_bytes(usage.total)
-        if usage.free >= reserve:
+        if self._frame_stamps and self._frame_stamps[-1] == stamp_ns:
+            return True
+        file = self.files[-1]
+        low = self.reserve.below(file.parent, file.stat().st_size if file.exists() else 0,
+                                 pixels)
+        if low is not None:
+            self._stop_for_space(low)
             return False
-        self._closing_at = stamp_ns
-        self._low_space = (f"the disk holding {self.files[-1]} is full ({usage.free / 2**20:.0f}"
-                           f" MB free, below {reserve / 2**20:.0f} MB)")
-        return False
+        self._maybe_rotate(stamp_ns)
+        self._frame_stamps.append(stamp_ns)
+        return True
 
-    def _stop_for_space(self) -> None:
-        self.stopped = (f"{self._low_space}: wrote the frame in hand and closed the file with "
-                        "its summary; make space and restart")
+    def _stop_for_space(self, low: str) -> None:
+        path, frames = self.files[-1], len(self._frame_stamps)
+        closed = self._close_writer()
+        if frames == 0 and len(self.files) > 1:  # a rotated part that never got a frame
+            path.unlink(missing_ok=True)
+            self.files.pop()
+            closed = f"removed {path}, a new part without a frame"
+        self.stopped = f"{low}: {closed}; make space and restart"
         log.error("%s", self.stopped)
-        self._close_writer()
 
     def _maybe_rotate(self, stamp_ns: int) -> None:
         if self._writer is None:  # stopped: no new file either
@@ -348,9 +345,8 @@ class McapLogger:
 
     # -- what gets logged --------------------------------------------------------------------
     def log_frame(self, frame: StereoFrame) -> None:
-        if self._disk_full(frame.stamp_ns):
+        if not self._frame_start(frame.stamp_ns, frame.left.shape[0] * frame.left.shape[1]):
             return
-        self._maybe_rotate(frame.stamp_ns)
         left, right = ("left", "right") if frame.rectified else ("left_raw", "right_raw")
         self._log(left, self._image(frame.left, frame.stamp_ns), frame.stamp_ns)
         self._log(right, self._image(frame.right, frame.stamp_ns, RIGHT_FRAME), frame.stamp_ns)
@@ -373,7 +369,7 @@ class McapLogger:
             self._log(key, msg, stamp_ns)
 
     def log_scan(self, scan: LidarScan) -> None:
-        self._maybe_rotate(scan.stamp_ns)
+        # files rotate at a frame's start only, so a frame's images and result share a file
         self._log("lidar", self._cloud(scan.points, scan.stamp_ns, LIDAR_FRAME, scan.intensity,
                                        scan.point_stamps_ns), scan.stamp_ns)
 
@@ -389,9 +385,8 @@ class McapLogger:
         """The result's images and, with the camera's focal length and principal point, the
         depth as a point cloud (each point's intensity from `left`, the rectified image)."""
         t = result.stamp_ns
-        if self._disk_full(t):
+        if not self._frame_start(t, result.disparity.size):
             return
-        self._maybe_rotate(t)
         # a message is built only for a topic that is written (`topics`: [log] results)
         if sparse is not None and self._logs("sparse"):
             self._log("sparse", self._image(sparse.astype(np.float32, copy=False), t), t)
@@ -406,21 +401,40 @@ class McapLogger:
                                              principal_point, image=left if left is not None
                                              else np.zeros(result.depth.shape, np.uint8))
             self._log("points", self._cloud(pts, t, CAMERA_FRAME, intensity), t)
-        if self._closing_at == t:  # the frame in hand is in: close while the summary fits
-            self._stop_for_space()
 
     def log_diagnostics(self, stamp_ns: int, values: dict) -> None:
         self._log("diagnostics", json.loads(json.dumps(values, default=float)), stamp_ns)
 
-    def _close_writer(self) -> None:
+    def _close_writer(self) -> str:
+        """Close the open file; what happened, in words ("" when none was open)."""
         if self._writer is None:
-            return
+            return ""
         writer, self._writer = self._writer, None
+        path, frames = self.files[-1], len(self._frame_stamps)
         try:
             self._finish(writer)
-        except (OSError, RuntimeError) as exc:  # no room for the summary: the chunks stay
-            log.error("closing %s: %s (it replays up to its last complete chunk)",
-                      self.files[-1], exc)
+        except (OSError, RuntimeError) as exc:  # FoxgloveError is a RuntimeError
+            return self._end_cut_file(path, exc)
+        return f"closed {path} with its summary ({frames} frames)"
+
+    def _end_cut_file(self, path: Path, exc: BaseException) -> str:
+        """The writer failed (a full disk): end the file after its last complete chunk,
+        without a summary, and count the frames it still holds."""
+        from edge_depth.capture.mcap_tolerant import ReadReport, end_cut_file, iter_messages
+
+        try:
+            end_cut_file(path)
+            stamps = {message.log_time for _, _, message in iter_messages(path, ReadReport())}
+        except (OSError, ValueError) as repair_exc:
+            said = (f"could not close {path} ({exc}), nor end it after its last complete chunk "
+                    f"({repair_exc}); `edge-depth replay` reads what it holds")
+        else:
+            kept = len(stamps.intersection(self._frame_stamps))
+            said = (f"could not write the summary of {path} ({exc}): ended it after its last "
+                    f"complete chunk, without a summary; {kept} of its "
+                    f"{len(self._frame_stamps)} frames are readable")
+        log.error("%s", said)
+        return said
 
     def _finish(self, writer) -> None:
         """Write the file's summary and close it."""

@@ -331,7 +331,7 @@ def test_a_disk_that_fills_closes_the_file_complete_and_exits_1(tmp_path, monkey
 
     from mcap.reader import make_reader
 
-    import edge_depth.mcap_log as mcap_log
+    import edge_depth.disk_reserve as disk_reserve
 
     usage = namedtuple("usage", "total used free")
     calls = []
@@ -341,7 +341,7 @@ def test_a_disk_that_fills_closes_the_file_complete_and_exits_1(tmp_path, monkey
         free = 10 * 2**30 if len(calls) <= 4 else 10 * 2**20
         return usage(20 * 2**30, 20 * 2**30 - free, free)
 
-    monkeypatch.setattr(mcap_log.shutil, "disk_usage", disk_usage)
+    monkeypatch.setattr(disk_reserve.shutil, "disk_usage", disk_usage)
     out = tmp_path / "depth.mcap"
     cfg = write(tmp_path, SIM.format(out=out))
     assert main(["run", "--config", str(cfg), "--max-frames", "20"]) == 1

@@ -69,13 +69,54 @@ def test_each_damage_kind_costs_only_its_chunk(tmp_path, compression, kind):
         middle = start + index.chunk_length // 2
         damage(path, middle, bytes([raw[middle] ^ 0x10]))
     got, report = read_all(path)
-    expected = [i for i in range(N) if i != k or kind == "message index length"]
+    # a length field is not data: the chunk is read by its own fields, nothing is lost
+    costs_nothing = kind in ("message index length", "chunk length")
+    expected = [i for i in range(N) if i != k or costs_nothing]
     assert got == expected
     assert len(report.damage) == 1 and report.truncated_at is None
     if kind != "message index length":
         assert report.damage[0].offset == start
+    if kind == "chunk length":
+        assert report.damage[0].messages_lost == 0
     if kind in ("crc", "compressed size", "payload bit"):  # framing intact: the index after
         assert report.damage[0].messages_lost == 1     # the chunk says what it held
+
+
+@pytest.mark.parametrize("with_summary", [True, False])
+def test_a_doubled_chunk_length_costs_no_intact_chunk(tmp_path, with_summary):
+    path = tmp_path / "f.mcap"
+    chunks = write_file(path)
+    start, index = chunks[0]
+    if not with_summary:  # cut before the summary: the chunks alone say where they end
+        path.write_bytes(path.read_bytes()[:chunks[-1][0] + chunks[-1][1].chunk_length])
+    damage(path, start + 1, struct.pack("<Q", 2 * (index.chunk_length - 9)))
+    got, report = read_all(path)
+    assert got == list(range(N))  # it used to land inside the third chunk and lose two
+    assert [d.offset for d in report.damage] == [start]
+    assert report.damage[0].messages_lost == 0
+
+
+def test_a_message_index_length_running_over_the_next_chunk_costs_nothing(tmp_path):
+    path = tmp_path / "f.mcap"
+    chunks = write_file(path)
+    _, index = chunks[2]
+    (offset,) = index.message_index_offsets.values()
+    next_start = chunks[3][0]
+    damage(path, offset + 1, struct.pack("<Q", next_start - offset + 20))  # inside chunk 3
+    got, report = read_all(path)
+    assert got == list(range(N))
+    assert [d.offset for d in report.damage] == [offset]
+
+
+def test_chunks_cut_out_of_a_file_are_counted_against_the_summary(tmp_path):
+    path = tmp_path / "f.mcap"
+    chunks = write_file(path)
+    raw = path.read_bytes()
+    start, end = chunks[4][0], chunks[6][0]  # chunks 4 and 5 and their message indexes
+    path.write_bytes(raw[:start] + raw[end:])  # the summary's offsets now point amiss
+    got, report = read_all(path)
+    assert got == [i for i in range(N) if i not in (4, 5)]
+    assert report.summary_messages == N and report.unaccounted() == 2
 
 
 def test_a_cut_off_file_reads_its_complete_chunks_and_says_where_it_ends(tmp_path):
