@@ -1,7 +1,7 @@
 """The calibration file (TOML): load with validation, save atomically.
 
     [stereo]
-    image_size = [640, 400]            # width, height in pixels
+    image_size = [640, 400]            # width, height in pixels, each 64-16384
     [stereo.left]
     K = [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]
     dist = [k1, k2, p1, p2, k3]        # OpenCV order

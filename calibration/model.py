@@ -27,7 +27,9 @@ def check_rotation(name: str, R: np.ndarray, tol: float = 1e-4) -> None:
         raise CalibrationError("expected a rotation matrix (R Rᵀ = I, det R = 1)", key=name)
 
 
-MAX_IMAGE_SIDE = 16384
+# pixels a side: below MIN_IMAGE_SIDE the depth network's 1/4-resolution features and the
+# block matcher's window have nothing to match (the daemon's [camera] size has the same bounds)
+MIN_IMAGE_SIDE, MAX_IMAGE_SIDE = 64, 16384
 MAX_DISTORTION = 1000.0  # |coefficient|: rational models reach hundreds, nothing real 1e3
 MAX_BASELINE_M = 10.0
 MAX_SKEW = 0.01  # |s| / fx: calibration tools fix the skew at 0; a real one is tiny
@@ -56,6 +58,19 @@ def _check_K(name: str, K: np.ndarray, size: tuple[int, int]) -> None:
                                f"cx={K[0, 2]:g}, cy={K[1, 2]:g}", key=name)
 
 
+def _image_size(size) -> tuple[int, int]:
+    """(width, height) pixels, each side within MIN_IMAGE_SIDE-MAX_IMAGE_SIDE: checked first,
+    so a size the engine cannot use is refused for its size, not for the intrinsics or the
+    rectification it breaks."""
+    w, h = (int(v) for v in size)
+    if not (MIN_IMAGE_SIDE <= w <= MAX_IMAGE_SIDE and MIN_IMAGE_SIDE <= h <= MAX_IMAGE_SIDE):
+        raise CalibrationError(f"expected (width, height) each in {MIN_IMAGE_SIDE}-"
+                               f"{MAX_IMAGE_SIDE} px (below {MIN_IMAGE_SIDE} the depth network "
+                               f"and block matching have nothing to match), got {w}x{h}",
+                               key="image_size")
+    return w, h
+
+
 @dataclass(frozen=True)
 class StereoCalibration:
     """Two pinhole cameras with OpenCV distortion; R, T map left-camera points to the right
@@ -76,6 +91,8 @@ class StereoCalibration:
 
     def __post_init__(self) -> None:
         set_ = object.__setattr__
+        w, h = _image_size(self.image_size)
+        set_(self, "image_size", (w, h))
         set_(self, "K_left", _array("left.K", self.K_left, (3, 3)))
         set_(self, "K_right", _array("right.K", self.K_right, (3, 3)))
         set_(self, "dist_left", _array("left.dist", self.dist_left, (len(self.dist_left),)))
@@ -91,11 +108,6 @@ class StereoCalibration:
                                        f"±{MAX_DISTORTION:g}, got {dist.tolist()}", key=name)
         set_(self, "R", _array("extrinsics.R", self.R, (3, 3)))
         set_(self, "T", _array("extrinsics.T", self.T, (3,)))
-        w, h = (int(v) for v in self.image_size)
-        if not (0 < w <= MAX_IMAGE_SIDE and 0 < h <= MAX_IMAGE_SIDE):
-            raise CalibrationError(f"expected (width, height) in 1-{MAX_IMAGE_SIDE}, got "
-                                   f"{self.image_size}", key="image_size")
-        set_(self, "image_size", (w, h))
         _check_K("left.K", self.K_left, (w, h))
         _check_K("right.K", self.K_right, (w, h))
         check_rotation("extrinsics.R", self.R)

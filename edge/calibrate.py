@@ -23,6 +23,14 @@ from edge_depth.calibration.extrinsics import (
 from edge_depth.calibration.model import StereoCalibration
 from edge_depth.errors import EdgeError
 
+# `calibrate check`'s exit status (2, bad arguments, is argparse's): a verdict that passes,
+# ERROR, or none reached (no LiDAR scan, too few samples), never folded into a pass
+CHECK_OK, CHECK_ERROR, CHECK_NO_VERDICT = 0, 1, 3
+CHECK_EXITS = (f"exit status: {CHECK_OK} OK or WARN; {CHECK_ERROR} ERROR, or the check could "
+               "not run (a bad calibration file or recording: the reason on stderr); 2 bad "
+               f"arguments; {CHECK_NO_VERDICT} no verdict: no LiDAR scan found, or too few "
+               "samples")
+
 
 def add_parsers(sub) -> None:
     """`edge-depth calibrate`'s subcommands."""
@@ -57,15 +65,18 @@ def add_parsers(sub) -> None:
 
     _lidar_parser(csub)
     chk = csub.add_parser("check", help="estimate the LiDAR-camera rotation error of a "
-                          "recording (exit status 1 on ERROR)")
+                          f"recording (exit {CHECK_OK} OK or WARN, {CHECK_ERROR} ERROR, "
+                          f"{CHECK_NO_VERDICT} no verdict)", epilog=CHECK_EXITS)
     chk.add_argument("recording", type=Path, help="a .mcap recording with images and LiDAR")
     chk.add_argument("--calib", type=Path, default=None,
                      help="the calibration to check (default: the recording's own)")
     chk.add_argument("--topics", type=Path, default=None,
                      help="a ROS 2 bag's topic map (TOML [topics] table, as for replay)")
-    chk.add_argument("--every", type=int, default=WATCH_EVERY,
-                     help="the daemon's sampling: one sample's budget in this many frames "
-                          f"with LiDAR (default {WATCH_EVERY}, as [calibration] watch_every)")
+    chk.add_argument("--every", type=int, default=1,
+                     help="one sample's budget in this many frames with LiDAR (default 1: "
+                          f"every frame; {WATCH_EVERY} is the daemon's [calibration] "
+                          "watch_every, a budget for its frame time that an offline check "
+                          "does not have)")
     chk.add_argument("--max-samples", type=int, default=60,
                      help="stop after this many samples (default 60, the watch's window)")
 
@@ -208,13 +219,11 @@ def mcap_frames(path: Path, stereo: StereoCalibration, time_offset_ns: int = 0,
 def check_command(recording: Path, calib_path: Path | None, topics=None, every: int = 1,
                   max_samples: int = 60) -> int:
     """`edge-depth calibrate check REC.mcap`: the calibration watch of the daemon
-    (`edge.calibration_watch`) over a recording's frames with LiDAR; prints the estimate, its
-    uncertainty and the level, and the command that refines it. 1 on ERROR, else 0."""
-    from edge_depth.calibration.projection import project_to_disparity
-    from edge_depth.calibration_verdict import ERROR, MIN_SAMPLES, fixes
-    from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
-    from edge_depth.capture.synced import stamped_frames
-    from edge_depth.runtime.engine import Engine
+    (`edge.calibration_watch`) over a recording's frames with LiDAR, one sample's budget in
+    `every` of them; prints the estimate, its uncertainty and the level, and the command that
+    refines it. CHECK_ERROR on ERROR, CHECK_NO_VERDICT when it could not reach one (no LiDAR
+    scan, too few samples: said which), else CHECK_OK."""
+    from edge_depth.calibration_verdict import ERROR, SETTLING, fixes
 
     if every < 1 or max_samples < 1:
         raise ValueError(f"--every and --max-samples: at least 1, got {every}, {max_samples}")
@@ -223,9 +232,36 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
         raise CalibrationError(f"{origin} has no LiDAR extrinsics: nothing to check (a "
                                "[lidar] section in --calib)", key="lidar")
     print(f"calibration: {origin}")
+    watch, seen, with_lidar = _watch_recording(recording, stereo, lidar, topics, every,
+                                               max_samples)
+    if not with_lidar:
+        print(f"no verdict: {_no_scan_reason(recording, topics)} ({seen} frames read)")
+        return CHECK_NO_VERDICT
+    estimate = watch.estimate()
+    print(f"{watch.samples} samples from {seen} frames ({with_lidar} with LiDAR)")
+    print(f"LiDAR-camera rotation error: {estimate.describe()}")
+    if estimate.level == SETTLING:
+        print(_too_few_line(estimate.samples, with_lidar, every, max_samples))
+        return CHECK_NO_VERDICT
+    if todo := fixes(estimate, str(recording), None if calib_path is None else str(calib_path),
+                     lidar.time_offset_ns):
+        print(todo)
+    return CHECK_ERROR if estimate.level == ERROR else CHECK_OK
+
+
+def _watch_recording(recording: Path, stereo: StereoCalibration, lidar, topics, every: int,
+                     max_samples: int):
+    """(the watch, frames read, frames with LiDAR points): the daemon's watch fed a
+    recording's frames, one sample's budget in `every` frames with LiDAR, until `max_samples`
+    samples."""
+    from edge_depth.calibration.projection import project_to_disparity
+    from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
+    from edge_depth.capture.synced import stamped_frames
+    from edge_depth.runtime.engine import Engine
+
     engine = Engine()
     watch = CalibrationWatch(stereo, lidar.T_cam_lidar, every)
-    seen = 0
+    seen = with_lidar = 0
     for frame, left, right, points, stamp, _ in stamped_frames(
             recording, stereo, lidar.time_offset_ns, topics=topics):
         if frame.size != tuple(stereo.image_size):
@@ -233,6 +269,7 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
                                    f"{stereo.image_size}", path=str(recording))
         seen += 1
         watch.frame(frame.stamp_ns, left)  # every frame: the turn between frames
+        with_lidar += bool(len(points))
         if not len(points) or not watch.due():
             continue
         sparse, _ = project_to_disparity(points, stereo, lidar.T_cam_lidar)
@@ -240,16 +277,41 @@ def check_command(recording: Path, calib_path: Path | None, topics=None, every: 
         watch.add(stereo_reference(engine), points, (stamp - frame.stamp_ns) / 1e9)
         if watch.samples >= max_samples:
             break
-    estimate = watch.estimate()
-    print(f"{watch.samples} samples from {seen} frames")
-    print(f"LiDAR-camera rotation error: {estimate.describe()}")
-    if estimate.samples < MIN_SAMPLES:
-        print(f"too few samples for a verdict ({MIN_SAMPLES} needed): a longer recording, or "
-              "a smaller --every")
-    elif todo := fixes(estimate, str(recording),
-                       None if calib_path is None else str(calib_path), lidar.time_offset_ns):
-        print(todo)
-    return 1 if estimate.level == ERROR else 0
+    return watch, seen, with_lidar
+
+
+def _no_scan_reason(recording: Path, topics) -> str:
+    """Why no frame of the recording had LiDAR points, naming the topic looked for (and the
+    recording's point-cloud topics when it is not one of them)."""
+    from edge_depth.capture.replay import McapSource
+
+    source = McapSource(recording, topics)
+    lidar_topic, present = source.topics.lidar, source.file_topics()
+    others = ", ".join(source.unmapped_lidar_topics())
+    there = f"; LiDAR-like topics there: {others} (map lidar in --topics)" if others else ""
+    if not lidar_topic:
+        return f"no LiDAR topic is mapped (--topics maps lidar to \"\"){there}"
+    if present is not None and lidar_topic in present:
+        return (f"no frame paired with a LiDAR scan on {lidar_topic} (none there, or their "
+                "stamps with [lidar] time_offset_ns miss every frame's)")
+    return f"no LiDAR scan found on {lidar_topic}{there}"
+
+
+def _too_few_line(samples: int, with_lidar: int, every: int, max_samples: int) -> str:
+    """What a check short of MIN_SAMPLES samples says, with what would give it more."""
+    from edge_depth.calibration_verdict import MIN_SAMPLES
+
+    if max_samples < MIN_SAMPLES:
+        more = f"--max-samples {max_samples} stops it short: at least {MIN_SAMPLES}"
+    elif every > 1:
+        more = f"one sample in {every} frames with LiDAR: a smaller --every, or a longer recording"
+    elif with_lidar < MIN_SAMPLES:
+        more = f"{with_lidar} frames with LiDAR: a longer recording"
+    else:
+        more = ("the frames show too few views of their own (a sample of the view the last "
+                "one saw replaces it: a robot standing still gives one), or their points miss "
+                "the image: a recording that moves")
+    return f"no verdict: too few samples ({samples} of the {MIN_SAMPLES} needed); {more}"
 
 
 def _write_overlay(path: Path, data, calib: StereoCalibration, before: np.ndarray,

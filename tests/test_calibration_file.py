@@ -78,7 +78,13 @@ def _good_text():
     (lambda t: t.replace("T = [-0.075,", "T = [0.075,"), "stereo.extrinsics.T",
      "left and right are swapped"),
     (lambda t: t.replace("image_size = [640, 400]", "image_size = [2147483648, 400]"),
-     "stereo.image_size", "1-16384"),
+     "stereo.image_size", "64-16384"),
+    # below the engine's 64 px a side: refused for the size, before the rectification's
+    # checks (a 1x1 image's would fail for a non-finite P1)
+    (lambda t: t.replace("image_size = [640, 400]", "image_size = [1, 1]"),
+     "stereo.image_size", "64-16384 px"),
+    (lambda t: t.replace("image_size = [640, 400]", "image_size = [640, 16]"),
+     "stereo.image_size", "got 640x16"),
     (lambda t: t.replace("time_offset_ns = 0", 'time_offset_ns = "abc"'),
      "lidar.time_offset_ns", "integer of nanoseconds"),
     (lambda t: t.replace("time_offset_ns = 0", "time_offset_ns = nan"),

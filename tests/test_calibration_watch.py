@@ -169,15 +169,15 @@ def small_recording(tmp_path_factory):
 def test_calibrate_check_exits_1_on_error_with_the_command_that_fixes_it(small_recording,
                                                                          capsys):
     rec, calibs = small_recording
-    every = ["--every", "1"]  # a sample on each of its 10 frames
-    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["yawed"])] + every) == 1
+    # offline every frame is a sample: 10 of its 10 frames
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["yawed"])]) == 1
     out = capsys.readouterr().out
     line = next(x for x in out.splitlines() if x.startswith("LiDAR-camera rotation error"))
     yaw = float(line.split("yaw ")[1].split("°")[0])
     assert 0.35 < yaw < 0.65 and line.endswith("ERROR")
     assert f"--recording {rec} --refine --calib {calibs['yawed']}" in out
     assert "not observed" in line  # a still robot: no clock offset to see
-    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["right"])] + every) == 0
+    assert main(["calibrate", "check", str(rec), "--calib", str(calibs["right"])]) == 0
     assert capsys.readouterr().out.count(": OK") == 1
 
 
@@ -225,7 +225,8 @@ def test_a_turning_robot_shows_the_lidar_clock_offset_and_its_fix(tmp_path, caps
     assert main(["synth", "--mcap", str(rec), "--frames", "100", "--seed", "1000000",
                  "--size", "320x200", "--turn-deg", "3", "--lidar-late-ms", "30"]) == 0
     capsys.readouterr()
-    assert main(["calibrate", "check", str(rec)]) == 1  # the daemon's sampling, 100 frames
+    daemons = ["--every", "13"]  # the daemon's sampling over 100 frames: its banked samples
+    assert main(["calibrate", "check", str(rec)] + daemons) == 1
     out = capsys.readouterr().out
     clock_ms = float(out.split("clock ")[1].split(" ms")[0])
     assert -39 < clock_ms < -21  # the stamps run 30 ms late: the offset to set is -30 ms
@@ -235,7 +236,7 @@ def test_a_turning_robot_shows_the_lidar_clock_offset_and_its_fix(tmp_path, caps
     stereo, lidar = recording_calibration(McapSource(rec))[:2]
     fixed = tmp_path / "fixed.toml"
     save_calibration(fixed, stereo, LidarExtrinsics(lidar.T_cam_lidar, value))
-    assert main(["calibrate", "check", str(rec), "--calib", str(fixed)]) == 0
+    assert main(["calibrate", "check", str(rec), "--calib", str(fixed)] + daemons) == 0
     after = capsys.readouterr().out
     assert abs(float(after.split("clock ")[1].split(" ms")[0])) < 8 and after.count("OK") == 1
 

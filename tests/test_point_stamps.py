@@ -23,7 +23,7 @@ STAMP = 2_000_000_000
 
 
 def scans_read_back(tmp_path, profile: str, scans: list[LidarScan]) -> list[LidarScan]:
-    rig = RigConfig(width=64, height=48, focal_px=45.0, max_disparity_px=8.0)
+    rig = RigConfig(width=64, height=64, focal_px=45.0, max_disparity_px=8.0)
     sample = make_sample(7, rig, "beams16")
     path = tmp_path / f"{profile}.mcap"
     with open_logger(path, profile, topics=RAW_TOPICS) as logger:

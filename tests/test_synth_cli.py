@@ -62,7 +62,7 @@ def test_synth_writes_scene_folders_that_match_the_rig(tmp_path, capsys):
 def test_progress_in_a_log_is_a_line_per_tenth_not_one_endless_line(tmp_path, capsys):
     # capsys's stderr is not a terminal, as under nohup or CI
     assert main(["synth", "--out", str(tmp_path / "s"), "--count", "20", "--seed", "5",
-                 "--size", "32x32"]) == 0
+                 "--size", "64x64"]) == 0
     err = capsys.readouterr().err
     lines = err.splitlines()
     assert "\r" not in err and lines[-1] == "synth: 20/20 scenes"
@@ -104,7 +104,7 @@ def test_unwritable_output_is_refused_before_rendering(tmp_path, capsys):
 def test_output_under_a_file_is_refused_with_one_line(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("not a directory")
-    assert main(["synth", "--out", str(blocker / "scenes"), "--size", "32x32"]) == 1
+    assert main(["synth", "--out", str(blocker / "scenes"), "--size", "64x64"]) == 1
     err = capsys.readouterr().err.strip()
     assert "cannot create output directory" in err and len(err.splitlines()) == 1
     assert blocker.read_text() == "not a directory"
@@ -124,7 +124,7 @@ def test_failure_midway_removes_the_scenes_already_written(tmp_path, monkeypatch
 
     monkeypatch.setattr(export, "make_sample", flaky)
     out = tmp_path / "scenes"
-    assert main(["synth", "--out", str(out), "--count", "4", "--size", "32x32"]) == 1
+    assert main(["synth", "--out", str(out), "--count", "4", "--size", "64x64"]) == 1
     assert list_scene_folders(out) == [] and list(out.iterdir()) == []
 
 
