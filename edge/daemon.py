@@ -328,16 +328,7 @@ class Pipeline:
         timings = dict(result.timings_ms, **p.timings, engine_queue=p.queued_ms,
                        log=(t4 - t3) * 1000, log_raw=raw_ms, frame=(t4 - p.t0) * 1000,
                        iterations=result.iterations)
-        if result.selected_px is not None:  # the share the LiDAR selection replaced
-            timings["replaced_pct"] = 100.0 * result.selected_px / result.disparity.size
-        if result.edge_px is not None:  # the share the edge selection (no LiDAR) replaced
-            timings["edge_replaced_pct"] = 100.0 * result.edge_px / result.disparity.size
-        if result.matched_px is not None:  # the share the edge matching replaced
-            timings["matched_pct"] = 100.0 * result.matched_px / result.disparity.size
-        if result.match_beyond_px is not None:  # ... and the share beyond its reach
-            timings["match_beyond_pct"] = 100.0 * result.match_beyond_px / result.disparity.size
-        if result.match_far_px is not None:  # ... and far from the LiDAR, SGBM's (sparse maps)
-            timings["match_far_pct"] = 100.0 * result.match_far_px / result.disparity.size
+        timings.update(_shares(result))
         if result.photometry_change is not None:  # [engine] match_photometry
             timings["photometry_change"] = result.photometry_change
         if result.lidar_noise_px is not None:  # [engine] align_lidar, denoise_lidar
@@ -406,3 +397,18 @@ def lidar_summary(pipeline: Pipeline) -> str:
         line += (f"; deskewed by the camera's turn in {len(stats.deskewed)} frames (points "
                  f"moved up to a median {np.median(stats.deskewed):.1f} px)")
     return line
+
+
+# the stages' pixel counts (DepthResult) -> the share of the frame each is, % (frame_summary)
+SHARES = {"selected_px": "replaced_pct", "edge_px": "edge_replaced_pct",
+          "matched_px": "matched_pct", "match_beyond_px": "match_beyond_pct",
+          "match_far_px": "match_far_pct"}
+
+
+def _shares(result: DepthResult) -> dict[str, float]:
+    """Each stage's count as a % of the grid it was counted on (the engine's, scaled and
+    padded, not the camera's: a 64x64 pad of a smaller image read over 100 %)."""
+    grid = result.counted_px or result.disparity.size
+    return {share: 100.0 * count / grid for name, share in SHARES.items()
+            if (count := getattr(result, name)) is not None}
+

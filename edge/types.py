@@ -125,6 +125,8 @@ class DepthResult:
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off);
     match_far_px: its gated pixels far from every LiDAR point that SGBM matched (0: a map
     dense enough that it did not run; None when off).
+    counted_px: the pixels of the grid those counts were taken on (the engine's, scaled and
+    padded; None: the disparity's own), so that a share is count / counted_px.
     photometry_change: the grey levels the photometric match moves the right image by, on
     average (`edge.runtime.photometry`; above its threshold the match was made), None when not
     measured.
@@ -147,6 +149,7 @@ class DepthResult:
     matched_px: int | None = None
     match_beyond_px: int | None = None
     match_far_px: int | None = None
+    counted_px: int | None = None
     photometry_change: float | None = None
     lidar_offset: Any = None
     lidar_noise_px: float | None = None

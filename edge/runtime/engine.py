@@ -251,6 +251,7 @@ class Engine:
         self._last = (enc, plan)
         disparity, hidden = self._iterate(frame, enc, iters, deadline_ms, matching)
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
+        frame.counts["counted_px"] = disp.size  # the grid the stages count on
         disp, confidence = self._select(frame, disp, confidence, has_points)
         disp, prepared = self._match(frame, matching, disp, confidence)
         disp = self._median(frame, prepared, disp)
@@ -440,7 +441,7 @@ class _Frame:
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
         selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None,
-        match_far_px=None))
+        match_far_px=None, counted_px=None))
     steps: int = 0
     photometry_change: float | None = None  # grey levels the match moves the right image by
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
