@@ -114,12 +114,16 @@ def add_replay_arguments(parser: argparse.ArgumentParser, **defaults) -> None:
 
 
 def add_fleet_parser(sub) -> None:
+    from edge_depth.fleet import DAMAGED_EXIT
+
     fleet = sub.add_parser("fleet", help="replay, compare or evaluate many recordings on Ray "
                                          "(pip install 'edge-depth[fleet]')")
     fleet.add_argument("fleet_command", choices=("replay", "compare", "evaluate"),
                        help="replay: DIR/NAME.mcap per recording; compare: that, then compare "
                             "with --base DIR/NAME.mcap (exit 1 on a regression); evaluate: "
-                            "EPE / bad-3 against the recordings' ground truth, no output")
+                            "EPE / bad-3 against the recordings' ground truth, no output. "
+                            "Each recording's status: ok, damaged (read past lost data: "
+                            "outputs kept, the loss in the table), failed (exit 1)")
     fleet.add_argument("sources", type=Path, nargs="+",
                        help="recordings, folders of recordings, ROS 2 bag directories")
     fleet.add_argument("--out", type=Path, required=True,
@@ -134,6 +138,11 @@ def add_fleet_parser(sub) -> None:
                        help="compare: a pixel differs beyond this")
     fleet.add_argument("--max-share", type=share, default=0.01,
                        help="compare: the share of differing pixels allowed")
+    fleet.add_argument("--strict", action="store_true",
+                       help=f"exit {DAMAGED_EXIT} when a recording is damaged (read past a "
+                            "damaged chunk or a cut-off end) and none failed or regressed; "
+                            "without it such a recording's outputs are kept, its row says "
+                            "'damaged' and what it lost, and the exit status is 0")
     add_replay_arguments(fleet, threads=FLEET_THREADS)
 
 
@@ -269,7 +278,7 @@ def fleet(args: argparse.Namespace) -> int:
                    options_from_args(args, threads=FLEET_THREADS),
                    dict(calib=args.calib, topics=topics, profile=args.profile),
                    args.base, args.tolerance_px, args.max_share)
-    return fleet_command(job, args.sources, args.address, args.workers)
+    return fleet_command(job, args.sources, args.address, args.workers, args.strict)
 
 
 def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:

@@ -20,7 +20,7 @@ import numpy as np
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.capture.sync import SyncConfig
-from edge_depth.config import LogConfig
+from edge_depth.config import LogConfig, check_output_path
 from edge_depth.daemon import Pipeline, PipelineStats, lidar_summary, watch_summary
 from edge_depth.errors import ConfigError
 from edge_depth.frame_summary import format_latency, selection_summary, summarise
@@ -58,7 +58,29 @@ class ReplayRun:
                     epe=float(np.mean([m["epe"] for m in metrics])) if metrics else None,
                     bad3=float(np.mean([m["bad3"] for m in metrics])) if metrics else None,
                     skipped=dict(stats.errors), read_errors=dict(self.source.stats.errors),
-                    output_health=self.pipeline.health.worst, files=[str(f) for f in self.files])
+                    lost=list(self.source.stats.lost), output_health=self.pipeline.health.worst,
+                    files=[str(f) for f in self.files])
+
+    def skipped(self) -> str:
+        """The skip counts, the reader's (messages, damaged stretches) and the pipeline's
+        (frames, scans) apart: "skipped: 4 while reading, 0 in the pipeline"."""
+        read, piped = self.source.stats.errors, self.stats.errors
+        return (f"skipped: {sum(read.values())} while reading, {sum(piped.values())} in the "
+                "pipeline")
+
+    def failure(self) -> str | None:
+        """Why the replay failed, in one line: the error that stopped it, or no frame
+        processed (with what was skipped, the first reason named); None when it did not."""
+        stats = self.stats
+        if stats.fatal:
+            return stats.fatal
+        if stats.frames:
+            return None
+        reasons = [*self.source.stats.errors, *stats.errors]
+        if not reasons:
+            return ("no frame was processed (the recording has no frames on the mapped camera "
+                    "topics)")
+        return f"no frame was processed ({self.skipped()}; the first: {reasons[0]})"
 
 
 @dataclasses.dataclass
@@ -115,9 +137,12 @@ def replay_recording(engine: Engine, recording: OpenRecording, out, profile: str
 def replay_command(path, out, options: EngineOptions | None = None, calib=None, topics=None,
                    realtime: bool = False, profile: str = "foxglove") -> int:
     """`edge-depth replay IN.mcap --out OUT.mcap`: the pipeline over a recording; prints
-    EPE / bad-3 per frame and overall where the recording carries ground truth."""
-    # a missing topic or a bad --calib: one line before the engine loads
+    EPE / bad-3 per frame and overall where the recording carries ground truth. A replay
+    that fails says why first; one that processed no frame leaves no output file."""
+    # a missing topic, a bad --calib, an --out that cannot be written: one line before the
+    # engine loads
     recording = open_recording(path, out, calib, topics, realtime)
+    check_output_path(out, "--out")
     engine = Engine(options=options)
     log.info("engine: %s", engine.describe())
 
@@ -130,22 +155,42 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
         print(line, flush=True)
 
     done = replay_recording(engine, recording, out, profile, on_output)
+    failure = done.failure()
+    if failure is not None:
+        print(f"error: {failure}", file=sys.stderr, flush=True)
+    print_replay_summary(done, str(path), None if calib is None else str(calib))
+    if done.stats.frames:
+        print(f"wrote {', '.join(str(p) for p in done.files)}")
+    else:  # the output would hold the calibration and scans only
+        for file in done.files:
+            file.unlink(missing_ok=True)
+        print("wrote nothing: no frame was processed"
+              + (f" (removed {', '.join(str(p) for p in done.files)})" if done.files else ""))
+    return 1 if failure is not None else 0
+
+
+def print_replay_summary(done: ReplayRun, path: str, calib: str | None) -> None:
+    """The replay's closing lines: frames, scans, drops and skips (the reader's and the
+    pipeline's, each listed); the LiDAR's, the watch's, the selections' and the health's
+    summaries; what the input lost; throughput, latency and EPE / bad-3."""
     stats, pipeline, source = done.stats, done.pipeline, done.source
-    lat = summarise(stats.timings)
-    print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped, "
-          f"{sum(stats.errors.values())} skipped {dict(stats.errors) or ''}")
+    print(f"{stats.frames} frames, {stats.scans} scans, {stats.drops} dropped; "
+          f"{done.skipped()}")
+    if source.stats.errors:
+        print(f"skipped while reading: {dict(source.stats.errors)}")
+    if stats.errors:
+        print(f"skipped in the pipeline: {dict(stats.errors)}")
     print(lidar_summary(pipeline))
-    if watched := watch_summary(pipeline, str(path), None if calib is None else str(calib)):
+    if watched := watch_summary(pipeline, path, calib):
         print(watched)
     if selected := selection_summary(stats.timings):
         print(selected)
     if unhealthy := pipeline.health.summary():
         print(unhealthy)
-    if source.stats.errors:
-        print(f"messages skipped while reading: {sum(source.stats.errors.values())} "
-              f"{dict(source.stats.errors)}")
-    if source.stats.truncated:
-        print(f"the input was cut off: replayed its first {source.stats.messages} messages")
+    if source.stats.lost:
+        print(f"the input is damaged: replayed the {source.stats.messages} messages that could "
+              f"be read; lost: {'; '.join(source.stats.lost)}")
+    lat = summarise(stats.timings)
     if lat:
         fps = stats.throughput()
         print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s; latency median / "
@@ -154,15 +199,6 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
         print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
               f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
-    print(f"wrote {', '.join(str(p) for p in done.files)}")
-    if stats.fatal:
-        print(f"error: {stats.fatal}", file=sys.stderr)
-        return 1
-    if stats.frames == 0:
-        reason = dict(stats.errors) or "the recording has no frames on the mapped camera topics"
-        print(f"error: no frame was processed ({reason})", file=sys.stderr)
-        return 1
-    return 0
 
 
 def replay_calibration(source, calib):
@@ -289,6 +325,10 @@ def run_command(config_path, out=None, live: tuple[str, int] | None = None,
     from edge_depth.mcap_log import RAW_TOPICS
 
     config = load_robot_config(config_path)
+    if out is None:
+        check_output_path(config.log.out, "log.out", config.path)
+    else:
+        check_output_path(out, "--out")
     mode = sync_mode(config)
     e = config.engine
     try:
@@ -365,6 +405,7 @@ def record_command(config_path, out, max_frames: int | None = None,
     from edge_depth.mcap_log import RAW_TOPICS
 
     config = load_robot_config(config_path)
+    check_output_path(out, "--out")
     try:
         source, stereo, lidar = open_sources(config, max_frames)
     except ConfigError as exc:

@@ -49,6 +49,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import tempfile
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -250,6 +251,31 @@ def _log_out(log: LogConfig, path: str) -> LogConfig:
                      "file name to choose it)", path, log.out, log_.out)
         return log_
     return log
+
+
+def check_output_path(path: str | Path, key: str, source: str | None = None,
+                      folder: bool = False) -> None:
+    """Refuse an output that cannot be written before anything loads, naming `key` (and the
+    config file `source` it came from): a file `path` (or, `folder`, the folder itself)
+    whose folder cannot be created or written, or a file path that is a folder. The folder
+    is created as the writers would, and a file made in it and removed: the one test that
+    holds for read-only file systems, permissions and root alike."""
+    path = Path(path).expanduser()
+    where = path if folder else path.parent
+    if not folder and os.path.isdir(path):
+        raise ConfigError(key, "a file to write, not a folder", str(path), source)
+    try:
+        where.mkdir(parents=True, exist_ok=True)
+        with tempfile.TemporaryFile(dir=where):
+            pass
+    except OSError as exc:
+        # the nearest part of the path that is there (os.path: False where it cannot look)
+        existing = next((p for p in (where, *where.parents) if os.path.exists(p)), where)
+        why = (f"{existing} is a file, not a folder" if not os.path.isdir(existing)
+               else f"{where}: {exc.strerror or type(exc).__name__}")
+        what = ("a folder that can be created and written" if folder
+                else "a path in a folder that can be written")
+        raise ConfigError(key, f"{what} ({why})", str(path), source) from None
 
 
 def _warn_threads(engine: EngineOptions, path: str) -> None:

@@ -15,14 +15,18 @@ default (no cluster needed) or joins one with `--address`.
 Nothing lost, nothing repeated: beside each output a result record DIR/NAME.result.json
 holds the outcome and a fingerprint of everything that made it (the input's size and mtime,
 the bundle's bytes, the options, the golden replay); a rerun skips a recording whose
-fingerprint is unchanged, failed ones included (a damaged file fails the same way again). A
-recording that cannot be read fails alone with its reason; a worker process that dies is
-restarted by Ray and its task retried; one lost for good is reported and left without a
-record, so the next run tries it again. Outputs are written under a temporary name and
-renamed, so DIR never holds a half-written replay.
+fingerprint is unchanged, failed ones included (an unreadable file fails the same way
+again). A recording that cannot be read fails alone with its reason; a worker process that
+dies is restarted by Ray and its task retried; one lost for good is reported and left
+without a record, so the next run tries it again. Outputs are written under a temporary
+name and renamed, so DIR never holds a half-written replay.
+
+A recording read past damage (a damaged chunk, a cut-off end) is `damaged`, not `ok`: its
+outputs are kept (the replay of what could be read) and its row says what the input lost.
 
 At the end: a table per recording in the terminal and as DIR/summary.md + summary.json.
-Exit status 1 when a recording failed or a `compare` found a regression.
+Exit status 1 when a recording failed or a `compare` found a regression; else, with
+`strict`, DAMAGED_EXIT when a recording is damaged; else 0.
 """
 
 from __future__ import annotations
@@ -46,6 +50,8 @@ log = logging.getLogger(__name__)
 FLEET_EXTRA_HINT = "pip install 'edge-depth[fleet]'"
 COMMANDS = ("replay", "compare", "evaluate")
 RECORD_SUFFIX = ".result.json"
+DAMAGED_EXIT = 3  # --strict: a damaged recording, and nothing worse (failed: 1, usage: 2)
+KEPT = ("ok", "damaged")  # the statuses whose outputs are kept
 
 
 @dataclass(frozen=True)
@@ -156,9 +162,11 @@ def previous_record(job: FleetJob, recording: Recording, print_: str) -> dict | 
         return None
     if not isinstance(record, dict) or record.get("fingerprint") != print_:
         return None
-    if record.get("status") == "ok" and not all(Path(f).exists()
+    if record.get("status") in KEPT and not all(Path(f).exists()
                                                 for f in record.get("files", [])):
         return None
+    if record.get("status") in KEPT and "lost" not in record:
+        return None  # written before records said what the input lost: its "ok" may hide it
     return record
 
 
@@ -178,16 +186,15 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
         done = replay_recording(engine, open_recording(recording.path, partial, **options),
                                 partial, profile)
         record.update(done.record())
-        if done.stats.fatal:
-            raise ValueError(done.stats.fatal)
-        if done.stats.frames == 0:
-            why = dict(done.stats.errors) or "no frames on the mapped camera topics"
-            raise ValueError(f"no frame was processed ({why})")
+        if (failure := done.failure()) is not None:
+            raise ValueError(failure)
         if out is not None and partial is not None:
             os.replace(partial, out)
             record["files"] = [str(out)]
         if job.command == "compare" and out is not None:
             record.update(_compare(out, job, recording))
+        if done.source.stats.lost:  # read past damage: kept, and said what it lost
+            record.update(status="damaged", reason=_lost_note(done.source.stats.lost))
     except Exception as exc:  # noqa: BLE001 - one recording's failure never stops the rest
         reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         record.update(status="failed", reason=reason, files=[])
@@ -196,6 +203,12 @@ def run_one(engine, recording: Recording, job: FleetJob) -> dict:
             partial.unlink()
     record["wall_s"] = round(time.monotonic() - started, 3)
     return record
+
+
+def _lost_note(lost: list[str], shown: int = 2) -> str:
+    """What a damaged recording lost, for the table's note: the first `shown` of it."""
+    more = f"; and {len(lost) - shown} more" if len(lost) > shown else ""
+    return "input " + "; ".join(lost[:shown]) + more
 
 
 def _compare(out: Path, job: FleetJob, recording: Recording) -> dict:
@@ -298,25 +311,29 @@ def run_tasks(recordings: list[Recording], job: FleetJob, address: str | None,
 
 
 def _progress_line(record: dict) -> str:
-    if record["status"] != "ok":
+    if record["status"] not in KEPT:
         return f"{record['name']}: {record['status']} ({record['reason']})"
     ms = record.get("ms_per_frame")
     return (f"{record['name']}: {record['frames']} frames"
             + (f", {ms:.0f} ms/frame" if ms is not None else "")
-            + (f", {record['verdict']}" if "verdict" in record else ""))
+            + (f", {record['verdict']}" if "verdict" in record else "")
+            + (f", damaged ({record['reason']})" if record["status"] == "damaged" else ""))
 
 
 def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None,
-                  workers: int | None = None) -> int:
-    """The whole fleet: find, skip what is unchanged, run the rest, write the summary."""
+                  workers: int | None = None, strict: bool = False) -> int:
+    """The whole fleet: find, skip what is unchanged, run the rest, write the summary.
+    `strict`: a damaged recording exits DAMAGED_EXIT (where none failed or regressed)."""
     try:
         import ray  # noqa: F401 - only to say how to install it
     except ModuleNotFoundError:
         print(f"edge-depth fleet: needs Ray, from the fleet extra: {FLEET_EXTRA_HINT}",
               file=sys.stderr)
         return 1
+    from edge_depth.config import check_output_path
+
     recordings = find_recordings(sources)
-    job.out_dir.mkdir(parents=True, exist_ok=True)
+    check_output_path(job.out_dir, "--out", folder=True)
     shared = job_digest(job)
     prints = {r.name: fingerprint(r, job, shared) for r in recordings}
     earlier = {r.name: previous_record(job, r, prints[r.name]) for r in recordings}
@@ -340,7 +357,9 @@ def fleet_command(job: FleetJob, sources: list[Path], address: str | None = None
     (job.out_dir / "summary.md").write_text(summary["markdown"] + "\n")
     (job.out_dir / "summary.json").write_text(json.dumps(
         {k: v for k, v in summary.items() if k != "markdown"}, indent=2, default=str))
-    return 1 if summary["failed"] or summary["regressions"] else 0
+    if summary["failed"] or summary["regressions"]:
+        return 1
+    return DAMAGED_EXIT if strict and summary["damaged"] else 0
 
 
 def _cell(value, fmt: str = "{}") -> str:
@@ -352,25 +371,27 @@ def summarise_fleet(job: FleetJob, rows: list[dict], wall_s: float, frames_run: 
     lines = ["| recording | status | frames | with LiDAR | ms/frame | EPE px | bad-3 % | "
              "verdict | note |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        note = r.get("reason") or ("; ".join(r.get("regressions") or [])) or (
+        note = "; ".join(filter(None, [r.get("reason"), *(r.get("regressions") or [])])) or (
             "unchanged: skipped" if not r["ran"] else "")
         lines.append(
             f"| {r['name']} | {r['status']} | {_cell(r.get('frames'))} | "
             f"{_cell(r.get('frames_with_lidar'))} | {_cell(r.get('ms_per_frame'), '{:.1f}')} | "
             f"{_cell(r.get('epe'), '{:.3f}')} | {_cell(r.get('bad3'), '{:.2f}')} | "
             f"{r.get('verdict', '–')} | {note} |")
-    failed = [r["name"] for r in rows if r["status"] != "ok"]
+    failed = [r["name"] for r in rows if r["status"] not in KEPT]
+    damaged = [r["name"] for r in rows if r["status"] == "damaged"]
     regressions = [r["name"] for r in rows if r.get("verdict") == "REGRESSION"]
     ran = sum(r["ran"] for r in rows)
     rate = frames_run / wall_s if ran and wall_s > 0 else None
     lines.append("")
     lines.append(f"{len(rows)} recordings: {ran} run, {len(rows) - ran} skipped (unchanged), "
                  f"{len(failed)} failed" + (f" ({', '.join(failed)})" if failed else "")
+                 + f", {len(damaged)} damaged" + (f" ({', '.join(damaged)})" if damaged else "")
                  + (f", {len(regressions)} regressed"
                     + (f" ({', '.join(regressions)})" if regressions else "")
                     if job.command == "compare" else "")
                  + f"; {frames_run} frames in {wall_s:.1f} s"
                  + (f" ({rate:.1f} frames/s)" if rate else ""))
     return dict(command=job.command, job=asdict(job), recordings=rows, failed=failed,
-                regressions=regressions, wall_s=wall_s, frames_run=frames_run,
+                damaged=damaged, regressions=regressions, wall_s=wall_s, frames_run=frames_run,
                 frames_per_s=rate, markdown="\n".join(lines))

@@ -474,3 +474,25 @@ def test_the_two_selections_are_summed_up_each_over_its_own_frames():
         "Edge selection (no LiDAR): replaced a median 6.0 % of each frame's pixels (p95 6.9 %; "
         "none in 0 of 2 frames)"]
     assert selection_summary([dict(engine=1.0)]) is None
+
+
+@pytest.mark.parametrize("folder", ["taken", "/proc/edge"])
+def test_a_log_out_that_cannot_be_written_names_the_file_and_the_key_before_the_engine_loads(
+        tmp_path, capsys, monkeypatch, folder):
+    """A log folder under a file, or one the system cannot create: one line naming the config
+    file, log.out and the folder, exit 1, and no engine loaded."""
+    import edge_depth.commands
+
+    def no_engine(*args, **kwargs):
+        raise AssertionError("the engine loaded before the output was checked")
+
+    monkeypatch.setattr(edge_depth.commands, "Engine", no_engine)
+    (tmp_path / "taken").write_text("a file where the log folder would go")
+    out = tmp_path / folder / "depth.mcap"  # an absolute folder replaces tmp_path
+    cfg = write(tmp_path, SIM.format(out=out))
+    assert main(["run", "--config", str(cfg), "--max-frames", "1"]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    why = (f"{tmp_path / 'taken'} is a file, not a folder" if folder == "taken"
+           else "/proc/edge: No such file or directory")
+    assert line == (f"edge-depth run: error: {cfg}: log.out: expected a path in a folder that "
+                    f"can be written ({why}), got '{out}'")

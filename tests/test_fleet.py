@@ -119,3 +119,49 @@ def test_without_ray_it_says_how_to_install_it(recordings, tmp_path, capsys, mon
     assert main(["fleet", "replay", str(recordings), "--out", str(tmp_path / "o")]) == 1
     (line,) = capsys.readouterr().err.strip().splitlines()
     assert "pip install 'edge-depth[fleet]'" in line
+
+
+def test_a_recording_read_past_damage_is_kept_as_damaged_and_strict_exits_3(tmp_path, capsys):
+    """A cut-off recording and one with a flipped byte in a middle chunk: each row says
+    `damaged` and what the input lost, their replays are kept, and only --strict fails."""
+    from edge_depth.fleet import DAMAGED_EXIT
+    from tests.test_hostile_inputs import _small_recording
+
+    folder, out = tmp_path / "recordings", tmp_path / "out"
+    folder.mkdir()
+    starts = _small_recording(folder / "whole.mcap")
+    raw = (folder / "whole.mcap").read_bytes()
+    (folder / "whole.mcap").unlink()
+    (folder / "cut.mcap").write_bytes(raw[:starts[6] + 100])
+    flipped = bytearray(raw)
+    flipped[(starts[4] + starts[5]) // 2] ^= 0xFF
+    (folder / "flipped.mcap").write_bytes(bytes(flipped))
+    assert main(["fleet", "replay", str(folder), "--out", str(out), *THREADS]) == 0
+    summary = _summary(out)
+    assert summary["damaged"] == ["cut", "flipped"] and summary["failed"] == []
+    by_name = {r["name"]: r for r in summary["recordings"]}
+    assert by_name["cut"]["lost"] == [f"cut off at byte {starts[6]} of {starts[6] + 100} "
+                                      "(100 bytes unreadable)"]
+    assert by_name["flipped"]["lost"][0].startswith(f"damaged data at byte {starts[4]} ")
+    assert 0 < by_name["cut"]["frames"] < 6 and 0 < by_name["flipped"]["frames"] < 6
+    table = (out / "summary.md").read_text()
+    assert f"| cut | damaged | {by_name['cut']['frames']} |" in table
+    assert f"input cut off at byte {starts[6]}" in table
+    assert f"input damaged data at byte {starts[4]}" in table
+    assert "0 failed, 2 damaged (cut, flipped)" in table
+    assert (out / "cut.mcap").is_file() and (out / "flipped.mcap").is_file()
+    capsys.readouterr()
+    assert main(["fleet", "replay", str(folder), "--out", str(out), "--strict",
+                 *THREADS]) == DAMAGED_EXIT == 3
+    assert "2 skipped (unchanged), 0 failed, 2 damaged" in capsys.readouterr().out
+
+
+def test_an_out_folder_that_cannot_be_made_is_one_line_naming_it(recordings, tmp_path,
+                                                                  capsys):
+    (tmp_path / "taken").write_text("a file where the folder would go")
+    out = tmp_path / "taken" / "fleet"
+    assert main(["fleet", "replay", str(recordings / "rec0.mcap"), "--out", str(out),
+                 *THREADS]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert "--out" in line and str(out) in line
+    assert f"{tmp_path / 'taken'} is a file, not a folder" in line

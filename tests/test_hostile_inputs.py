@@ -3,6 +3,7 @@ ends in one line naming the property, or is read whole, or is reported in /diagn
 
 from __future__ import annotations
 
+import ast
 import json
 import re
 from pathlib import Path
@@ -202,30 +203,33 @@ def test_an_all_invalid_output_raises_the_health_level_and_names_the_cause(
     assert reports and reports[-1]["output_health"]["level"] == "ERROR"
 
 
-def test_a_small_disk_keeps_the_frame_in_hand(tmp_path, monkeypatch, capsys):
-    """A 16 MiB disk: frames are written until its reserve (an eighth of it) is reached; the
-    frame in hand then goes in whole before the file closes."""
+def test_a_disk_low_on_space_stops_before_a_frame_and_closes_with_every_frame_whole(
+        tmp_path, monkeypatch, capsys):
+    """A 64 MiB disk whose free space drops from 32 to 3 MiB: the frames before are written
+    whole (images and result), the next is not begun, the file closes with its summary and
+    the message says how many frames it holds."""
     from collections import namedtuple
 
-    import edge_depth.mcap_log as mcap_log
+    import edge_depth.disk_reserve as disk_reserve
     from edge_depth.mcap_log import TOPICS
     from tests.test_pipeline_mcap import topic_counts
 
     usage = namedtuple("usage", "total used free")
     calls = []
 
-    def disk_usage(path):
+    def disk_usage(path):  # one call a frame
         calls.append(path)
-        free = 8 * 2**20 if len(calls) <= 6 else 1 * 2**20
-        return usage(16 * 2**20, 16 * 2**20 - free, free)
+        free = 32 * 2**20 if len(calls) <= 3 else 3 * 2**20
+        return usage(64 * 2**20, 64 * 2**20 - free, free)
 
-    monkeypatch.setattr(mcap_log.shutil, "disk_usage", disk_usage)
+    monkeypatch.setattr(disk_reserve.shutil, "disk_usage", disk_usage)
     out = tmp_path / "depth.mcap"
     assert main(["run", "--config", str(write(tmp_path, SIM.format(out=out))),
                  "--max-frames", "20"]) == 1
-    assert "below 2 MB): wrote the frame in hand" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "is full (3 MB free" in err and f"closed {out} with its summary (3 frames)" in err
     counts = topic_counts(out)
-    assert counts[TOPICS["disparity"]] == counts[TOPICS["left"]] >= 2
+    assert counts[TOPICS["disparity"]] == counts[TOPICS["left"]] == 3
 
 
 def test_a_healthy_replay_stays_ok(recording, tmp_path, capsys):
@@ -241,3 +245,133 @@ def test_a_healthy_replay_stays_ok(recording, tmp_path, capsys):
                      make_reader(f).iter_messages(topics=[TOPICS["diagnostics"]])][-1:]
     assert report["output_health"]["level"] == "OK"
     assert report["output_health"]["invalid_pct"] < 1.0
+
+
+def _rewritten(src: Path, dst: Path, change) -> Path:
+    """A copy of the recording `src` at `dst`, each message's (log time, data) replaced by
+    change(topic, message)."""
+    from mcap.reader import make_reader
+    from mcap.writer import Writer
+
+    with open(src, "rb") as f_in, open(dst, "wb") as f_out:
+        writer, schemas, channels = Writer(f_out), {}, {}
+        writer.start()
+        for schema, channel, message in make_reader(f_in).iter_messages():
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(schema.name, schema.encoding,
+                                                            schema.data)
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id])
+            log_time, data = change(channel.topic, message)
+            writer.add_message(channels[channel.id], log_time=log_time, data=data,
+                               publish_time=log_time)
+        writer.finish()
+    return dst
+
+
+def test_a_damaged_first_chunk_is_named_before_a_calibration_is_asked_for(tmp_path, capsys):
+    """The chunk that held the calibration is damaged: the error says where and what, not
+    that the recording has none; with --calib the rest replays, the damage counted."""
+    from edge_depth.sim import RigConfig, make_sample
+
+    path = tmp_path / "rec.mcap"
+    starts = _small_recording(path)
+    raw = bytearray(path.read_bytes())
+    raw[(starts[0] + starts[1]) // 2] ^= 0xFF
+    path.write_bytes(bytes(raw))
+    assert main(["replay", str(path), "--out", str(tmp_path / "out.mcap")]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line.startswith(f"edge-depth replay: error: {path}: no calibration could be read: "
+                           f"damaged data at byte {starts[0]} (chunk: ")
+    assert "--calib" in line and "neither" not in line
+    calib = tmp_path / "calib.toml"
+    calib.write_text(dumps_calibration(make_sample(1_000_000, RigConfig(width=96, height=64))
+                                       .calibration()))
+    assert main(["replay", str(path), "--out", str(tmp_path / "out.mcap"), "--calib",
+                 str(calib)]) == 0
+    printed = capsys.readouterr().out
+    frames = int(re.search(r"^(\d+) frames, ", printed, re.M)[1])
+    assert 0 < frames < 6
+    assert f"skipped while reading: {{'damaged data at byte {starts[0]} (chunk: " in printed
+
+
+def test_an_unreadable_calibration_message_is_named_not_replaced_silently(recording, tmp_path,
+                                                                          capsys, caplog):
+    """/edge/calibration that does not decode: the CameraInfo pair stands in with a warning
+    naming the topic and why, and the missing LiDAR extrinsics are blamed on it."""
+    from edge_depth.mcap_log import TOPICS
+
+    path = _rewritten(recording, tmp_path / "rec.mcap", lambda topic, m: (
+        m.log_time, b"\xffnot JSON" if topic == TOPICS["calibration_file"] else m.data))
+    assert main(["replay", str(path), "--out", str(tmp_path / "out.mcap")]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert ("used because its /edge/calibration message is unreadable (UnicodeDecodeError: "
+            in line and "has no LiDAR extrinsics" in line)
+    assert ("its /edge/calibration message is unreadable (UnicodeDecodeError: " in caplog.text
+            and "using the CameraInfo pair instead" in caplog.text)
+
+
+def test_a_replay_that_processes_no_frame_says_why_and_claims_no_file(tmp_path, capsys):
+    """Every image's stamp out of range: the error names the first skip, the summary's counts
+    agree with the list below them, and the output (scans and calibration only) is gone."""
+    from edge_depth.mcap_log import TOPICS
+
+    small = tmp_path / "small.mcap"
+    _small_recording(small)
+    images = (TOPICS["left"], TOPICS["right"])
+    path = _rewritten(small, tmp_path / "rec.mcap", lambda topic, m: (
+        m.log_time + (2**33 * 10**9 if topic in images else 0), m.data))
+    out = tmp_path / "out.mcap"
+    assert main(["replay", str(path), "--out", str(out)]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.startswith("error: no frame was processed (skipped: 12 while reading, "
+                                   "0 in the pipeline; the first: /stereo/left/image_rect: "
+                                   "stamp ")
+    lines = captured.out.splitlines()
+    assert lines[0] == "0 frames, 0 scans, 0 dropped; skipped: 12 while reading, 0 in the pipeline"
+    listed = ast.literal_eval(lines[1].removeprefix("skipped while reading: "))
+    assert sum(listed.values()) == 12 and all("out of range" in k for k in listed)
+    assert "wrote nothing: no frame was processed" in captured.out
+    assert f"wrote {out}" not in captured.out and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["replay", "record"])
+def test_an_out_that_cannot_be_written_is_named_before_the_engine_loads(
+        recording, tmp_path, capsys, monkeypatch, command):
+    import edge_depth.commands
+
+    def no_engine(*args, **kwargs):
+        raise AssertionError("the engine loaded before the output was checked")
+
+    monkeypatch.setattr(edge_depth.commands, "Engine", no_engine)
+    (tmp_path / "taken").write_text("a file where a folder would go")
+    out = tmp_path / "taken" / "out.mcap"
+    args = ([str(recording)] if command == "replay"
+            else ["--config", str(write(tmp_path, SIM.format(out=tmp_path / "log.mcap")))])
+    assert main([command, *args, "--out", str(out)]) == 1
+    (line,) = capsys.readouterr().err.strip().splitlines()
+    assert line == (f"edge-depth {command}: error: --out: expected a path in a folder that can "
+                    f"be written ({tmp_path / 'taken'} is a file, not a folder), got '{out}'")
+
+
+def test_chunks_cut_out_of_a_recording_are_counted_as_lost(tmp_path, caplog):
+    """Two chunks removed from the middle: the summary still counts their messages, and the
+    replay says how many no chunk held."""
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.types import StereoFrame
+
+    path = tmp_path / "rec.mcap"
+    starts = _small_recording(path)
+    total = McapSource(path)
+    list(total)
+    raw = path.read_bytes()
+    path.write_bytes(raw[:starts[4]] + raw[starts[6]:])
+    source = McapSource(path)
+    frames = [e for e in source if isinstance(e, StereoFrame)]
+    assert 0 < len(frames) < 6
+    missing = total.stats.messages - source.stats.messages
+    assert missing > 0
+    assert source.stats.lost == [f"{missing} messages the summary counts are in no readable "
+                                 "chunk"]
+    assert "no readable chunk holds" in caplog.text

@@ -106,7 +106,8 @@ def test_replay_whose_first_frame_has_another_size_stops_naming_both(tmp_path, c
     assert "frames with LiDAR: 0 of 0" in captured.out
     assert "error: the camera's frames are 320x200 but the calibration is for 640x400" \
         in captured.err
-    assert captured.out.count("frame ") == 0  # stopped at the first frame, none processed
+    assert not re.search(r"^frame \d+:", captured.out, re.M)  # stopped at the first frame
+    assert "wrote nothing: no frame was processed" in captured.out
 
 
 def test_replay_summary_counts_frames_with_lidar(recording, tmp_path, capsys):

@@ -95,6 +95,10 @@ class RecordingCalibration:
     infos: dict[str, dict] = field(default_factory=dict)
     transforms: list[tuple[str, str, np.ndarray]] = field(default_factory=list)
     lidar_frame: str | None = None
+    # what kept the scanned messages from being read: damaged or cut-off data (`lost`), a
+    # calibration message that does not decode (`unreadable`: why)
+    lost: list[str] = field(default_factory=list)
+    unreadable: str | None = None
 
 
 @dataclass
@@ -105,6 +109,20 @@ class ReplayStats:
     bytes_read: int = 0
     truncated: bool = False
     errors: Counter = field(default_factory=Counter)
+    # what the input lost, one line each (a damaged chunk, a cut-off end, messages on a
+    # channel no intact record declares); empty for an intact recording
+    lost: list[str] = field(default_factory=list)
+
+
+def damage_text(damage) -> str:
+    """A damaged stretch of a file (`mcap_tolerant.Damage`) in words: where, why, how much."""
+    lost = "?" if damage.messages_lost is None else damage.messages_lost
+    return f"damaged data at byte {damage.offset} ({damage.reason}, {lost} messages lost)"
+
+
+def cut_off_text(path: Path, offset: int) -> str:
+    size = path.stat().st_size
+    return f"cut off at byte {offset} of {size} ({size - offset} bytes unreadable)"
 
 
 def bag_files(path: Path) -> list[Path]:
@@ -198,15 +216,18 @@ class McapSource(Source):
 
     def scan_calibration(self, max_messages: int = 5000) -> RecordingCalibration:
         """Read the recording's first messages for its calibration: /edge/calibration (ours,
-        logged first), the mapped camera infos, /tf_static and the LiDAR's frame id."""
+        logged first), the mapped camera infos, /tf_static and the LiDAR's frame id; with
+        what kept the calibration from being read: damage before the camera infos were
+        complete (`lost`), a calibration message that does not decode (`unreadable`)."""
         from edge_depth.capture.mcap_tolerant import ReadReport, iter_messages
 
-        t, found = self.topics, RecordingCalibration()
+        t, found, report = self.topics, RecordingCalibration(), ReadReport()
         wanted = {t.calibration, t.left_info, t.right_info, t.tf_static, t.lidar} - {""}
         factories = message_decoders()
         decoders: dict = {}
+        damage_before: int | None = None  # damage records before the camera infos were whole
         try:
-            messages = iter_messages(self.path, ReadReport())
+            messages = iter_messages(self.path, report)
             for count, (schema, channel, message) in enumerate(messages):
                 if count >= max_messages:
                     break
@@ -221,8 +242,15 @@ class McapSource(Source):
                         break
                 except Exception as exc:  # noqa: BLE001 - counted like the replay's own
                     self.stats.errors[f"{channel.topic}: decode {type(exc).__name__}"] += 1
+                    if channel.topic == t.calibration and found.unreadable is None:
+                        found.unreadable = f"{type(exc).__name__}: {exc}"[:200]
+                if len(found.infos) == 2 and damage_before is None:
+                    damage_before = len(report.damage)
         except ValueError as exc:  # not MCAP at all
             raise ReplayError(f"{self.path}: not a readable MCAP file ({exc})") from None
+        found.lost = [damage_text(d) for d in report.damage[:damage_before]]
+        if report.truncated_at is not None and damage_before is None:
+            found.lost.append(cut_off_text(self.path, report.truncated_at))
         return found
 
     def _found(self, found: RecordingCalibration, topic: str, msg) -> bool:
@@ -280,8 +308,16 @@ class McapSource(Source):
         if report.unknown_channel:
             self.stats.errors["message on a channel no intact record declares"] += \
                 report.unknown_channel
+            self._lost(path, f"{report.unknown_channel} messages on a channel no intact "
+                             "record declares")
+        if missing := report.unaccounted():  # whole chunks cut out of the file
+            self.stats.errors["message the summary counts but no chunk holds"] += missing
+            self._lost(path, f"{missing} messages the summary counts are in no readable chunk")
+            log.warning("%s: the summary counts %d messages that no readable chunk holds "
+                        "(chunks cut out of the file)", path, missing)
         if report.truncated_at is not None:
             self.stats.truncated = True
+            self._lost(path, cut_off_text(path, report.truncated_at))
             self.stats.bytes_read = report.truncated_at
             span = 0.0 if first_time is None else (last_time - first_time) / 1e9
             log.warning("%s is cut off at byte %d: replayed the %d messages of its complete "
@@ -290,11 +326,14 @@ class McapSource(Source):
                         path.stat().st_size / 1e6)
 
     def _damaged(self, damage, path: Path) -> None:
-        lost = "?" if damage.messages_lost is None else damage.messages_lost
-        self.stats.errors[f"damaged data at byte {damage.offset} ({damage.reason}, "
-                          f"{lost} messages lost)"] += 1
+        self.stats.errors[damage_text(damage)] += 1
+        self._lost(path, damage_text(damage))
         log.warning("%s: damaged data at byte %d (%s): skipped, reading on at the next "
                     "intact chunk", path, damage.offset, damage.reason)
+
+    def _lost(self, path: Path, what: str) -> None:
+        """One line of `stats.lost`; a bag's file is named where the bag has several."""
+        self.stats.lost.append(f"{path.name}: {what}" if len(self.paths) > 1 else what)
 
     def _pace(self, log_time: int) -> None:
         """realtime: sleep until the message's log time; a jump of over a minute (a clock
@@ -422,33 +461,61 @@ def recording_calibration(source: McapSource):
     """The calibration a recording carries, in precedence order: our /edge/calibration TOML,
     else the mapped CameraInfo pair with T_cam_lidar from /tf_static (the chain from the
     LiDAR's frame to the left camera's). (stereo, lidar or None, where it came from), or None
-    when it carries neither."""
+    when it carries neither. ReplayError when it carries neither that can be read because its
+    data is damaged or its calibration message does not decode; where the CameraInfo pair
+    stands in for such a calibration, a warning and the origin say so."""
     from edge_depth.calibration.io import loads_calibration
-    from edge_depth.calibration.model import LidarExtrinsics
-    from edge_depth.calibration.ros import chain_transform, stereo_from_camera_infos
 
     found = source.scan_calibration()
     t = source.topics
     if found.toml is not None:
         stereo, lidar = loads_calibration(found.toml, f"{source.path} {t.calibration}")
         return stereo, lidar, f"the recording's {t.calibration}"
+    unread = _unread_calibration(found, t)
     if len(found.infos) < 2:
+        if unread:
+            raise ReplayError(f"{source.path}: no calibration could be read: {unread}; give "
+                              "a calibration file (--calib)")
         return None
+    stereo, lidar, origin = _camera_info_calibration(source.path, found, t)
+    if unread:
+        log.warning("%s: %s; using the CameraInfo pair instead", source.path, unread)
+        origin += f", used because {unread}"
+    return stereo, lidar, origin
+
+
+def _unread_calibration(found: RecordingCalibration, t: TopicMap) -> str:
+    """Why the recording's own calibration may not have been seen: its message does not
+    decode, or the data before a CameraInfo pair is damaged (it may have been there); ""
+    when neither."""
+    if found.unreadable is not None:
+        return f"its {t.calibration} message is unreadable ({found.unreadable})"
+    if found.lost:
+        return (f"{'; '.join(found.lost[:3])}{' …' if len(found.lost) > 3 else ''} before "
+                f"any {t.calibration} or CameraInfo pair was read (it may have held them)")
+    return ""
+
+
+def _camera_info_calibration(path: Path, found: RecordingCalibration, t: TopicMap):
+    """(stereo, lidar or None, origin) from the CameraInfo pair and /tf_static."""
+    from edge_depth.calibration.model import LidarExtrinsics
+    from edge_depth.calibration.ros import chain_transform, stereo_from_camera_infos
+
     left, right = found.infos["left"], found.infos["right"]
-    stereo = stereo_from_camera_infos(left, right, f"{source.path} {t.right_info}",
+    stereo = stereo_from_camera_infos(left, right, f"{path} {t.right_info}",
                                       rectified=t.rectified)
     origin = f"the recording's CameraInfo ({t.left_info}, {t.right_info})"
     lidar = None
     if found.lidar_frame and found.transforms:
         chain = chain_transform(found.transforms, left["frame_id"], found.lidar_frame)
         if chain is not None:
-            T, path = chain
+            T, chain_path = chain
             if t.rectified:  # the camera info's R turns the raw camera into the rectified one
                 R = np.eye(4)
                 R[:3, :3] = left["R"]
                 T = R @ T
             lidar = LidarExtrinsics(T)
-            origin += f" and {t.tf_static} ({' → '.join(path)})"
+            origin += f" and {t.tf_static} ({' → '.join(chain_path)})"
         else:
             origin += (f"; {t.tf_static} has no chain from the LiDAR's frame "
                        f"{found.lidar_frame!r} to the camera's {left['frame_id']!r}")
