@@ -340,7 +340,8 @@ MIN_REFINE_FRAMES = 6
 def _initial_calibration(recording: Path, calib_path: Path | None, is_mcap: bool, topics):
     """(stereo, lidar or None, where it came from): --calib, else the recording's own."""
     from edge_depth.calibration.io import load_calibration
-    from edge_depth.capture.replay import McapSource, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
 
     if calib_path is not None:
         return (*load_calibration(calib_path), f"--calib {calib_path}")

@@ -206,7 +206,8 @@ def replay_calibration(source, calib):
     recording's /edge/calibration, its CameraInfo pair with T_cam_lidar from /tf_static.
     Logs where it came from; a mapped LiDAR topic with no extrinsics is an error."""
     from edge_depth.calibration.io import load_calibration
-    from edge_depth.capture.replay import ReplayError, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import ReplayError
 
     if calib is not None:
         stereo, lidar = load_calibration(calib)

@@ -19,7 +19,8 @@ import numpy as np
 
 from edge_depth.calibration.projection import project_to_disparity
 from edge_depth.calibration_watch import CalibrationWatch, parabola_minimum, stereo_reference
-from edge_depth.capture.replay import McapSource, recording_calibration
+from edge_depth.capture.recording_calibration import recording_calibration
+from edge_depth.capture.replay import McapSource
 from edge_depth.capture.synced import stamped_frames
 from edge_depth.runtime.engine import Engine
 from edge_depth.sim_recording import write_turning_recording

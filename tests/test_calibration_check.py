@@ -15,7 +15,8 @@ from edge_depth.cli import main
 def _recording_with_its_calibration_yawed(folder, frames: int, yaw_deg: float):
     """A sim recording (192x128) and its own calibration with the LiDAR turned by `yaw_deg`
     about the camera's vertical axis, written beside it."""
-    from edge_depth.capture.replay import McapSource, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
 
     rec = folder / "rec.mcap"
     assert main(["synth", "--mcap", str(rec), "--frames", str(frames), "--seed", "1000000",

@@ -10,7 +10,8 @@ import pytest
 
 from edge_depth.calibration.io import save_calibration
 from edge_depth.calibration.ros import chain_transform
-from edge_depth.capture.replay import McapSource, ReplayError, TopicMap, recording_calibration
+from edge_depth.capture.recording_calibration import recording_calibration
+from edge_depth.capture.replay import McapSource, ReplayError, TopicMap
 from edge_depth.commands import replay_command
 from edge_depth.runtime.options import EngineOptions
 from edge_depth.sim import RigConfig, make_sample

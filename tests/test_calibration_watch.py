@@ -52,6 +52,28 @@ def test_an_injected_rotation_is_estimated_with_its_sign(frames, rotation, axis)
     assert estimate.level == ERROR and estimate.shift_px > 1.0
 
 
+def test_points_hidden_from_the_camera_do_not_pull_pitch(monkeypatch):
+    """A LiDAR 25 cm above the camera sees background over the top of nearer surfaces; kept
+    (the occlusion filter off), those points land inside the nearer surface, below its top
+    edges. Behind the surface the camera sees, they cost no more than a point without a
+    reference, so the right calibration reads pitch 0; counted in full they pulled it."""
+    import edge_depth.calibration_watch as watch_module
+
+    T = default_T_cam_lidar(0.25)
+    scenes = [make_sample(3_000_000 + i, RIG, "beams16", T_cam_lidar=T) for i in range(12)]
+    monkeypatch.setattr(watch_module, "visible_points", lambda p, *a, **k: np.ones(len(p), bool))
+
+    def pitch() -> float:
+        watch = CalibrationWatch(scenes[0].calibration(), T, 1)
+        for s in scenes:
+            watch.add(np.nan_to_num(s.disp_left).astype(np.float32), s.scan.points)
+        return watch.estimate().error_deg[0]
+
+    assert abs(pitch()) < 0.02
+    monkeypatch.setattr(watch_module, "BEHIND_PX", watch_module.TRUNCATE_PX)
+    assert pitch() < -0.04  # the hidden points, counted in full, read as the camera pitched
+
+
 def test_the_right_calibration_is_ok_and_settles_first(frames):
     watch = watched(frames[:7], (0, 0, 0))
     assert watch.estimate().level == SETTLING and "settling" in watch.estimate().describe()
@@ -151,7 +173,8 @@ def test_the_stereo_only_reference_never_sees_the_lidar(engine, noiseless_sample
 def small_recording(tmp_path_factory):
     from edge_depth.calibration.io import save_calibration
     from edge_depth.calibration.model import LidarExtrinsics
-    from edge_depth.capture.replay import McapSource, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
 
     folder = tmp_path_factory.mktemp("watch")
     rec = folder / "rec.mcap"
@@ -219,7 +242,8 @@ def test_the_ros2_profile_gives_it_a_diagnostic_status_of_its_own():
 def test_a_turning_robot_shows_the_lidar_clock_offset_and_its_fix(tmp_path, capsys):
     from edge_depth.calibration.io import save_calibration
     from edge_depth.calibration.model import LidarExtrinsics
-    from edge_depth.capture.replay import McapSource, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
 
     rec = tmp_path / "turning.mcap"
     assert main(["synth", "--mcap", str(rec), "--frames", "100", "--seed", "1000000",

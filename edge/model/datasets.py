@@ -72,7 +72,8 @@ def mcap_arrays(path: Path):
     """Frames of a recording with their LiDAR projected into both views (calibration from the
     recording); GT where the recording carries /sim/gt_disparity."""
     from edge_depth.calibration.projection import project_to_disparity
-    from edge_depth.capture.replay import McapSource, recording_calibration
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
     from edge_depth.capture.synced import synced_frames
 
     found = recording_calibration(McapSource(path))
