@@ -16,7 +16,7 @@ import pytest
 from mcap.reader import make_reader
 
 from edge_depth.calibration.io import dumps_calibration
-from edge_depth.capture.replay import Calibration, GroundTruth, McapSource, ReplayError, TopicMap
+from edge_depth.capture.replay import McapSource, ReplayError, TopicMap
 from edge_depth.capture.sim import SimSource
 from edge_depth.cli import main
 from edge_depth.daemon import Pipeline
@@ -24,7 +24,7 @@ from edge_depth.mcap_log import RAW_TOPICS, TOPICS, McapLogger
 from edge_depth.runner import StopFlag, run
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.sim_recording import write_sim_recording
-from edge_depth.types import LidarScan, StereoFrame
+from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 ROOT = Path(__file__).resolve().parents[1]
 SEED = 1_000_000

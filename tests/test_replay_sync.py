@@ -163,8 +163,8 @@ def test_two_hundred_dropped_frames_leave_nothing_behind(engine, pipelined, boun
     import time
     import tracemalloc
 
-    from edge_depth.capture.replay import GroundTruth
     from edge_depth.runner import Runner
+    from edge_depth.types import GroundTruth
 
     (scan, frame, gt), = sim_events(1, 5.0)
 

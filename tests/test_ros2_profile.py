@@ -12,11 +12,11 @@ from mcap.reader import make_reader
 
 from edge_depth.calibration.io import loads_calibration
 from edge_depth.calibration.ros import transform_matrix
-from edge_depth.capture.replay import Calibration, McapSource
+from edge_depth.capture.replay import McapSource
 from edge_depth.cli import main
 from edge_depth.commands import replay_command
 from edge_depth.runtime.options import EngineOptions
-from edge_depth.types import LidarScan, StereoFrame
+from edge_depth.types import Calibration, LidarScan, StereoFrame
 
 
 @pytest.fixture(scope="module")

@@ -23,20 +23,16 @@ import numpy as np
 
 from edge_depth.capture import Source
 from edge_depth.capture.decode import (
-    camera_info,
     camera_info_dict,
-    decode_image,
     decode_message,
-    decode_points,
     frame_id,
-    header_stamp,
     message_decoders,
     static_transforms,
     toml_text,
 )
+from edge_depth.capture.message_events import MessageEvents
 from edge_depth.errors import EdgeError
 from edge_depth.topics import TOPICS
-from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 
@@ -162,9 +158,6 @@ class McapSource(Source):
         self.stats = ReplayStats()
         self.seen_topics: set[str] = set()
         super().__init__()
-        self._info: dict[str, tuple] = {}
-        self._last_stamp: dict[str, int] = {}  # frame / scan: the previous one's stamp
-        self.arrival_order = False  # stamps proved useless: log times instead
         self._pace_origin: tuple[int, float] | None = None  # (log time, monotonic s)
 
     def counters(self) -> dict:
@@ -353,7 +346,7 @@ class McapSource(Source):
         t = self.topics
         wanted = {t.left, t.right, t.lidar, t.left_info, t.right_info, t.calibration, t.gt}
         wanted.discard("")
-        pending: dict[int, dict[str, np.ndarray]] = {}
+        events = MessageEvents(t, self.stats, str(self.path), self.pair_window_ns)
         self._pace_origin = None
         factories = message_decoders()
         decoders: dict[int, object] = {}
@@ -373,89 +366,15 @@ class McapSource(Source):
             if self.realtime:
                 self._pace(message.log_time)
             try:
-                yield from self._handle(topic, message, decoded, pending)
+                yield from events.events(topic, decoded, int(message.log_time))
             except (ValueError, TypeError, AttributeError, IndexError, OverflowError) as exc:
                 self.stats.errors[f"{topic}: {exc}"[:120]] += 1
                 log.warning("%s: skipped a message on %s: %s", self.path, topic, exc)
         if self._stop.is_set():
             return
-        if pending:  # half pairs the file ended on
-            self.stats.errors["unpaired image"] += len(pending)
+        events.finish()  # half pairs the file ended on
         if not self.stats.truncated:
             self.stats.bytes_read = sum(p.stat().st_size for p in self.paths)
         if self.stats.frames == 0 and t.left not in self.seen_topics:
             raise ReplayError(f"{self.path}: no messages on {t.left} (left); the file has: "
                               f"{', '.join(sorted(self.seen_topics)) or 'no messages'}")
-
-    def _stamp(self, msg, log_time: int) -> int:
-        """The message's header stamp — or, once those have proved not to increase, its log
-        time: the order it arrived in (`_check_order`)."""
-        stamp = header_stamp(msg, log_time)
-        return log_time if self.arrival_order else stamp
-
-    def _check_order(self, kind: str, stamp_ns: int) -> None:
-        """Stamps that do not increase (all 0, duplicated, a clock going back) would pair
-        frames with the wrong scans: counted, said once, and from then on frames and scans
-        are stamped by their log times (arrival order), where those do increase."""
-        last = self._last_stamp.get(kind)
-        self._last_stamp[kind] = stamp_ns
-        if last is None or stamp_ns > last:
-            return
-        key = _order_note(kind)
-        if not self.stats.errors[key]:
-            log.warning("%s: a %s stamp (%d ns) is not after the previous one (%d ns): the "
-                        "recording's stamps are zero, duplicated or go back; pairing by the "
-                        "messages' log times (arrival order) from here on", self.path, kind,
-                        stamp_ns, last)
-        self.stats.errors[key] += 1
-        self.arrival_order = True
-
-    def _handle(self, topic, message, decoded, pending):
-        t = self.topics
-        log_time = int(message.log_time)
-        if topic == t.calibration:
-            yield Calibration(log_time, toml=toml_text(decoded))
-        elif topic in (t.left_info, t.right_info):
-            self._info["left" if topic == t.left_info else "right"] = camera_info(decoded)
-            if len(self._info) == 2:
-                f, cx, cy, _, size = self._info["left"]
-                tx = self._info["right"][3]
-                if f > 0 and tx < 0:
-                    yield Calibration(log_time, focal_px=f, principal_point=(cx, cy),
-                                      baseline_m=-tx / f, size=size)
-                self._info.clear()
-        elif topic == t.gt:
-            yield GroundTruth(self._stamp(decoded, log_time), decode_image(decoded))
-        elif topic == t.lidar:
-            pts, inten, offsets = decode_points(decoded)
-            self.stats.scans += 1
-            stamp = self._stamp(decoded, log_time)
-            self._check_order("scan", stamp)
-            yield LidarScan(stamp, pts, inten,
-                            None if offsets is None else stamp + offsets)
-        else:  # left or right image
-            stamp = self._stamp(decoded, log_time)
-            image = decode_image(decoded)
-            if image.dtype != np.uint8:
-                raise ValueError(f"{topic}: a camera image must be 8-bit, got {image.dtype}")
-            side = "left" if topic == t.left else "right"
-            match = next((s for s in pending
-                          if abs(s - stamp) <= self.pair_window_ns and side not in pending[s]),
-                         None)
-            if match is None:
-                pending[stamp] = {side: image}
-            else:
-                pair = pending.pop(match)
-                pair[side] = image
-                self.stats.frames += 1
-                self._check_order("frame", min(match, stamp))
-                yield StereoFrame(min(match, stamp), self.stats.frames - 1, pair["left"],
-                                  pair["right"], rectified=t.rectified)
-            # a half pair older than a second will not be completed
-            for s in [s for s in pending if stamp - s > 1_000_000_000]:
-                del pending[s]
-                self.stats.errors["unpaired image"] += 1
-
-
-def _order_note(kind: str) -> str:
-    return f"{kind} stamp not after the previous {kind}'s (zero, duplicated or going back)"
