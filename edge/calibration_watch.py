@@ -11,7 +11,13 @@ edges, and they pull pitch by ~0.1°). For each probe rotation of the calibratio
 yaw) grid and a roll line, about the rectified left camera's x (right), y (down) and z
 (forward) axes — each point's disparity is compared with the reference's at the pixel it then
 lands on: the mean of min(|d − D|, TRUNCATE_PX), HOLE_PX where it lands outside the image. Off
-by a rotation, the points near depth edges land on the other surface.
+by a rotation, the points near depth edges land on the other surface. A point behind the
+surface the camera sees (d < D) costs at most HOLE_PX (BEHIND_PX): the LiDAR, 8 cm above the
+camera on the sim rig, sees background over the top of nearer surfaces that the camera cannot,
+and with its rows far apart no filter of the points alone finds them all; counted in full they
+pulled pitch on scenes with near objects, where a point in front of the seen surface is a
+misplacement from any viewpoint (docs/experiments.md has the numbers and the ablation). Where
+the evidence is weak: the cap was measured on the sim rig's scenes and its one LiDAR mount.
 
 While the camera turns, points stamped at the wrong time land where the turn in the offset's
 time moved them. Each sample keeps the camera's turn rate (`frame`: the images' shift between
@@ -60,6 +66,9 @@ from edge_depth.camera_turn import TurnMeter
 GRID_STEP_DEG, GRID_REACH_DEG, YAW_REACH_DEG = 0.15, 0.6, 1.2
 ROLL_STEP_DEG, ROLL_REACH_DEG = 0.2, 1.2  # the roll line: 13 probes
 TRUNCATE_PX, HOLE_PX = 3.0, 1.5
+# a point behind the surface the camera sees may be hidden from the camera (the LiDAR sits
+# elsewhere): it costs at most what a point without a reference (outside the image) costs
+BEHIND_PX = HOLE_PX
 GROW_PX = 6
 MAX_POINTS = 6000  # per sample, evenly thinned beyond it: a fixed budget
 PROBE_CHUNK = 16  # probes evaluated together
@@ -254,7 +263,8 @@ class CalibrationWatch:
     @staticmethod
     def _costs(moves: tuple[np.ndarray, np.ndarray], reference: np.ndarray,
                probes_deg: np.ndarray) -> np.ndarray:
-        """Each probe rotation's (P, 3 degrees) mean truncated |d − D| over the points. A
+        """Each probe rotation's (P, 3 degrees) mean truncated |d − D| over the points
+        (truncated at BEHIND_PX where the point is behind the reference's surface). A
         probe moves each point's (u, v, d) by its first-order change (`_jacobian`): within
         the probes' reach (0.6°, roll 1.2°) the second-order terms stay below 0.1 px."""
         base, jacobian = moves
@@ -270,8 +280,9 @@ class CalibrationWatch:
             row = np.clip(v + 0.5, 0, h - 1).astype(np.int32)
             row *= w
             row += col
-            gap = np.abs(d - flat[row])
-            np.minimum(gap, TRUNCATE_PX, out=gap)
+            gap = d - flat[row]  # < 0: the point lies behind the surface the camera sees
+            np.clip(gap, -BEHIND_PX, TRUNCATE_PX, out=gap)
+            np.abs(gap, out=gap)
             gap[~(inside & np.isfinite(gap))] = HOLE_PX
             out[start:start + PROBE_CHUNK] = gap.mean(axis=1)
         return out
