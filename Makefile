@@ -12,7 +12,7 @@ STAMP := $(VENV)/.installed
 # 108 s instead of 185 s in one process (2026-12-07, docs/install.md)
 TEST_WORKERS ?= auto
 
-.PHONY: demo test lint bench bundle clean
+.PHONY: demo test lint bench bundle clean arm-check
 
 $(BASE): pyproject.toml Makefile constraints/robot.txt
 	test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -22,7 +22,7 @@ $(BASE): pyproject.toml Makefile constraints/robot.txt
 
 $(STAMP): $(BASE)
 	$(BIN)/pip install --quiet torch==$(TORCH_VERSION)
-	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino,fleet]'
+	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino,fleet,ros2]'
 	touch $(STAMP)
 
 demo: $(BASE)
@@ -32,6 +32,11 @@ test: $(STAMP)
 	$(BIN)/ruff check edge calibration tools tests experiments
 	$(BIN)/mypy
 	$(BIN)/python -m pytest -n $(TEST_WORKERS)
+
+# the robot-side install on emulated aarch64 CPUs (QEMU: Cortex-A76, Cortex-A72) against this
+# host's results; root, a cached Debian arm64 root (.ci/arm_check.sh says what and how long)
+arm-check: $(BASE)
+	bash .ci/arm_check.sh
 
 bench: $(STAMP)
 	mkdir -p out

@@ -265,8 +265,10 @@ def build_parser() -> argparse.ArgumentParser:
         tool.add_argument("tool_args", nargs=argparse.REMAINDER)
     _add_compare_parser(sub)
     from edge_depth.calibrate import add_parsers
+    from edge_depth.ros2_command import add_parsers as add_ros2_parsers
 
     add_parsers(sub)
+    add_ros2_parsers(sub)
     return parser
 
 
@@ -389,9 +391,16 @@ def compare(args: argparse.Namespace) -> int:
         return 2
 
 
+def ros2(args: argparse.Namespace) -> int:
+    from edge_depth.ros2_command import main_ros2
+
+    return main_ros2(args)
+
+
 # each subcommand's function (the tools are run_tool's)
-COMMANDS = dict(synth=synth, calibrate=calibrate, demo=demo, replay=replay, fleet=fleet,
-                run=run, record=record, compare=compare)
+COMMANDS = {"synth": synth, "calibrate": calibrate, "demo": demo, "replay": replay,
+            "fleet": fleet, "run": run, "record": record, "compare": compare, "ros2": ros2,
+            "ros2-play": ros2}
 
 
 def main(argv: list[str] | None = None) -> int:

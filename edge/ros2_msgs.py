@@ -64,3 +64,26 @@ def transform(parent: str, child: str, T, stamp_ns: int = 0) -> dict:
             "transform": {"translation": {"x": tx, "y": ty, "z": tz},
                           "rotation": {"x": float(x), "y": float(y), "z": float(z),
                                        "w": float(w)}}}
+
+
+def cdr_decoder(type_name: str):
+    """A function from a message's CDR bytes (with their encapsulation header, as an MCAP
+    file and an rclpy raw subscription hold them) to the decoded message, by the definition
+    above: the decoder a ROS 2 bag's replay uses (mcap-ros2-support). KeyError for a type
+    without a definition here."""
+    from mcap.records import Schema
+    from mcap_ros2.decoder import DecoderFactory
+
+    schema = Schema(id=0, name=type_name, encoding="ros2msg",
+                    data=MSGDEFS[type_name].encode())
+    decoder = DecoderFactory().decoder_for("cdr", schema)
+    assert decoder is not None, type_name
+    return decoder
+
+
+def cdr_encoder(type_name: str):
+    """A function from a message as a dict (`edge.ros2_log`'s builders) to its CDR bytes:
+    the bytes the ros2 MCAP profile writes, published as they are by an rclpy publisher."""
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    return serialize_dynamic(type_name, MSGDEFS[type_name])[type_name]

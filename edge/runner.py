@@ -30,6 +30,7 @@ from edge_depth.frame_summary import replaced_shares, summarise
 from edge_depth.types import Calibration, GroundTruth, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
+STARTUP_S = 3.0  # a LiDAR that has sent nothing yet: waited for this long after the first frame
 
 
 class SystemdNotifier:
@@ -105,6 +106,7 @@ class Runner:
         self.last_diag = time.monotonic()
         self.last_stamp: int | None = None
         self.wait_ms = pipeline.sync.config.wait_ms
+        self.first_frame_at: float | None = None  # monotonic s: the first frame held
 
     # -- events ------------------------------------------------------------------------------
     def handle(self, event) -> None:
@@ -246,10 +248,16 @@ class Runner:
     # -- waiting for the LiDAR -----------------------------------------------------------------
     def _wait_for_lidar(self, frame: StereoFrame) -> float:
         """Live: hold a frame (host time, at most wait_ms) while a delivering LiDAR has not
-        yet sent the scans that cover it; returns the ms waited."""
+        yet sent the scans that cover it — or, within STARTUP_S of the first frame, while no
+        scan has come yet (the first frames' scans may come after them); returns the ms
+        waited."""
         pipeline, start = self.pipeline, time.monotonic()
-        while not pipeline.frame_ready(frame.stamp_ns) \
-                and pipeline.lidar_delivering(frame.stamp_ns) and not self.stop.is_set():
+        if self.first_frame_at is None:
+            self.first_frame_at = start
+        starting = (pipeline.lidar is not None and not pipeline.stats.scans
+                    and start - self.first_frame_at < STARTUP_S)
+        while not pipeline.frame_ready(frame.stamp_ns) and not self.stop.is_set() \
+                and (starting or pipeline.lidar_delivering(frame.stamp_ns)):
             if time.monotonic() - start >= self.wait_ms / 1000:
                 pipeline.sync.waited_out += 1
                 break

@@ -13,13 +13,16 @@ def header(stamp_ns: int, frame_id: str = "camera") -> dict:
     return _header(stamp_ns, frame_id)
 
 
-def write_bag(path, samples, tf: list[dict] | None = None, zero_stamps: bool = False) -> None:
+def write_bag(path, samples, tf: list[dict] | None = None, zero_stamps: bool = False,
+              scans_after_frames: bool = False) -> None:
     """A ROS 2 bag of rig samples as another tool writes one: CameraInfo pair (rectified
     cameras, frame "camera"), PointCloud2 on /points (frame "lidar") written 5 ms before
     each frame, a LaserScan on /scan, Image pairs (mono8 / rgb8 / bgr8) on
     /left|right/image_rect, the right image PNG-compressed on /right/compressed, and, if
     given, these transforms on /tf_static. `zero_stamps`: every header stamp 0 (a driver
-    that never set them), the log times still increasing."""
+    that never set them), the log times still increasing. `scans_after_frames`: each
+    PointCloud2 stored (and logged) 20 ms after its frame's images, its stamp unchanged, as a
+    slow LiDAR driver delivers it."""
     import cv2
     from mcap_ros2.writer import Writer
 
@@ -59,11 +62,13 @@ def write_bag(path, samples, tf: list[dict] | None = None, zero_stamps: bool = F
             cloud = np.concatenate([pts, np.ones((len(pts), 1), np.float32)], 1)
             fields = [{"name": n, "offset": 4 * j, "datatype": 7, "count": 1}
                       for j, n in enumerate("xyz")]
-            w.write_message("/points", schemas["sensor_msgs/msg/PointCloud2"], {
-                "header": hdr(t - 5 * 10**6, "lidar"), "height": 1, "width": len(pts),
-                "fields": fields, "is_bigendian": False, "point_step": 16,
-                "row_step": 16 * len(pts), "data": cloud.astype("<f4").tobytes(),
-                "is_dense": True}, log_time=t - 5 * 10**6)
+            points = {"header": hdr(t - 5 * 10**6, "lidar"), "height": 1, "width": len(pts),
+                      "fields": fields, "is_bigendian": False, "point_step": 16,
+                      "row_step": 16 * len(pts), "data": cloud.astype("<f4").tobytes(),
+                      "is_dense": True}
+            if not scans_after_frames:
+                w.write_message("/points", schemas["sensor_msgs/msg/PointCloud2"], points,
+                                log_time=t - 5 * 10**6)
             ranges = np.array([1.0, 2.0, np.inf, 4.0], np.float32)
             w.write_message("/scan", schemas["sensor_msgs/msg/LaserScan"], {
                 "header": hdr(t, "laser"), "angle_min": 0.0, "angle_max": 4.71,
@@ -77,4 +82,7 @@ def write_bag(path, samples, tf: list[dict] | None = None, zero_stamps: bool = F
             png = cv2.imencode(".png", s.right)[1].tobytes()
             w.write_message("/right/compressed", schemas["sensor_msgs/msg/CompressedImage"],
                             {"header": hdr(t), "format": "png", "data": png}, log_time=t)
+            if scans_after_frames:
+                w.write_message("/points", schemas["sensor_msgs/msg/PointCloud2"], points,
+                                log_time=t + 20 * 10**6)
         w.finish()

@@ -50,6 +50,21 @@ def test_without_depthai_the_oak_names_its_extra_in_one_line(monkeypatch, capsys
     assert not (tmp_path / "o.mcap").exists()
 
 
+def test_without_rclpy_the_ros2_node_names_its_extra_in_one_line(monkeypatch, capsys):
+    monkeypatch.setitem(sys.modules, "rclpy", None)  # import rclpy now fails
+    assert main(["ros2", "--calib", "/nonexistent.toml"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "rclpy" in err and "pip install 'edge-depth[ros2]'" in err
+
+
+def test_a_ros_domain_id_out_of_range_is_one_line(monkeypatch, capsys):
+    monkeypatch.setenv("ROS_DOMAIN_ID", "500")
+    assert main(["ros2-play", "/nonexistent.mcap"]) == 1
+    err = capsys.readouterr().err.strip()
+    assert err == ("edge-depth ros2-play: error: ROS_DOMAIN_ID: expected an integer 0-232 (the "
+                   "environment variable), got '500'")
+
+
 def test_every_subcommands_help_renders(capsys):
     # an option's doc with a bare "%" broke argparse's help (its own % formatting)
     from edge_depth.cli import build_parser
