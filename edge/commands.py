@@ -55,8 +55,8 @@ class ReplayRun:
         return dict(frames=stats.frames, frames_with_lidar=with_lidar if self.pipeline.lidar
                     else 0, ms_per_frame=lat["frame"]["median"] if lat else None,
                     engine_ms=lat["engine"]["median"] if lat else None,
-                    epe=float(np.mean([m["epe"] for m in metrics])) if metrics else None,
-                    bad3=float(np.mean([m["bad3"] for m in metrics])) if metrics else None,
+                    epe=metrics.mean("epe") if metrics else None,
+                    bad3=metrics.mean("bad3") if metrics else None,
                     skipped=dict(stats.errors), read_errors=dict(self.source.stats.errors),
                     lost=list(self.source.stats.lost), output_health=self.pipeline.health.worst,
                     files=[str(f) for f in self.files])
@@ -160,7 +160,7 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
         print(f"error: {failure}", file=sys.stderr, flush=True)
     print_replay_summary(done, str(path), None if calib is None else str(calib))
     if done.stats.frames:
-        print(f"wrote {', '.join(str(p) for p in done.files)}")
+        print(f"wrote {files_text(done.files)}")
     else:  # the output would hold the calibration and scans only
         for file in done.files:
             file.unlink(missing_ok=True)
@@ -196,8 +196,8 @@ def print_replay_summary(done: ReplayRun, path: str, calib: str | None) -> None:
         print(f"throughput {'n/a' if fps is None else f'{fps:.1f}'} frames/s; latency median / "
               "p95 ms: " + format_latency(lat))
     if stats.metrics:
-        print(f"overall EPE {np.mean([m['epe'] for m in stats.metrics]):.3f} px, bad-3 "
-              f"{np.mean([m['bad3'] for m in stats.metrics]):.2f}% over {len(stats.metrics)} "
+        print(f"overall EPE {stats.metrics.mean('epe'):.3f} px, bad-3 "
+              f"{stats.metrics.mean('bad3'):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
 
 
@@ -395,7 +395,7 @@ def print_run_summary(stats, pipeline: Pipeline, logger, config, elapsed: float)
               f"logged) median {lat['frame']['median']:.0f} ms, p95 "
               f"{lat['frame']['p95']:.0f} ms")
         print("latency median / p95 ms: " + format_latency(lat))
-    print(f"wrote {', '.join(str(p) for p in logger.files)}")
+    print(f"wrote {files_text(logger.files)}")
 
 
 def record_command(config_path, out, max_frames: int | None = None,
@@ -421,8 +421,16 @@ def record_command(config_path, out, max_frames: int | None = None,
     finally:
         stop.restore()
     print(f"recorded {stats.frames} frames ({stats.drops} dropped) and {stats.scans} scans to "
-          f"{', '.join(str(p) for p in logger.files)}; errors {dict(stats.errors) or 'none'}")
+          f"{files_text(logger.files)}; errors {dict(stats.errors) or 'none'}")
     if stats.fatal:
         print(f"error: {stats.fatal}", file=sys.stderr)
         return 1
     return 0
+
+
+def files_text(files: list, shown: int = 4) -> str:
+    """A run's files for its closing line: all of a few, or how many and the first and last
+    (a daemon that rotated for days has thousands)."""
+    if len(files) <= shown:
+        return ", ".join(str(p) for p in files)
+    return f"{len(files)} files, {files[0]} … {files[-1]}"

@@ -75,3 +75,21 @@ def test_a_stage_share_is_of_the_grid_it_was_counted_on_and_never_over_100_perce
     assert shares == {"replaced_pct": pytest.approx(100 * 1000 / 4096), "matched_pct": 100.0}
     assert _shares(DepthResult(1, small, small, small > 0, 4, edge_px=64)) == {
         "edge_replaced_pct": 25.0}  # no grid given: the disparity's own
+
+
+def test_the_runs_metrics_are_running_means_that_do_not_grow_with_the_frames():
+    import tracemalloc
+
+    from edge_depth.daemon import MetricsMean
+
+    total = MetricsMean()
+    total.add({"epe": 1.0, "bad3": 10.0})
+    tracemalloc.start()
+    before = tracemalloc.get_traced_memory()[0]
+    for i in range(20_000):
+        total.add({"epe": 3.0, "bad3": 0.0})
+    grown = tracemalloc.get_traced_memory()[0] - before
+    tracemalloc.stop()
+    assert len(total) == 20_001 and total.mean("epe") == pytest.approx(60_001 / 20_001)
+    assert total.mean("bad3") == pytest.approx(10 / 20_001)
+    assert grown < 10_000  # a list of every frame's dict grew with each frame
