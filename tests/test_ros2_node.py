@@ -54,6 +54,8 @@ class Graph:
         self.node = rclpy.create_node("edge_depth_test", context=self.context)
         self.executor, self.thread = spin_in_thread(rclpy, self.node)
         self.got: dict[str, list] = {}
+        self.stop = threading.Event()  # ends a play still going when the test is done
+        self.players: list[threading.Thread] = []
 
     def collect(self, topic: str, msg_type) -> list:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
@@ -66,11 +68,18 @@ class Graph:
     def play(self, path: Path, rate: float = 0.5) -> int:
         from rclpy.qos import QoSProfile, ReliabilityPolicy
 
-        stop = threading.Event()
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
-        return play_cdr(self.node, path, qos, Pacer(rate, stop), stop, wait_s=30.0).published
+        return play_cdr(self.node, path, qos, Pacer(rate, self.stop), self.stop,
+                        wait_s=30.0).published
+
+    def play_in_thread(self, path: Path, rate: float) -> None:
+        self.players.append(threading.Thread(target=self.play, args=(path, rate)))
+        self.players[-1].start()
 
     def close(self) -> None:
+        self.stop.set()
+        for player in self.players:
+            player.join(timeout=30.0)
         self.executor.shutdown(timeout_sec=2.0)
         self.node.destroy_node()
         rclpy.shutdown(context=self.context)
@@ -240,8 +249,7 @@ def test_sigint_mid_stream_ends_the_node_with_its_summary_and_no_thread_left(gra
     got = graph.collect("/disparity", DisparityImage)
     node = start_node(["--calib", str(calib), "--topics", str(topics), "--qos", "reliable",
                        "--iters", "1"])
-    player = threading.Thread(target=graph.play, args=(bag, 0.2), daemon=True)
-    player.start()
+    graph.play_in_thread(bag, 0.2)
     assert wait_for(lambda: len(got) >= 1, 60.0)
     node.send_signal(signal.SIGINT)
     out = finish(node, timeout=20.0)  # a thread left behind would keep the process alive
