@@ -11,6 +11,7 @@ import threading
 import time
 from pathlib import Path
 
+from edge_depth.arguments import positive_int
 from edge_depth.errors import ConfigError
 from edge_depth.runtime.options import add_engine_arguments
 
@@ -36,11 +37,12 @@ def add_parsers(sub) -> None:
     node.add_argument("--qos", choices=QOS, default=None,
                       help="the inputs' and outputs' QoS (default: sensor_data: best effort, "
                            "the last 5, as camera and LiDAR drivers publish)")
-    node.add_argument("--queue", type=int, default=2,
+    node.add_argument("--queue", type=positive_int, default=2,
                       help="frames waiting for the engine; the oldest is dropped (counted)")
     node.add_argument("--out", type=Path, default=None,
                       help="also log to this MCAP file, as the daemon does (default: no log)")
-    node.add_argument("--max-frames", type=int, default=None, help="stop after N frames")
+    node.add_argument("--max-frames", type=positive_int, default=None,
+                      help="stop after N frames")
     add_engine_arguments(node)
     node.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[],
                       help="ROS arguments (remapping, parameters), to the end of the line")
@@ -220,6 +222,13 @@ def run_node(args, config, stereo, lidar, topics, engine) -> int:
     print_node_summary(stats, pipeline, source, outputs, time.monotonic() - started)
     if stats.fatal:
         print(f"error: {stats.fatal}", file=sys.stderr)
+        return 1
+    if stats.frames == 0:  # never silent: a node that produced nothing says why, exits 1
+        waiting = source.counters()["waiting_for"]
+        print("error: no frame was processed"
+              + (f"; never advertised: {', '.join(waiting)}" if waiting else
+                 "; no left and right image paired (see the input errors above)"),
+              file=sys.stderr)
         return 1
     return 0
 

@@ -263,3 +263,18 @@ def test_a_bad_ros_parameter_is_one_line_naming_it(domain, samples, tmp_path):
     assert node.returncode == 1
     assert out.strip().splitlines()[-1] == ("edge-depth ros2: error: qos (ROS parameter): "
                                             "expected one of sensor_data, reliable, got 'fast'")
+
+
+def test_a_node_stopped_before_any_input_says_which_topics_never_came(domain, samples,
+                                                                       tmp_path):
+    _, calib, _ = peer_bag(tmp_path, samples)
+    node = start_node(["--calib", str(calib), "--ros-args", "-p", "topics.lidar:=/velodyne"])
+    assert wait_for(lambda: node.stdout is not None, 1.0)
+    first = node.stdout.readline()  # the start line: the node is up
+    assert first.startswith("edge-depth ros2: node /edge_depth")
+    node.send_signal(signal.SIGINT)
+    rest, _ = node.communicate(timeout=30)
+    assert node.returncode == 1
+    assert rest.strip().splitlines()[-1] == (
+        "error: no frame was processed; never advertised: /velodyne, left/camera_info, "
+        "left/image_rect, right/camera_info, right/image_rect")
