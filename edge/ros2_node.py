@@ -178,8 +178,9 @@ class Ros2Source(Source):
 class Ros2Outputs(Ros2Logger):
     """The pipeline's logger interface, publishing instead of writing a file: each output is
     the ros2 profile's message (`edge.ros2_log`), serialised to the bytes that profile writes
-    and published raw on `names[key]` (keys of OUTPUTS; a key left out is not published).
-    No files, no free-space checks, no rotation; `close` destroys the publishers."""
+    and published raw on `names[key]` (keys of OUTPUTS; a key left out is not published),
+    built only while a subscriber listens. No files, no free-space checks, no rotation;
+    `close` destroys the publishers."""
 
     def __init__(self, node, names: dict[str, str], qos, frame_id=lambda: CAMERA_FRAME) -> None:
         self.node, self.names, self.qos = node, names, qos
@@ -222,7 +223,11 @@ class Ros2Outputs(Ros2Logger):
         return ""
 
     def _logs(self, key: str) -> bool:
-        return key in self.names
+        """Published only where someone listens (a 640x400 frame's point cloud alone is 4 MB
+        to build and send); /diagnostics always."""
+        if key not in self.names:
+            return False
+        return key == "diagnostics" or self._publisher(key).get_subscription_count() > 0
 
     def advertise(self) -> list:
         """A publisher for every name (they are otherwise made at their first message)."""
