@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 COMPRESSIONS = ("lz4", "zstd", "none")
 
 
+# the topics one message of each frame goes on: its images' (rectified or raw), its results'
+FRAME_KEYS = ("left", "left_raw", "disparity", "depth")
 MIN_FREE_BYTES = 64 * 2**20  # the least free space kept (edge.disk_reserve adds a frame's)
 
 
@@ -144,7 +146,8 @@ class McapLogger:
         self.server = None
         self.reserve = DiskReserve(min_free_bytes, chunk_size)
         self.stopped: str | None = None  # why logging stopped early (the disk filling up)
-        self._frame_stamps: list[int] = []  # the frames in the open file, by stamp (ns)
+        self._frames_in_file = 0
+        self._last_frame_ns: int | None = None  # the frame in hand's stamp
         if live:
             self.server = foxglove.start_server(context=self.context, host=live_host,
                                                 port=live_port, name="edge-depth",
@@ -174,7 +177,7 @@ class McapLogger:
         self.files.append(path)
         self._file_start_ns = stamp_ns
         self._calibration_logged = False
-        self._frame_stamps = []
+        self._frames_in_file = 0
 
     def _start_writer(self, path: Path):
         import foxglove
@@ -193,7 +196,7 @@ class McapLogger:
         is closed while its summary fits. A frame's result follows its images: one check."""
         if self.stopped is not None:
             return False
-        if self._frame_stamps and self._frame_stamps[-1] == stamp_ns:
+        if self._last_frame_ns == stamp_ns:
             return True
         file = self.files[-1]
         low = self.reserve.below(file.parent, file.stat().st_size if file.exists() else 0,
@@ -202,11 +205,12 @@ class McapLogger:
             self._stop_for_space(low)
             return False
         self._maybe_rotate(stamp_ns)
-        self._frame_stamps.append(stamp_ns)
+        self._last_frame_ns = stamp_ns
+        self._frames_in_file += 1
         return True
 
     def _stop_for_space(self, low: str) -> None:
-        path, frames = self.files[-1], len(self._frame_stamps)
+        path, frames = self.files[-1], self._frames_in_file
         closed = self._close_writer()
         if frames == 0 and len(self.files) > 1:  # a rotated part that never got a frame
             path.unlink(missing_ok=True)
@@ -253,6 +257,10 @@ class McapLogger:
                 channel = RawImageChannel(topic, context=self.context)
             self._channels[key] = channel
         return self._channels[key]
+
+    def _topic(self, key: str) -> str:
+        """The topic `key` is written on (the ros2 profile's differ)."""
+        return TOPICS[key]
 
     def _logs(self, key: str) -> bool:
         """Whether `key` is written to this logger's files."""
@@ -410,7 +418,7 @@ class McapLogger:
         if self._writer is None:
             return ""
         writer, self._writer = self._writer, None
-        path, frames = self.files[-1], len(self._frame_stamps)
+        path, frames = self.files[-1], self._frames_in_file
         try:
             self._finish(writer)
         except (OSError, RuntimeError) as exc:  # FoxgloveError is a RuntimeError
@@ -419,20 +427,22 @@ class McapLogger:
 
     def _end_cut_file(self, path: Path, exc: BaseException) -> str:
         """The writer failed (a full disk): end the file after its last complete chunk,
-        without a summary, and count the frames it still holds."""
+        without a summary, and count the frames it still holds (the stamps of its frame
+        topics: a frame's images and results share its stamp)."""
         from edge_depth.capture.mcap_tolerant import ReadReport, end_cut_file, iter_messages
 
+        frame_topics = {self._topic(key) for key in FRAME_KEYS}
         try:
             end_cut_file(path)
-            stamps = {message.log_time for _, _, message in iter_messages(path, ReadReport())}
+            stamps = {message.log_time for _, channel, message
+                      in iter_messages(path, ReadReport()) if channel.topic in frame_topics}
         except (OSError, ValueError) as repair_exc:
             said = (f"could not close {path} ({exc}), nor end it after its last complete chunk "
                     f"({repair_exc}); `edge-depth replay` reads what it holds")
         else:
-            kept = len(stamps.intersection(self._frame_stamps))
             said = (f"could not write the summary of {path} ({exc}): ended it after its last "
-                    f"complete chunk, without a summary; {kept} of its "
-                    f"{len(self._frame_stamps)} frames are readable")
+                    f"complete chunk, without a summary; {len(stamps)} of its "
+                    f"{self._frames_in_file} frames are readable")
         log.error("%s", said)
         return said
 

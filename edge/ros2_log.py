@@ -119,6 +119,9 @@ class Ros2Logger(McapLogger):
         self._writer.write_message(ros2_topic(key, self.prefix), self._schemas[datatype],
                                    message, log_time=int(stamp_ns), publish_time=int(stamp_ns))
 
+    def _topic(self, key: str) -> str:
+        return ros2_topic(key, self.prefix)
+
     def _logs(self, key: str) -> bool:
         return key in self.enabled or key == "tf_static"  # /tf_static goes in every file
 

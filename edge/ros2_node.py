@@ -209,7 +209,7 @@ class Ros2Outputs(Ros2Logger):
 
     def _open(self, stamp_ns: int | None) -> None:
         self._writer: object | None = self  # never None while open: somewhere to publish
-        self._frame_stamps: list[int] = []
+        self._frames_in_file = 0
         self._calibration_logged = False
 
     def _frame_start(self, stamp_ns: int, pixels: int) -> bool:
