@@ -21,7 +21,7 @@ rclpy = pytest.importorskip("rclpy", reason="the ros2 extra: pip install 'edge-d
 from edge_depth.calibration.io import save_calibration  # noqa: E402
 from edge_depth.calibration.model import LidarExtrinsics  # noqa: E402
 from edge_depth.ros2_node import spin_in_thread, wait_for  # noqa: E402
-from edge_depth.ros2_play import Pacer, play_cdr  # noqa: E402
+from edge_depth.ros2_play import Pacer, play_cdr, play_ours  # noqa: E402
 from edge_depth.sim import RigConfig, make_sample  # noqa: E402
 from tests.ros2_bag import write_bag  # noqa: E402
 
@@ -71,6 +71,13 @@ class Graph:
         qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
         return play_cdr(self.node, path, qos, Pacer(rate, self.stop), self.stop,
                         wait_s=30.0).published
+
+    def play_ours(self, path: Path, rate: float = 0.5) -> int:
+        from rclpy.qos import QoSProfile, ReliabilityPolicy
+
+        qos = QoSProfile(depth=50, reliability=ReliabilityPolicy.RELIABLE)
+        return play_ours(self.node, path, qos, Pacer(rate, self.stop), self.stop,
+                         wait_s=30.0).published
 
     def play_in_thread(self, path: Path, rate: float) -> None:
         self.players.append(threading.Thread(target=self.play, args=(path, rate)))
@@ -278,3 +285,31 @@ def test_a_node_stopped_before_any_input_says_which_topics_never_came(domain, sa
     assert rest.strip().splitlines()[-1] == (
         "error: no frame was processed; never advertised: /velodyne, left/camera_info, "
         "left/image_rect, right/camera_info, right/image_rect")
+
+
+def test_our_own_recording_played_to_the_nodes_default_topics_gives_replays_disparity(
+        graph, tmp_path):
+    from stereo_msgs.msg import DisparityImage
+
+    from edge_depth.calibration.io import save_calibration as save
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.commands import replay_command
+    from edge_depth.runtime.options import EngineOptions
+    from edge_depth.sim_recording import write_sim_recording
+
+    rec = tmp_path / "ours.mcap"
+    write_sim_recording(rec, 3, seed=5, rig=RIG)
+    calib = tmp_path / "calib.toml"
+    save(calib, *recording_calibration(McapSource(rec))[:2])
+    got = graph.collect("/disparity", DisparityImage)
+    node = start_node(["--calib", str(calib), "--qos", "reliable", "--max-frames", "3",
+                       "--iters", "2", "--queue", "8"])
+    assert graph.play_ours(rec) > 0
+    out = finish(node)
+    assert wait_for(lambda: len(got) == 3, 10.0), out
+    replayed = tmp_path / "replay.mcap"
+    assert replay_command(rec, replayed, EngineOptions(iters=2)) == 0
+    want, live = read_disparities(replayed), disparities(got)
+    assert sorted(live) == sorted(want)
+    assert max(np.abs(image - want[stamp]).max() for stamp, image in live.items()) < 1e-3
