@@ -8,6 +8,7 @@ import pytest
 from edge_depth.runtime.lidar_align import (
     JUMP_PX,
     MIN_JUMPS,
+    MIN_Z,
     LidarAlign,
     depth_jumps,
     jump_px,
@@ -148,3 +149,36 @@ def test_a_noisy_moved_map_is_still_put_back():
     noisy = _noisy(shifted(_rows(disparity), 2, 1), 0.5)
     found = offset(left, noisy)
     assert found.moves and (found.dx, found.dy, found.turn_deg) == (2, 1, 0.0)
+
+
+def _mixed(sparse: np.ndarray, disparity: np.ndarray, seed: int, reach: int = 2,
+           share: float = 0.5) -> np.ndarray:
+    """Mixed returns: each point with a depth edge within `reach` px along its row takes the
+    other surface's disparity with probability `share`."""
+    rng = np.random.default_rng(seed)
+    out = sparse.copy()
+    ys, xs = np.nonzero(sparse)
+    w = disparity.shape[1]
+    window = np.stack([disparity[ys, np.clip(xs + k, 0, w - 1)]
+                       for k in range(-reach, reach + 1)])
+    lo, hi = window.min(axis=0), window.max(axis=0)
+    edge = (hi - lo >= 2.0) & (rng.random(len(ys)) < share)
+    other = np.where(np.abs(sparse[ys, xs] - hi) < np.abs(sparse[ys, xs] - lo), lo, hi)
+    out[ys[edge], xs[edge]] = other[edge]
+    return out
+
+
+def test_a_noisy_map_with_mixed_returns_that_sits_right_is_not_moved_but_a_moved_one_is():
+    left, disparity = _scene(17)
+    rows = _rows(disparity, every=8)
+    noisy = _noisy(_mixed(rows, disparity, 17), 1.0, 17)
+    out, found = LidarAlign().apply(left, noisy)
+    # the peak is off the identity and 1.2x its score (the gain alone would have moved it),
+    # but the halves of the rows do not confirm each other's offset
+    assert (found.dx, found.dy, found.turn_deg) == (0, -1, 0.5) and found.gain > 1.15
+    assert found.held_out_z < 1.0 and not found.moves and out is noisy
+    back, moved = LidarAlign().apply(left, shifted(rows, -2, 2))
+    assert (moved.dx, moved.dy, moved.turn_deg) == (-2, 2, 0.0) and moved.moves
+    assert moved.held_out_z > 3 * MIN_Z
+    inner = (slice(8, -8), slice(8, -8))
+    assert np.array_equal(back[inner], rows[inner])

@@ -8,13 +8,20 @@ JUMP_PX of disparity — or, on a noisy map, by more than JUMP_SIGMAS standard d
 points' difference (`lidar_rows.noise_level`) — the scene has a depth edge between them, and
 the left image an intensity edge there. Over the map's turns (TURNS_DEG) and shifts within
 ±REACH_PX, the mean edge strength (Sobel magnitude) of the left image at where the jumps would
-be without them peaks at the map's misregistration; where that peak is not the identity, rests
-on at least MIN_JUMPS jumps and beats the identity's score by MIN_GAIN, the map is put back by
-it. A map whose occlusion filter left no such jumps (the background hidden beside every near
-edge removed), or too noisy to show its edges, is left as it is. The calibration watch
+be without them peaks at the map's misregistration. Noise and mixed returns (a point beside a
+depth edge taking the other surface's range) put jumps off the image's edges too, and the
+peak of hundreds of offsets then lands anywhere, 1.1-1.4x the identity's score on a map that
+sits right. So the peak must be confirmed on jumps it was not chosen on (`held_out_z`): the
+jumps of alternate LiDAR rows are two halves with their own noise, each half's peak is scored
+against the identity on the other half, and the map is put back only where those paired
+differences lie MIN_Z standard errors above zero, on at least MIN_JUMPS jumps. Where the
+evidence is weak (few or ambiguous jumps, a noisy map moved by a pixel) the map is left as it
+is: its offset is reported, `moves` false. A map whose occlusion filter left no such jumps
+(the background hidden beside every near edge removed), or too noisy to show its edges, is
+left as it is. The calibration watch
 (`edge.calibration_watch`) is what finds the calibration's error over many frames and says how
 to fix it; this keeps each frame's depth edges where the image has them meanwhile
-(docs/experiments.md, 2026-12-06 19:32 and 21:45).
+(docs/experiments.md, 2026-12-06 19:32 and 21:45, 2026-12-07 the held-out test).
 """
 
 from __future__ import annotations
@@ -34,9 +41,15 @@ JUMP_PX = 1.5  # disparity between neighbouring points that marks a depth edge .
 # peak fell on a random offset (docs/experiments.md, 2026-12-06 21:45)
 JUMP_SIGMAS = 4.0
 MIN_JUMPS = 40
-MIN_GAIN = 1.15  # the peak's score over the score at (0, 0)
+# the held-out test's bar (`held_out_z`, one-sided): a map that sits right passes it by chance
+# in about one frame of a thousand (p 0.0013 for a standard normal)
+MIN_Z = 3.0
 TURNS_DEG = tuple(np.arange(-4, 5) * 0.25)  # the turns searched, about the image centre
 MAX_JUMPS = 200  # the most jumps the search reads (an even subset of a dense LiDAR's)
+_STEPS = np.arange(-REACH_PX, REACH_PX + 1)
+MOVES_DY, MOVES_DX = (a.ravel() for a in np.meshgrid(_STEPS, _STEPS, indexing="ij"))
+# the identity's index among (turn, move), turn-major
+IDENTITY = (len(TURNS_DEG) // 2) * len(MOVES_DX) + len(MOVES_DX) // 2
 
 
 def depth_jumps(sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
@@ -103,8 +116,9 @@ def undone(xs: np.ndarray, ys: np.ndarray, shape: tuple[int, ...], turn_deg: flo
 class Offset:
     """The map's misregistration as the jumps see it: turned by `turn_deg` about the image
     centre and moved by (dx, dy) px (the move once the turn is undone); the peak's score over
-    the identity's, how many jumps it rests on, and the map's noise level that told its jumps
-    (`lidar_rows.noise_level`, px; None on a map too sparse to measure it)."""
+    the identity's, how many jumps it rests on, the map's noise level that told its jumps
+    (`lidar_rows.noise_level`, px; None on a map too sparse to measure it), and the peak's
+    support on jumps it was not chosen on (`held_out_z`, standard errors)."""
 
     dx: int
     dy: int
@@ -112,11 +126,12 @@ class Offset:
     gain: float
     jumps: int
     noise_px: float | None = None
+    held_out_z: float = 0.0
 
     @property
     def moves(self) -> bool:
         return (self.dx, self.dy, self.turn_deg) != (0, 0, 0.0) and \
-            self.jumps >= MIN_JUMPS and self.gain >= MIN_GAIN
+            self.jumps >= MIN_JUMPS and self.held_out_z >= MIN_Z
 
     def undo(self, sparse: np.ndarray, points: tuple[np.ndarray, np.ndarray] | None = None
              ) -> np.ndarray:
@@ -137,35 +152,59 @@ class Offset:
 
 def offset(left: np.ndarray, sparse: np.ndarray,
            points: tuple[np.ndarray, np.ndarray] | None = None) -> Offset:
-    """How the map's depth edges sit against the left image's edges. `points`:
-    `map_points(sparse)`, if at hand."""
+    """How the map's depth edges sit against the left image's edges, and how sure the jumps
+    are of it (`Offset.held_out_z`). `points`: `map_points(sparse)`,
+    if at hand."""
     ys, xs, noise_px = _jumps_and_noise(sparse, points)
     if len(ys) < MIN_JUMPS:
         return Offset(0, 0, 0.0, 1.0, len(ys), noise_px)
     if len(ys) > MAX_JUMPS:  # a dense LiDAR: an even subset bounds the search's time
         keep = np.linspace(0, len(ys) - 1, MAX_JUMPS).astype(np.int64)
         ys, xs = ys[keep], xs[keep]
-    h, w = left.shape
+    scores = jump_scores(left, ys, xs)  # (turn × move, jump)
+    total = scores.sum(axis=1, dtype=np.int64)
+    peak, identity = int(np.argmax(total)), IDENTITY
+    gain = float(total[peak]) / float(total[identity]) if total[identity] > 0 else 1.0
+    t, i = divmod(peak, len(MOVES_DX))
+    return Offset(int(MOVES_DX[i]), int(MOVES_DY[i]), float(TURNS_DEG[t]), gain, len(ys),
+                  noise_px, held_out_z(scores, ys))
+
+
+def held_out_z(scores: np.ndarray, rows: np.ndarray) -> float:
+    """Whether the map is off by more than its noise and mixed returns explain: the jumps
+    split by the parity of their LiDAR row (`rows`), each half's offset (its peak) tested on
+    the other half's jumps against the identity — the mean of those paired differences of
+    edge strength over its standard error, all jumps pooled. Each jump is judged at an
+    offset chosen without it, so a peak that noise put anywhere scores ≈ 0 (standard normal)
+    here. 0 with fewer than two jumps or no spread. `scores`: `jump_scores`' answer."""
+    half = (np.unique(rows, return_inverse=True)[1] % 2).astype(bool)
+    diff = np.empty(len(rows))
+    for chosen in (half, ~half):
+        peak = int(np.argmax(scores[:, chosen].sum(axis=1, dtype=np.int64)))
+        diff[~chosen] = scores[peak, ~chosen].astype(np.float64) - scores[IDENTITY, ~chosen]
+    spread = float(np.std(diff, ddof=1)) if len(diff) > 1 else 0.0
+    return float(np.mean(diff) / (spread / np.sqrt(len(diff)))) if spread > 0 else 0.0
+
+
+def jump_scores(left: np.ndarray, ys: np.ndarray, xs: np.ndarray) -> np.ndarray:
+    """The left image's edge strength (`edge_strength`) at each jump (rows `ys`, columns
+    `xs`) with each turn of TURNS_DEG and move of (MOVES_DX, MOVES_DY) undone: (turn × move,
+    jump) int16, turn-major."""
+    h, w = left.shape[:2]
     # padded so that no turn or shift searched reads outside (a border of no edges)
     pad = REACH_PX + int(np.ceil(np.hypot(h, w) / 2 * np.sin(np.deg2rad(max(TURNS_DEG))))) + 2
     strength = cv2.copyMakeBorder(edge_strength(left), pad, pad, pad, pad,
                                   cv2.BORDER_CONSTANT, value=0)
     flat, pw = strength.ravel(), w + 2 * pad
-    steps = np.arange(-REACH_PX, REACH_PX + 1)
-    dy, dx = (a.ravel() for a in np.meshgrid(steps, steps, indexing="ij"))
     # each jump's pixel with each turn undone (rounded), then every whole-pixel move: one
-    # integer sum and one gather for every turn, move and jump
+    # gather for every turn, move and jump
     places = []
     for turn in TURNS_DEG:
         x, y = undone(xs, ys, (h, w), turn, 0.0, 0.0)
         places.append(np.rint(y + pad).astype(np.int32) * pw + np.rint(x + pad).astype(np.int32))
-    moves = (-(dy * pw + dx)).astype(np.int32)
+    moves = (-(MOVES_DY * pw + MOVES_DX)).astype(np.int32)
     index = np.stack(places)[:, None, :] + moves[None, :, None]  # (turn, move, jump)
-    scores = np.take(flat, index).sum(axis=2, dtype=np.int32)  # (turn, move), × len(ys)
-    t, i = np.unravel_index(int(np.argmax(scores)), scores.shape)
-    at_identity = float(scores[len(TURNS_DEG) // 2, len(dx) // 2])
-    gain = float(scores[t, i]) / at_identity if at_identity > 0 else 1.0
-    return Offset(int(dx[i]), int(dy[i]), float(TURNS_DEG[t]), gain, len(ys), noise_px)
+    return np.take(flat, index).reshape(len(TURNS_DEG) * len(moves), len(xs))
 
 
 @dataclass(frozen=True)
