@@ -86,7 +86,7 @@ def test_the_runs_metrics_are_running_means_that_do_not_grow_with_the_frames():
     total.add({"epe": 1.0, "bad3": 10.0})
     tracemalloc.start()
     before = tracemalloc.get_traced_memory()[0]
-    for i in range(20_000):
+    for _ in range(20_000):
         total.add({"epe": 3.0, "bad3": 0.0})
     grown = tracemalloc.get_traced_memory()[0] - before
     tracemalloc.stop()

@@ -7,8 +7,11 @@
 Methods: net; net-nolidar (the net with its LiDAR input zeroed: stereo only; --no-lidar adds
 it); sgbm (holes left as holes); sgbm-filled (holes take the row's nearest valid value);
 sgbm+lidar (the trivial fusion: SGBM where it matched, LiDAR-nearest in its holes);
-lidar-nearest; lidar-linear. SGBM's disparity count follows each scene's GT range (rounded up
-to 16, at least 64).
+guided-sgm (census SGM, `edge.guided_sgm`, holes after its left-right check take the row's
+nearest valid value); guided-sgm+lidar (the same SGM with Poggi et al.'s LiDAR guidance of its
+cost, the LiDAR value written at its pixels and the nearest LiDAR point in its holes);
+lidar-nearest; lidar-linear. SGBM's and guided SGM's disparity count follows each scene's GT
+range (rounded up to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
 downsample factor) or an exported bundle directory (run by the robot-side engine with its
@@ -46,6 +49,7 @@ from edge_depth.baselines import (
     sgbm_disparity,
     sgbm_lidar_fusion,
 )
+from edge_depth.guided_sgm import GuidedSgmConfig, guided_sgm_filled, guided_sgm_lidar
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
 from edge_depth.runtime.options import EngineOptions, add_engine_arguments, options_from_args
@@ -58,7 +62,8 @@ ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_m
                 "align_lidar", "denoise_lidar")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
-ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar")
+ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar", "guided-sgm",
+                         "guided-sgm+lidar")
 
 
 class TorchNet:
@@ -173,6 +178,11 @@ def predict(method: str, scene, net, sgbm, iters: int):
     if method == "sgbm+lidar":
         return sgbm_lidar_fusion(sgbm_disparity(scene.left, scene.right, sgbm),
                                  scene.sparse, valid), None
+    if method in ("guided-sgm", "guided-sgm+lidar"):
+        config = GuidedSgmConfig(num_disparities=sgbm.getNumDisparities())  # SGBM's range
+        if method == "guided-sgm":
+            return guided_sgm_filled(scene.left, scene.right, config), None
+        return guided_sgm_lidar(scene.left, scene.right, scene.sparse, config), None
     if method == "lidar-nearest":
         return lidar_nearest(scene.sparse, valid), None
     return lidar_linear(scene.sparse, valid), None
@@ -291,7 +301,8 @@ def plot_iterations(path: Path, summary: dict, iters_list: list[int], title: str
     keys = [f"net@{i}" if len(iters_list) > 1 else "net" for i in iters_list]
     fig, ax = plt.subplots(figsize=(5, 3.5))
     ax.plot(iters_list, [summary[k]["epe"] for k in keys], marker="o", label="net")
-    for base in ("sgbm", "sgbm-filled", "sgbm+lidar", "lidar-nearest", "lidar-linear"):
+    for base in ("sgbm", "sgbm-filled", "sgbm+lidar", "guided-sgm", "guided-sgm+lidar",
+                 "lidar-nearest", "lidar-linear"):
         if base in summary:
             ax.axhline(summary[base]["epe"], ls="--", label=base, color=None)
     ax.set(xlabel="GRU iterations", ylabel="EPE (px)", xscale="log", title=title)
