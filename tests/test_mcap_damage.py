@@ -96,6 +96,22 @@ def test_a_doubled_chunk_length_costs_no_intact_chunk(tmp_path, with_summary):
     assert report.damage[0].messages_lost == 0
 
 
+@pytest.mark.parametrize("with_summary", [True, False])
+def test_a_damaged_records_length_that_still_decodes_costs_at_most_its_own_chunk(
+        tmp_path, with_summary):
+    path = tmp_path / "f.mcap"
+    chunks = write_file(path, "lz4")
+    start, index = chunks[3]
+    data = start + 9 + 28 + 4 + 3  # the records length field, after "lz4"
+    far = chunks[6][0] - (data + 8)  # as if the records ran to chunk 6 (lz4 ignores the rest)
+    damage(path, data, struct.pack("<Q", far))
+    if not with_summary:
+        path.write_bytes(path.read_bytes()[:chunks[-1][0] + chunks[-1][1].chunk_length])
+    got, report = read_all(path)
+    assert set(range(N)) - set(got) <= {3}  # chunks 4 and 5 are read, not skipped
+    assert [i for i in got if i != 3] == [i for i in range(N) if i != 3]
+
+
 def test_a_message_index_length_running_over_the_next_chunk_costs_nothing(tmp_path):
     path = tmp_path / "f.mcap"
     chunks = write_file(path)

@@ -213,8 +213,8 @@ def _walk(buf, size: int, report: ReadReport, summary: _Summary):
             pos = known
             continue
         if opcode == CHUNK:
-            records, pos, damage = _read_chunk(buf, pos, min(end, size), framed, size, report,
-                                               chunks_read)
+            records, pos, damage = _read_chunk(buf, pos, end, framed, size, report,
+                                               chunks_read, summary.chunk_starts)
             if damage is not None:
                 report.damage.append(damage)
             lost = damage if damage is not None and damage.messages_lost is None else None
@@ -239,12 +239,38 @@ def _walk(buf, size: int, report: ReadReport, summary: _Summary):
         yield from _messages(records, report, summary)
 
 
+def _record_starts(buf, pos: int, size: int) -> bool:
+    """Whether a plausible record starts at `pos`: a chunk that frames itself, or a known
+    opcode whose length stays inside the file (or `pos` is the file's end)."""
+    if pos == size:
+        return True
+    if pos + 9 > size or buf[pos] not in KNOWN_OPCODES:
+        return False
+    if buf[pos] == CHUNK:
+        return plausible_chunk(buf, pos, size, exact=True)
+    return pos + 9 + _u64(buf, pos + 1) <= size
+
+
+def _trust_framing(buf, pos: int, end: int, framed: int | None, size: int,
+                   chunk_starts: list[int]) -> bool:
+    """Whether a chunk's own fields, not its record length, say where it ends: they disagree,
+    no record starts where the length points, one does where the fields point, and no chunk
+    the summary names lies between (a damaged records-length field that still decodes —
+    compressors ignore trailing bytes — must not skip the chunks after it)."""
+    if framed is None or framed == end or (end <= size and _record_starts(buf, end, size)):
+        return False
+    known = _known_chunk_after(chunk_starts, pos)
+    return _record_starts(buf, framed, size) and (known is None or known >= framed)
+
+
 def _read_chunk(buf, pos: int, end: int, framed: int | None, size: int, report: ReadReport,
-                chunks_read: dict) -> tuple[list, int, Damage | None]:
+                chunks_read: dict, chunk_starts: list[int]) -> tuple[list, int, Damage | None]:
     """A chunk's records, where reading goes on after it, and its damage (None: intact).
-    `end`: where its record length ends it; `framed`: where its own fields do. When the two
-    disagree and the chunk decodes by its fields, only the length was damaged: nothing lost."""
-    if framed is not None and framed != end:
+    `end`: where its record length ends it; `framed`: where its own fields do. When only the
+    length is damaged (`_trust_framing`) and the chunk decodes by its fields, nothing is
+    lost."""
+    if _trust_framing(buf, pos, end, framed, size, chunk_starts):
+        assert framed is not None
         try:
             records = _chunk_records(buf[pos + 9:framed])
         except Exception:  # noqa: BLE001 - the fields are the damaged part: read as below
@@ -253,6 +279,7 @@ def _read_chunk(buf, pos: int, end: int, framed: int | None, size: int, report: 
             return records, framed, Damage(pos, f"chunk: record length {end - pos - 9} where "
                                                 f"its own fields say {framed - pos - 9} (read "
                                                 "by its fields)", messages_lost=0)
+    end = min(end, size)
     body = buf[pos + 9:end]
     digest = hashlib.blake2b(body, digest_size=16).digest()
     if digest in chunks_read:  # a copied chunk: its messages were read already
