@@ -40,13 +40,16 @@ class DiskReserve:
         chunks = file_bytes // max(self.chunk_bytes, 1) + 2
         return frame + 2 * self.chunk_bytes + SUMMARY_BASE_BYTES + chunks * SUMMARY_BYTES_PER_CHUNK
 
-    def below(self, folder: Path, file_bytes: int, frame_pixels: int) -> str | None:
+    def below(self, folder: Path, file_bytes: int, frame_pixels: int,
+              measure: bool = True) -> str | None:
         """At a frame's start: why the frame must not be logged (the free space below the
-        reserve), or None. `file_bytes`: the log file's size now (it is measured here how
-        much the last frame added to it; a new, smaller file starts the measure anew)."""
-        last, self._file_bytes_at_last_frame = self._file_bytes_at_last_frame, file_bytes
-        if last is not None and file_bytes > last:
-            self.largest_frame_bytes = max(self.largest_frame_bytes, file_bytes - last)
+        reserve), or None. `file_bytes`: the log file's size now (`measure`: how much the
+        last frame added to it is measured here; a new, smaller file starts the measure
+        anew; off for a check between frames)."""
+        if measure:
+            last, self._file_bytes_at_last_frame = self._file_bytes_at_last_frame, file_bytes
+            if last is not None and file_bytes > last:
+                self.largest_frame_bytes = max(self.largest_frame_bytes, file_bytes - last)
         try:
             usage = shutil.disk_usage(folder)
         except OSError:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import json
 import logging
 import threading
+import time
 from pathlib import Path
 from typing import Any
 
@@ -94,7 +95,7 @@ class McapLogger:
     At each frame's start it checks the free space on the log's disk (edge.disk_reserve: at
     least `min_free_bytes`, and room for the largest frame written so far, the chunk in memory
     and the summary): below it, the frame is not logged, the file is closed with its summary,
-    a rotated part that holds no frame is removed, it says so once, and `stopped` holds what
+    no rotated part is left without a frame, it says so once, and `stopped` holds what
     happened (the daemon then exits non-zero, so systemd restarts it once space is made). A
     writer that fails all the same (another process filled the disk) leaves a file cut back
     to its last complete chunk and ended without a summary, which every reader takes.
@@ -148,6 +149,7 @@ class McapLogger:
         self.stopped: str | None = None  # why logging stopped early (the disk filling up)
         self._frames_in_file = 0
         self._last_frame_ns: int | None = None  # the frame in hand's stamp
+        self._space_checked_at = 0.0  # monotonic s: the scans' own check of the free space
         if live:
             self.server = foxglove.start_server(context=self.context, host=live_host,
                                                 port=live_port, name="edge-depth",
@@ -209,15 +211,14 @@ class McapLogger:
         self._frames_in_file += 1
         return True
 
-    def _stop_for_space(self, low: str) -> None:
-        path, frames = self.files[-1], self._frames_in_file
-        closed = self._close_writer()
-        if frames == 0 and len(self.files) > 1:  # a rotated part that never got a frame
-            path.unlink(missing_ok=True)
-            self.files.pop()
-            closed = f"removed {path}, a new part without a frame"
-        self.stopped = f"{low}: {closed}; make space and restart"
+    def _stop(self, why: str) -> None:
+        """Logging stops for good (the daemon then exits non-zero): said once."""
+        self.stopped = f"{why}; make space and restart"
         log.error("%s", self.stopped)
+
+    def _stop_for_space(self, low: str) -> None:
+        # a part is opened at a frame's start after this check, so none is left empty
+        self._stop(f"{low}: {self._close_writer()}")
 
     def _maybe_rotate(self, stamp_ns: int) -> None:
         if self._writer is None:  # stopped: no new file either
@@ -229,7 +230,10 @@ class McapLogger:
         too_long = (self.rotate_s is not None
                     and stamp_ns - self._file_start_ns >= self.rotate_s * 1e9)
         if too_big or too_long:
-            self._close_writer()
+            closed = self._close_writer()
+            if not closed.startswith("closed "):  # the part could not be closed: stop here
+                self._stop(closed)
+                return
             self._open(stamp_ns)
 
     def _channel(self, key: str):
@@ -272,7 +276,11 @@ class McapLogger:
         if not self._calibration_logged:  # first in every file, so each replays on its own
             self._calibration_logged = True
             self._log_file_start(stamp_ns)
-        self._write(key, message, stamp_ns)
+        try:
+            self._write(key, message, stamp_ns)
+        except OSError as exc:  # a writer that raises (the ros2 profile's): stop cleanly
+            self._stop(f"writing {self.files[-1]} failed ({exc}): {self._close_writer()}")
+            return
         self.messages += 1
 
     def _log_file_start(self, stamp_ns: int) -> None:
@@ -377,9 +385,24 @@ class McapLogger:
             self._log(key, msg, stamp_ns)
 
     def log_scan(self, scan: LidarScan) -> None:
-        # files rotate at a frame's start only, so a frame's images and result share a file
+        # files rotate at a frame's start only, so a frame's images and result share a file;
+        # while no frame comes (a camera away) scans still fill the disk: checked once a second
+        if self._writer is None or self._scan_space_low():
+            return
         self._log("lidar", self._cloud(scan.points, scan.stamp_ns, LIDAR_FRAME, scan.intensity,
                                        scan.point_stamps_ns), scan.stamp_ns)
+
+    def _scan_space_low(self) -> bool:
+        now = time.monotonic()
+        if now - self._space_checked_at < 1.0:
+            return False
+        self._space_checked_at = now
+        file = self.files[-1]
+        low = self.reserve.below(file.parent, file.stat().st_size if file.exists() else 0, 0,
+                                 measure=False)
+        if low is not None:
+            self._stop_for_space(low)
+        return low is not None
 
     def log_gt(self, stamp_ns: int, disparity: np.ndarray) -> None:
         self._log("gt_disparity", self._image(disparity.astype(np.float32, copy=False),

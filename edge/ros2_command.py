@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import os
 import sys
-import threading
 import time
 from pathlib import Path
 
@@ -49,10 +48,18 @@ def add_parsers(sub) -> None:
     play = sub.add_parser("ros2-play", help="publish a recording as ROS 2 topics (ros2 bag "
                                             "play without a ROS installation)")
     play.add_argument("recording", type=Path, help="a .mcap recording or a ROS 2 bag directory")
-    play.add_argument("--rate", type=float, default=1.0,
+    play.add_argument("--rate", type=rate, default=1.0,
                       help="times real time (0: as fast as it can)")
     play.add_argument("--qos", choices=QOS, default="sensor_data")
     play.add_argument("--ros-args", nargs=argparse.REMAINDER, default=[])
+
+
+def rate(text: str) -> float:
+    """--rate: a finite number >= 0."""
+    value = float(text)
+    if not 0 <= value < float("inf"):
+        raise argparse.ArgumentTypeError(f"expected a number >= 0, got {text!r}")
+    return value
 
 
 def qos_profile(name: str):
@@ -76,13 +83,16 @@ def start_node(name: str, ros_args: list[str]):
     return rclpy, context, rclpy.create_node(name, context=context)
 
 
-def stop_node(rclpy, context, node, executor, thread: threading.Thread) -> None:
-    """Everything the node started, ended: its executor, its thread, the node, rclpy."""
-    executor.shutdown(timeout_sec=2.0)
+def stop_node(rclpy, context, node, executor, thread) -> None:
+    """Everything the node started, ended, in order: the executor (its callbacks finish),
+    its thread, the node, rclpy's context."""
+    if executor is not None:
+        executor.shutdown(timeout_sec=2.0)
+    if thread is not None:
+        thread.join(timeout=5.0)
     node.destroy_node()
     if context.ok():
         rclpy.shutdown(context=context)
-    thread.join(timeout=5.0)
 
 
 def play(args: argparse.Namespace) -> int:
@@ -120,18 +130,37 @@ def node_parameters(ros, topics, args, options) -> dict:
     declared.update({f"outputs.{k}": v for k, v in OUTPUTS.items()})
     declared.update({"qos": args.qos or "sensor_data", "iters": int(options.iters),
                      "deadline_ms": float(options.deadline_ms)})
-    values = {name: ros.declare_parameter(name, default).value
-              for name, default in declared.items()}
+    values = {name: _parameter(ros, name, default) for name, default in declared.items()}
     if values["qos"] not in QOS:
         raise ConfigError("qos (ROS parameter)", f"one of {', '.join(QOS)}", values["qos"])
-    if not 0 <= values["iters"] <= 64 or not values["deadline_ms"] >= 0:
+    iters, deadline_ms = _number(values, "iters", int), _number(values, "deadline_ms", float)
+    if not 0 <= iters <= 64 or not deadline_ms >= 0:
         raise ConfigError("iters / deadline_ms (ROS parameters)", "iters 0-64 (0: the "
-                          "bundle's), deadline_ms >= 0 (0: none)",
-                          f"{values['iters']}, {values['deadline_ms']}")
-    return dict(topics=dataclasses.replace(topics, **{r: values[f"topics.{r}"] for r in roles}),
-                outputs={k: values[f"outputs.{k}"] for k in OUTPUTS if values[f"outputs.{k}"]},
-                qos=values["qos"], iters=values["iters"] or None,
-                deadline_ms=values["deadline_ms"] or None)
+                          "bundle's), deadline_ms >= 0 (0: none)", f"{iters}, {deadline_ms}")
+    return dict(topics=dataclasses.replace(topics, **{r: str(values[f"topics.{r}"])
+                                                      for r in roles}),
+                outputs={k: str(values[f"outputs.{k}"]) for k in OUTPUTS
+                         if values[f"outputs.{k}"]},
+                qos=values["qos"], iters=iters or None, deadline_ms=deadline_ms or None)
+
+
+def _parameter(ros, name: str, default):
+    """A parameter declared with dynamic typing (`-p deadline_ms:=50` is an integer where a
+    float was declared): its value, or ConfigError naming it."""
+    from rcl_interfaces.msg import ParameterDescriptor
+
+    try:
+        return ros.declare_parameter(name, default,
+                                     ParameterDescriptor(dynamic_typing=True)).value
+    except Exception as exc:  # noqa: BLE001 - rclpy's parameter exceptions, one line
+        raise ConfigError(f"{name} (ROS parameter)", "a value of its type", str(exc)) from None
+
+
+def _number(values: dict, name: str, kind):
+    value = values[name]
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
+        raise ConfigError(f"{name} (ROS parameter)", "a number", value)
+    return kind(value)
 
 
 def node_calibration(calib: Path | None, config):
@@ -150,12 +179,12 @@ def node_calibration(calib: Path | None, config):
 
 
 def node(args: argparse.Namespace) -> int:
-    """`edge-depth ros2`: load everything that can fail first, then the node, then the run."""
+    """`edge-depth ros2`: the files and flags, then the node and its parameters, then the
+    engine (all that can fail, before the run), then the run."""
     from edge_depth.arguments import load_topic_map
     from edge_depth.capture.replay import TopicMap
     from edge_depth.config import check_output_path, load_robot_config
     from edge_depth.ros2_node import input_topics
-    from edge_depth.runtime.engine import Engine
     from edge_depth.runtime.options import options_from_args
 
     config = load_robot_config(args.config) if args.config else None
@@ -165,65 +194,105 @@ def node(args: argparse.Namespace) -> int:
     options = options_from_args(args, base=config.engine if config is not None else None)
     if args.out is not None:
         check_output_path(args.out, "--out")
-    engine = Engine(options=options)
-    engine.plan_for(tuple(stereo.image_size))
-    return run_node(args, config, stereo, lidar, topics, engine)
-
-
-def run_node(args, config, stereo, lidar, topics, engine) -> int:
-    """The node: its parameters, then the daemon's runner and pipeline between the
-    subscriptions and the publishers until SIGINT / SIGTERM (or --max-frames)."""
-    import contextlib
-
-    from edge_depth.capture.sync import SyncConfig
-    from edge_depth.config import sync_mode
-    from edge_depth.daemon import Pipeline
-    from edge_depth.foxglove_msgs import CAMERA_FRAME
-    from edge_depth.loggers import open_logger
-    from edge_depth.ros2_node import LoggerPair, Ros2Outputs, Ros2Source, spin_in_thread
-    from edge_depth.runner import StopFlag, run
-
     rclpy, context, ros = start_node("edge_depth", args.ros_args)
     executor = thread = None
-    stop = StopFlag()
     try:
-        params = node_parameters(ros, topics, args, engine.options)
-        qos = qos_profile(params["qos"])
-        source = Ros2Source(ros, params["topics"], qos)
-        outputs = Ros2Outputs(ros, params["outputs"], qos,
-                              frame_id=lambda: source.frame_id or CAMERA_FRAME)
-        sync = None if config is None else SyncConfig(
-            sync_mode(config), config.sync.window_ms, max_wait_ms=config.sync.max_wait_ms,
-            deskew=config.sync.deskew)
-        with contextlib.ExitStack() as stack:
-            logger = outputs if args.out is None else LoggerPair(outputs, stack.enter_context(
-                open_logger(args.out, profile=config.log.profile if config else "foxglove")))
-            pipeline = Pipeline(engine, stereo, lidar, logger, params["iters"],
-                                params["deadline_ms"], sync, log_raw=args.out is not None,
-                                watch_every=config.calibration.watch_every if config else 13)
-            outputs.advertise()  # subscribers can match before the first output
-            executor, thread = spin_in_thread(rclpy, ros)
-            stop.install()
-            print(f"edge-depth ros2: node {ros.get_fully_qualified_name()}, {engine.describe()}"
-                  f" engine; in: {', '.join(source.wanted())}; out: "
+        params = node_parameters(ros, topics, args, options)
+        from edge_depth.runtime.engine import Engine
+
+        engine = Engine(options=options)
+        engine.plan_for(tuple(stereo.image_size))
+        executor, thread, done = run_node(args, config, (stereo, lidar), params, engine,
+                                          (rclpy, ros))
+    finally:
+        stop_node(rclpy, context, ros, executor, thread)
+    return node_exit(*done)
+
+
+def run_node(args, config, calibration, params, engine, ros_handles):
+    """The daemon's runner and pipeline between the node's subscriptions and publishers,
+    until SIGINT / SIGTERM (or --max-frames): (executor, thread, (stats, pipeline, source,
+    outputs, seconds))."""
+    import contextlib
+
+    from edge_depth.daemon import Pipeline
+    from edge_depth.foxglove_msgs import CAMERA_FRAME
+    from edge_depth.ros2_node import Ros2Outputs, Ros2Source, spin_in_thread
+    from edge_depth.runner import StopFlag, run
+
+    rclpy, ros = ros_handles
+    source = Ros2Source(ros, params["topics"], qos_profile(params["qos"]))
+    outputs = Ros2Outputs(ros, params["outputs"], qos_profile("reliable"),
+                          frame_id=lambda: source.frame_id or CAMERA_FRAME)
+    stop = StopFlag()
+    with contextlib.ExitStack() as stack:
+        logger, log_raw = node_logger(args.out, config, outputs, stack)
+        pipeline = Pipeline(engine, *calibration, logger, params["iters"],
+                            params["deadline_ms"], node_sync(config), log_raw=log_raw,
+                            watch_every=config.calibration.watch_every if config else 13)
+        outputs.advertise()  # subscribers can match before the first output
+        executor, thread = spin_in_thread(rclpy, ros, on_error=partial_fatal(pipeline, stop))
+        stop.install()
+        try:
+            print(f"edge-depth ros2: node {ros.get_fully_qualified_name()}, "
+                  f"{engine.describe()} engine; in: {', '.join(source.wanted())}; out: "
                   f"{', '.join(ros.resolve_topic_name(t) for t in params['outputs'].values())}",
                   flush=True)
             started = time.monotonic()
             stats = run(source, pipeline, stop, threaded=True, queue_size=args.queue,
                         max_frames=args.max_frames, pipelined=engine.options.pipelined)
             outputs.close()
-    finally:
-        stop.restore()
-        if executor is not None and thread is not None:
-            stop_node(rclpy, context, ros, executor, thread)
-        elif context.ok():
-            ros.destroy_node()
-            rclpy.shutdown(context=context)
-    print_node_summary(stats, pipeline, source, outputs, time.monotonic() - started)
+        finally:
+            stop.restore()
+    return executor, thread, (stats, pipeline, source, outputs, time.monotonic() - started)
+
+
+def partial_fatal(pipeline, stop):
+    """What the executor thread's death does: the run stops, exits 1, and says why."""
+    def fatal(exc: BaseException) -> None:
+        pipeline.stats.fatal = f"the ROS 2 executor stopped: {type(exc).__name__}: {exc}"
+        stop.set()
+
+    return fatal
+
+
+def node_logger(out: Path | None, config, outputs, stack):
+    """The pipeline's logger: the publishers, and with --out an MCAP log beside them as the
+    daemon writes it ([log]: profile, rotation, compression, topics; never overwriting).
+    (logger, whether raw topics are logged)."""
+    if out is None:
+        return outputs, False
+    from edge_depth.commands import logger_options
+    from edge_depth.config import LogConfig
+    from edge_depth.loggers import open_logger
+    from edge_depth.mcap_log import RAW_TOPICS
+    from edge_depth.ros2_node import LoggerPair
+
+    lg = config.log if config is not None else LogConfig()
+    log_file = stack.enter_context(open_logger(
+        out, topics=(RAW_TOPICS if lg.raw else ()) + lg.results, **logger_options(lg)))
+    return LoggerPair(outputs, log_file), lg.raw
+
+
+def node_sync(config):
+    """The daemon's pairing of scans with frames: the config's [sync], else replay's."""
+    if config is None:
+        return None
+    from edge_depth.capture.sync import SyncConfig
+    from edge_depth.config import sync_mode
+
+    return SyncConfig(sync_mode(config), config.sync.window_ms,
+                      max_wait_ms=config.sync.max_wait_ms, deskew=config.sync.deskew)
+
+
+def node_exit(stats, pipeline, source, outputs, seconds: float) -> int:
+    """The closing summary and the exit status: 1 on a fatal stop or when nothing was
+    processed (never silent: it says which topics never came)."""
+    print_node_summary(stats, pipeline, source, outputs, seconds)
     if stats.fatal:
         print(f"error: {stats.fatal}", file=sys.stderr)
         return 1
-    if stats.frames == 0:  # never silent: a node that produced nothing says why, exits 1
+    if stats.frames == 0:
         waiting = source.counters()["waiting_for"]
         print("error: no frame was processed"
               + (f"; never advertised: {', '.join(waiting)}" if waiting else

@@ -77,7 +77,8 @@ def cdr_decoder(type_name: str):
     schema = Schema(id=0, name=type_name, encoding="ros2msg",
                     data=MSGDEFS[type_name].encode())
     decoder = DecoderFactory().decoder_for("cdr", schema)
-    assert decoder is not None, type_name
+    if decoder is None:
+        raise ValueError(f"no CDR decoder for {type_name}")
     return decoder
 
 

@@ -30,6 +30,7 @@ import threading
 import time
 from collections import deque
 from functools import partial
+from typing import Any
 
 from edge_depth.capture import Source
 from edge_depth.capture.message_events import MessageEvents
@@ -162,6 +163,7 @@ class Ros2Source(Source):
                 if not self.stats.errors[key]:
                     log.warning("skipped a message on %s: %s", topic, exc)
                 self.stats.errors[key] += 1
+        events.finish()  # half pairs left at the end are counted, as replay counts them
 
     def close(self) -> None:
         self._closed.set()
@@ -185,7 +187,7 @@ class Ros2Outputs(Ros2Logger):
     def __init__(self, node, names: dict[str, str], qos, frame_id=lambda: CAMERA_FRAME) -> None:
         self.node, self.names, self.qos = node, names, qos
         self.frame_id = frame_id  # the input's left camera frame, once one has come
-        self._publishers: dict[str, object] = {}
+        self._publishers: dict[str, Any] = {}
         self._encoders: dict[str, object] = {}
         self.published = 0
         super().__init__("ros2", topics=())
@@ -215,9 +217,17 @@ class Ros2Outputs(Ros2Logger):
     def _frame_start(self, stamp_ns: int, pixels: int) -> bool:
         return True
 
+    def _scan_space_low(self) -> bool:
+        return False
+
     def _close_writer(self) -> str:
+        """The publishers destroyed, once their subscribers have had the last outputs (a
+        second at most)."""
+        from rclpy.duration import Duration
+
         self._writer = None
         for publisher in self._publishers.values():
+            publisher.wait_for_all_acked(Duration(seconds=1))
             self.node.destroy_publisher(publisher)
         self._publishers.clear()
         return ""
@@ -225,7 +235,7 @@ class Ros2Outputs(Ros2Logger):
     def _logs(self, key: str) -> bool:
         """Published only where someone listens (a 640x400 frame's point cloud alone is 4 MB
         to build and send); /diagnostics always."""
-        if key not in self.names:
+        if self._writer is None or key not in self.names:  # closed, or not published
             return False
         return key == "diagnostics" or self._publisher(key).get_subscription_count() > 0
 
@@ -278,8 +288,10 @@ class LoggerPair:
         return both
 
 
-def spin_in_thread(rclpy, node) -> tuple[object, threading.Thread]:
-    """The node's callbacks (subscriptions, discovery) on an executor thread of their own."""
+def spin_in_thread(rclpy, node, on_error=None) -> tuple[object, threading.Thread]:
+    """The node's callbacks (subscriptions, discovery) on an executor thread of their own;
+    an error that ends it (while the node's context is up) is logged and given to
+    `on_error`."""
     from rclpy.executors import SingleThreadedExecutor
 
     executor = SingleThreadedExecutor(context=node.context)
@@ -288,9 +300,11 @@ def spin_in_thread(rclpy, node) -> tuple[object, threading.Thread]:
     def spin() -> None:
         try:
             executor.spin()
-        except Exception as exc:  # noqa: BLE001 - shutdown races end the spin: say, don't raise
-            if rclpy.ok():
-                log.error("the ROS 2 executor stopped: %s", exc)
+        except Exception as exc:  # noqa: BLE001 - a shutdown ends the spin too: only say others
+            if node.context.ok():
+                log.exception("the ROS 2 executor stopped")
+                if on_error is not None:
+                    on_error(exc)
 
     thread = threading.Thread(target=spin, name="ros2-spin", daemon=True)
     thread.start()

@@ -23,7 +23,8 @@ from edge_depth.types import LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
 # our recordings' raw topics, published under the node's default input names
-RAW_NAMES = dict(left=INPUTS["left"], right=INPUTS["right"],
+RAW_NAMES = dict(left=INPUTS["left"], right=INPUTS["right"], left_raw="left/image_raw",
+                 right_raw="right/image_raw",
                  left_calibration=INPUTS["left_info"], right_calibration=INPUTS["right_info"],
                  lidar=INPUTS["lidar"])
 
@@ -59,15 +60,21 @@ def is_cdr(path) -> bool:
     return False
 
 
-def wait_for_subscribers(publishers: list, timeout_s: float) -> None:
-    """Give the graph up to `timeout_s` to match a subscriber to the publishers (one that
-    discovers its topic late would miss the first messages)."""
+def wait_for_subscribers(publishers: list, timeout_s: float, settle_s: float = 1.0) -> None:
+    """Give the graph up to `timeout_s` to match subscribers to the publishers (one that
+    discovers its topic late misses the first messages): until one matches, then until no
+    further one has matched for `settle_s` (a subscriber's node may want only some topics)."""
     from edge_depth.ros2_node import wait_for
 
-    # a subscriber's node may want only some topics: once one has matched, the rest get a
-    # second to match too
-    if wait_for(lambda: any(p.get_subscription_count() > 0 for p in publishers), timeout_s):
-        wait_for(lambda: all(p.get_subscription_count() > 0 for p in publishers), 1.0)
+    def matched() -> int:
+        return sum(p.get_subscription_count() > 0 for p in publishers)
+
+    deadline = time.monotonic() + timeout_s
+    if not wait_for(lambda: matched() > 0, timeout_s):
+        return
+    while (count := matched()) < len(publishers) and time.monotonic() < deadline:
+        if not wait_for(lambda: matched() > count, min(settle_s, deadline - time.monotonic())):
+            return
 
 
 def _channels(path) -> dict:

@@ -127,3 +127,52 @@ def left_stamps_in_chunks(data: bytes, count: int) -> list[int]:
     records = [r for chunk in chunks for r in breakup_chunk(chunk)]
     left = {r.id for r in records if isinstance(r, Channel) and r.topic == TOPICS["left"]}
     return [r.log_time for r in records if isinstance(r, Message) and r.channel_id in left]
+
+
+def test_scans_while_no_frame_comes_stop_the_log_before_the_disk_fills(tmp_path, monkeypatch):
+    import edge_depth.mcap_log as mcap_log
+    from edge_depth.types import LidarScan
+
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    total = 16 << 20
+    small_disk(monkeypatch, disk, total)
+    clock = iter(range(10_000))  # each scan's check a second after the last
+    monkeypatch.setattr(mcap_log.time, "monotonic", lambda: float(next(clock)))
+    logger = McapLogger(disk / "depth.mcap", compression="none")
+    logger.log_frame(noise_frame(0, (96, 160)))
+    points = np.random.default_rng(1).random((40_000, 3)).astype(np.float32)  # 640 kB a scan
+    for i in range(60):  # a camera away, a LiDAR still sending: 38 MB if all were written
+        logger.log_scan(LidarScan(2_000_000_000 + i * 100_000_000, points))
+    logger.close()
+    assert logger.stopped is not None and "is full" in logger.stopped
+    assert sum(p.stat().st_size for p in disk.iterdir()) <= total
+    with open(logger.files[-1], "rb") as f:
+        assert make_reader(f).get_summary() is not None
+
+
+RAISING = """
+import resource, signal, sys
+from edge_depth.loggers import open_logger
+from tests.test_disk_full import noise_frame
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (int(sys.argv[2]), int(sys.argv[2])))
+with open_logger(sys.argv[1], "ros2", compression="none", chunk_size=200_000) as logger:
+    for i in range(12):
+        logger.log_frame(noise_frame(i, (200, 320)))
+print("stopped:", logger.stopped)
+"""
+
+
+def test_a_writer_that_raises_stops_the_log_and_leaves_its_complete_chunks(tmp_path):
+    out = tmp_path / "ros2.mcap"
+    proc = subprocess.run([sys.executable, "-c", RAISING, str(out), str(900_000)], cwd=ROOT,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert f"stopped: writing {out} failed" in proc.stdout  # said, and no later writes
+    said = re.search(r"(\d+) of its \d+ frames are readable", proc.stdout)
+    assert said is not None, proc.stdout
+    with open(out, "rb") as f:
+        stamps = {m.log_time for _, c, m in make_reader(f).iter_messages()
+                  if c.topic.endswith("left/image_rect")}
+    assert len(stamps) == int(said.group(1)) >= 2
