@@ -8,8 +8,8 @@ BIN := $(VENV)/bin
 BASE := $(VENV)/.installed-base
 STAMP := $(VENV)/.installed
 
-# the tests in parallel, one worker per core (pytest-xdist): on a 2-core AVX-512 VNNI host
-# 108 s instead of 185 s in one process (2026-12-07, docs/install.md)
+# the tests in parallel, one worker per core (pytest-xdist): docs/install.md has their time
+# beside one process's
 TEST_WORKERS ?= auto
 
 .PHONY: demo test lint bench bundle clean arm-check
