@@ -65,14 +65,16 @@ def main() -> int:
     context = rclpy.context.Context()
     rclpy.init(context=context)
     ros = rclpy.create_node("camera_stand_in", context=context)
-    from rclpy.qos import qos_profile_sensor_data
+    from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
     outputs = Ros2Outputs(ros, RAW_NAMES, qos_profile_sensor_data)
     outputs.set_calibration(samples[0].calibration(), LidarExtrinsics(samples[0].T_cam_lidar))
     received: list[tuple[int, int]] = []  # (stamp, received) ns, wall clock
+    # reliable, as the node publishes: a best-effort reader loses a 1 MB image whenever one
+    # of its UDP fragments is late, which measures the reader, not the node
     ros.create_subscription(DisparityImage, "/disparity", lambda m: received.append(
         (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.time_ns())),
-        qos_profile_sensor_data)
+        QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     executor, thread = spin_in_thread(rclpy, ros)
     wait_for_subscribers(outputs.advertise(), 60.0)
     sent = publish(outputs, samples, args.seconds + args.warmup, LidarScan, StereoFrame)
