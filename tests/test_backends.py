@@ -64,6 +64,91 @@ def test_the_cpu_description_says_whether_int8_has_dot_product_instructions(monk
         "; kernels limited: OpenVINO/oneDNN up to AVX2, OpenCV without AVX512-SKX")
 
 
+# /proc/cpuinfo of a Raspberry Pi 5 (Cortex-A76: SDOT/UDOT, "asimddp") and of a Pi 4
+# (Cortex-A72: NEON without dot products), the first core and the board's lines
+PI5_CPUINFO = """processor\t: 0
+BogoMIPS\t: 108.00
+Features\t: fp asimd evtstrm aes pmull sha1 sha2 crc32 atomics fphp asimdhp cpuid asimdrdm \
+lrcpc dcpop asimddp
+CPU implementer\t: 0x41
+CPU architecture: 8
+CPU variant\t: 0x4
+CPU part\t: 0xd0b
+CPU revision\t: 1
+
+Revision\t: c04170
+Serial\t\t: 3f4e9c1a2b7d6e50
+Model\t\t: Raspberry Pi 5 Model B Rev 1.0
+"""
+PI4_CPUINFO = """processor\t: 0
+BogoMIPS\t: 108.00
+Features\t: fp asimd evtstrm crc32 cpuid
+CPU implementer\t: 0x41
+CPU architecture: 8
+CPU variant\t: 0x0
+CPU part\t: 0xd08
+CPU revision\t: 3
+
+Hardware\t: BCM2835
+Revision\t: c03111
+Serial\t\t: 10000000a1b2c3d4
+Model\t\t: Raspberry Pi 4 Model B Rev 1.1
+"""
+# the AT_HWCAP words QEMU's user mode gives its cortex-a76 and cortex-a72 models
+# (`getauxval(AT_HWCAP)` under qemu-aarch64-static 7.2, QEMU_CPU=cortex-a76 / cortex-a72)
+A76_HWCAP, A72_HWCAP = 0x119FFB, 0x8FB
+
+
+@pytest.mark.parametrize("cpuinfo, model, dot, isa, precision", [
+    (PI5_CPUINFO, "Cortex-A76 (Raspberry Pi 5 Model B Rev 1.0)", True, ["NEON", "dotprod"],
+     "int8"),
+    (PI4_CPUINFO, "Cortex-A72 (Raspberry Pi 4 Model B Rev 1.1)", False, ["NEON"], "fp32")])
+def test_an_arm_board_runs_int8_on_onnxruntime_only_with_dot_products(
+        monkeypatch, cpuinfo, model, dot, isa, precision):
+    cpu = backends.cpu_description(cpuinfo)
+    assert cpu == dict(model=model, int8_dot_product=dot, isa=isa)
+    monkeypatch.setattr(backends.platform, "machine", lambda: "aarch64")
+    monkeypatch.setattr(backends, "openvino_available", lambda: True)  # an x86 choice only
+    runtime = backends.resolve_runtime("auto")
+    assert runtime == "onnxruntime"
+    both = {"fp32": {}, "int8": {}}
+    assert backends.resolve_precision("auto", runtime, both, cpu) == precision
+
+
+def test_the_aux_vector_names_the_features_as_cpuinfo_prints_them():
+    a76 = backends.arm_hwcap_features(A76_HWCAP)
+    a72 = backends.arm_hwcap_features(A72_HWCAP)
+    assert a72 == {"fp", "asimd", "aes", "pmull", "sha1", "sha2", "crc32", "cpuid"}
+    assert a76 == a72 | {"atomics", "fphp", "asimdhp", "asimdrdm", "lrcpc", "dcpop", "asimddp"}
+    # a Pi 5's line: QEMU's A76 and the kernel's timer event stream, which QEMU does not set
+    features = next(line for line in PI5_CPUINFO.splitlines() if line.startswith("Features"))
+    assert set(features.split(":")[1].split()) == a76 | {"evtstrm"}
+    assert backends.arm_hwcap_features(0) == set()
+    assert backends.arm_hwcap_features(1 << 40) == set()  # a bit this table does not name
+
+
+@pytest.mark.parametrize("hwcap, dot, isa", [
+    (A76_HWCAP, True, ["NEON", "dotprod"]), (A72_HWCAP, False, ["NEON"]), (None, None, [])])
+def test_an_aarch64_host_showing_another_cpus_cpuinfo_reads_its_aux_vector(
+        monkeypatch, hwcap, dot, isa):
+    """QEMU's user mode before 8.1 passes the x86 host's /proc/cpuinfo through: its "flags"
+    say nothing of the emulated ARM CPU, whose features the aux vector carries."""
+    x86 = "processor\t: 0\nmodel name\t: AMD EPYC\nflags\t\t: avx2 avx512f avx512_vnni\n"
+    monkeypatch.setattr(backends, "_read_cpuinfo", lambda: x86)
+    monkeypatch.setattr(backends, "_auxv_hwcap", lambda: hwcap)
+    monkeypatch.setattr(backends.platform, "processor", lambda: "")
+    monkeypatch.setattr(backends.platform, "machine", lambda: "aarch64")
+    assert backends.cpu_description() == dict(model="unknown", int8_dot_product=dot, isa=isa)
+    # a board's own text is read as it is (the aux vector only stands in for a missing one)
+    monkeypatch.setattr(backends, "_read_cpuinfo", lambda: PI4_CPUINFO)
+    monkeypatch.setattr(backends, "_auxv_hwcap", lambda: A76_HWCAP)
+    assert backends.cpu_description()["int8_dot_product"] is False
+    monkeypatch.setattr(backends.platform, "machine", lambda: "x86_64")  # x86: as it reads
+    monkeypatch.delenv("ONEDNN_MAX_CPU_ISA", raising=False)  # the suite may run under it
+    monkeypatch.setattr(backends, "_read_cpuinfo", lambda: x86)
+    assert backends.cpu_description()["int8_dot_product"] is True
+
+
 def test_an_unknown_or_missing_runtime_is_one_clear_error(monkeypatch):
     with pytest.raises(ConfigError, match="tensorrt"):
         backends.resolve_runtime("tensorrt")

@@ -62,6 +62,67 @@ def kernel_flags(flags: set[str]) -> set[str]:
     return {f for f in flags if not f.startswith(ABOVE_AVX2)}
 
 
+# ARM's /proc/cpuinfo has no "model name": its cores by "CPU part" (implementer 0x41, Arm),
+# those of the boards robots use (Pi 4: A72; Pi 5: A76; RK3588: A76 + A55; Jetson Orin: A78AE)
+ARM_CORES = {"0xd03": "Cortex-A53", "0xd05": "Cortex-A55", "0xd07": "Cortex-A57",
+             "0xd08": "Cortex-A72", "0xd0b": "Cortex-A76", "0xd0c": "Neoverse-N1",
+             "0xd41": "Cortex-A78", "0xd42": "Cortex-A78AE", "0xd4b": "Cortex-A78C"}
+# the aarch64 aux vector's AT_HWCAP bits, by bit, under the names /proc/cpuinfo's "Features"
+# prints them (Linux's arch/arm64/include/uapi/asm/hwcap.h)
+AT_HWCAP = 16
+ARM_HWCAP_NAMES = ("fp", "asimd", "evtstrm", "aes", "pmull", "sha1", "sha2", "crc32",
+                   "atomics", "fphp", "asimdhp", "cpuid", "asimdrdm", "jscvt", "fcma", "lrcpc",
+                   "dcpop", "sha3", "sm3", "sm4", "asimddp", "sha512", "sve", "asimdfhm")
+
+
+def arm_hwcap_features(hwcap: int) -> set[str]:
+    """The "Features" names of an aarch64 AT_HWCAP word (bits past ARM_HWCAP_NAMES dropped)."""
+    return {name for bit, name in enumerate(ARM_HWCAP_NAMES) if hwcap >> bit & 1}
+
+
+def _auxv_hwcap() -> int | None:
+    """This process's AT_HWCAP word, as the kernel (or QEMU's user mode) gave it; None where
+    libc has no getauxval."""
+    import ctypes
+
+    try:
+        getauxval = ctypes.CDLL(None).getauxval
+    except (OSError, AttributeError):
+        return None
+    getauxval.restype, getauxval.argtypes = ctypes.c_ulong, [ctypes.c_ulong]
+    return int(getauxval(AT_HWCAP)) or None
+
+
+def _read_cpuinfo() -> str:
+    try:
+        return Path("/proc/cpuinfo").read_text()
+    except OSError:
+        return ""
+
+
+def _cpuinfo_entries(cpuinfo: str) -> dict[str, str]:
+    """/proc/cpuinfo's first value of each key: the first processor's entries (on big.LITTLE
+    the first core's), and the board's lines after the last processor (a Pi's "Model")."""
+    entries: dict[str, str] = {}
+    for line in cpuinfo.splitlines():
+        key, sep, value = line.partition(":")
+        if sep and key.strip() not in entries:
+            entries[key.strip()] = value.strip()
+    return entries
+
+
+def _cpu_model(entries: dict[str, str]) -> str:
+    """x86's "model name"; on ARM the core named by its "CPU part", with the board's "Model"."""
+    if "model name" in entries:
+        return entries["model name"]
+    core = ARM_CORES.get(entries.get("CPU part", "").lower()) if \
+        entries.get("CPU implementer", "").lower() == "0x41" else None
+    board = entries.get("Model")
+    if core:
+        return f"{core} ({board})" if board else core
+    return board or platform.processor() or "unknown"
+
+
 def cpu_description(cpuinfo: str | None = None) -> dict:
     """The CPU the graphs run on, for what benchmarks and quantization record: its model name,
     whether it has int8 dot-product instructions (AVX512-VNNI, AVX-VNNI, AMX, or ARM's
@@ -69,21 +130,19 @@ def cpu_description(cpuinfo: str | None = None) -> dict:
     Without dot products int8 graphs run no faster than float (ONNX Runtime ×1.00 on an AVX2
     host, docs/experiments.md), so ratios and quantization choices from the two kinds of CPU
     differ. `cpuinfo`: /proc/cpuinfo's text (read here on Linux, as the kernels see it:
-    `kernel_flags`)."""
+    `kernel_flags`). On an aarch64 host whose /proc/cpuinfo has no "Features" (QEMU's user
+    mode before 8.1 shows the host's x86 text), the features come from the aux vector's
+    AT_HWCAP, which is what that line prints on a real board."""
     this_host = cpuinfo is None
-    if cpuinfo is None:
-        try:
-            cpuinfo = Path("/proc/cpuinfo").read_text()
-        except OSError:
-            cpuinfo = ""
-    model, flags = platform.processor() or "unknown", None
-    for line in cpuinfo.splitlines():  # the first processor's entries are enough
-        key, _, value = line.partition(":")
-        if key.strip() == "model name":
-            model = value.strip()
-        elif key.strip() in ("flags", "Features"):
-            flags = set(value.split())
-            break
+    entries = _cpuinfo_entries(_read_cpuinfo() if cpuinfo is None else cpuinfo)
+    text = entries.get("flags", entries.get("Features"))
+    flags = None if text is None else set(text.split())
+    model = _cpu_model(entries)
+    if this_host and platform.machine().lower() in ("aarch64", "arm64") and \
+            "Features" not in entries:
+        hwcap = _auxv_hwcap()
+        flags = None if hwcap is None else arm_hwcap_features(hwcap)
+        model = platform.processor() or "unknown"
     if flags is not None and this_host:
         flags = kernel_flags(flags)
     return dict(model=model, int8_dot_product=None if flags is None
