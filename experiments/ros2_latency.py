@@ -1,6 +1,7 @@
 """The live ROS 2 node's rate and latency on the sim robot (README, docs/ros2.md).
 
-    python experiments/ros2_latency.py [--seconds 30] [--warmup 5] [--avx2] [-- NODE FLAGS]
+    python experiments/ros2_latency.py [--seconds 30] [--warmup 5] [--avx2] [--reliable]
+        [-- NODE FLAGS]
 
 A camera driver's stand-in publishes the sim robot's pair at 30 Hz (640x400 mono8, eight
 scenes rendered once and cycled, as the daemon's sim camera does) with wall-clock stamps and
@@ -54,6 +55,9 @@ def main() -> int:
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--avx2", action="store_true")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--reliable", action="store_true",
+                   help="the camera and LiDAR published reliably, the node run with --qos "
+                        "reliable (default: sensor_data, best effort)")
     p.add_argument("node_flags", nargs="*")
     args = p.parse_args()
     os.environ["ROS_DOMAIN_ID"] = str(random.randrange(1, 200))
@@ -61,14 +65,25 @@ def main() -> int:
     samples = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(SCENES)]
     calib = Path(tempfile.mkdtemp()) / "calib.toml"
     save_calibration(calib, samples[0].calibration(), LidarExtrinsics(samples[0].T_cam_lidar))
-    node = start_node(calib, args.avx2, args.node_flags)
-    context = rclpy.context.Context()
-    rclpy.init(context=context)
-    ros = rclpy.create_node("camera_stand_in", context=context)
+    node = start_node(calib, args.avx2,
+                      [*args.node_flags, *(["--qos", "reliable"] if args.reliable else [])])
     from rclpy.qos import QoSProfile, ReliabilityPolicy, qos_profile_sensor_data
 
-    outputs = Ros2Outputs(ros, RAW_NAMES, qos_profile_sensor_data)
-    outputs.set_calibration(samples[0].calibration(), LidarExtrinsics(samples[0].T_cam_lidar))
+    qos = QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE) if args.reliable \
+        else qos_profile_sensor_data
+    # the camera and the LiDAR as two drivers, two DDS participants (each with its own
+    # shared-memory segment: one participant's 30 Hz images pushed its scans out)
+    contexts, nodes, outputs = [], [], []
+    for name, names in (("camera_stand_in", {k: v for k, v in RAW_NAMES.items()
+                                             if k != "lidar"}),
+                        ("lidar_stand_in", {"lidar": RAW_NAMES["lidar"]})):
+        contexts.append(rclpy.context.Context())
+        rclpy.init(context=contexts[-1])
+        nodes.append(rclpy.create_node(name, context=contexts[-1]))
+        outputs.append(Ros2Outputs(nodes[-1], names, qos))
+    camera, lidar = outputs
+    camera.set_calibration(samples[0].calibration(), LidarExtrinsics(samples[0].T_cam_lidar))
+    ros = nodes[0]
     received: list[tuple[int, int]] = []  # (stamp, received) ns, wall clock
     # reliable, as the node publishes: a best-effort reader loses a 1 MB image whenever one
     # of its UDP fragments is late, which measures the reader, not the node
@@ -76,28 +91,29 @@ def main() -> int:
         (m.header.stamp.sec * 10**9 + m.header.stamp.nanosec, time.time_ns())),
         QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
     executor, thread = spin_in_thread(rclpy, ros)
-    wait_for_subscribers(outputs.advertise(), 60.0)
-    sent = publish(outputs, samples, args.seconds + args.warmup, LidarScan, StereoFrame)
+    wait_for_subscribers(camera.advertise() + lidar.advertise(), 60.0)
+    sent = publish(camera, lidar, samples, args.seconds + args.warmup, LidarScan, StereoFrame)
     time.sleep(1.0)
     node.send_signal(signal.SIGINT)
     log, _ = node.communicate(timeout=60)
     executor.shutdown()
-    ros.destroy_node()
-    rclpy.shutdown(context=context)
+    for ros, context in zip(nodes, contexts, strict=True):
+        ros.destroy_node()
+        rclpy.shutdown(context=context)
     report(received, sent, args, log)
     return 0
 
 
-def publish(outputs, samples, seconds: float, LidarScan, StereoFrame) -> dict:
+def publish(camera, lidar, samples, seconds: float, LidarScan, StereoFrame) -> dict:
     """30 Hz frames, a scan on every third (stamped 5 ms before it); wall-clock stamps."""
     start, i, sent = time.monotonic(), 0, {"frames": 0, "scans": 0, "start_ns": time.time_ns()}
     while (due := start + i / 30.0) < start + seconds:
         time.sleep(max(due - time.monotonic(), 0.0))
         s, stamp = samples[i % len(samples)], time.time_ns()
         if i % 3 == 0:
-            outputs.log_scan(LidarScan(stamp - 5_000_000, s.scan.points))
+            lidar.log_scan(LidarScan(stamp - 5_000_000, s.scan.points))
             sent["scans"] += 1
-        outputs.log_frame(StereoFrame(stamp, i, s.left, s.right, rectified=True))
+        camera.log_frame(StereoFrame(stamp, i, s.left, s.right, rectified=True))
         sent["frames"] += 1
         i += 1
     return sent
@@ -115,7 +131,8 @@ def report(received, sent: dict, args, log: str) -> None:
                   depth_received=len(kept), depth_hz=round(rate, 2),
                   latency_ms_median=round(float(np.median(latency)), 1) if kept else None,
                   latency_ms_p95=round(float(np.percentile(latency, 95)), 1) if kept else None,
-                  kernels="AVX2 (avx2_kernels.sh)" if args.avx2 else "native", host_isa=isa)
+                  kernels="AVX2 (avx2_kernels.sh)" if args.avx2 else "native", host_isa=isa,
+                  inputs="reliable" if args.reliable else "sensor_data")
     print(json.dumps(result))
     print("node:", *[line for line in log.splitlines() if " frames in " in line
                      or line.startswith("latency") or line.startswith("frames with")], sep="\n")
