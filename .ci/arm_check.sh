@@ -139,9 +139,9 @@ bad_inputs() {
 }
 
 # runs DIR SRC RUNNER...: what both CPUs run, into $OUT/DIR (SRC: the working tree as RUNNER
-# sees it): replays of the 3-frame recording in
-# fp32 and int8, the engine's graphs on one scene, the bad inputs (the demo and calibrate
-# check, whose exit status is the verdict, run on ARM only)
+# sees it): replays of the 3-frame recording in fp32 and int8, the engine's graphs on one
+# scene, the bad inputs (the demo and calibrate check, whose exit status is the verdict, run
+# on ARM only)
 runs() {
     local dir=$1 src=$2 precision
     shift 2
