@@ -22,7 +22,7 @@ $(BASE): pyproject.toml Makefile constraints/robot.txt
 
 $(STAMP): $(BASE)
 	$(BIN)/pip install --quiet torch==$(TORCH_VERSION)
-	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino,fleet,ros2]'
+	$(BIN)/pip install --quiet -c constraints/robot.txt -e '.[oak,train,dev,openvino,fleet,ros2,band]'
 	touch $(STAMP)
 
 demo: $(BASE)

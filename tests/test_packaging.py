@@ -25,8 +25,9 @@ def _pins() -> dict[str, Version]:
 
 def test_every_robot_dependency_is_pinned_within_its_range():
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
-    pins = _pins()  # the base install and the OAK's extra
-    for spec in project["dependencies"] + project["optional-dependencies"]["oak"]:
+    pins = _pins()  # the base install, the OAK's extra and the band refinement's
+    extras = project["optional-dependencies"]
+    for spec in project["dependencies"] + extras["oak"] + extras["band"]:
         req = Requirement(spec)
         name = canonicalize_name(req.name)
         assert name in pins, f"{req.name} has no pin in constraints/robot.txt"

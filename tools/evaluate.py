@@ -59,7 +59,7 @@ from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_match",
                 "edge_match_rows", "edge_matcher", "edge_match_far_px", "edge_median",
                 "match_photometry",
-                "align_lidar", "denoise_lidar")
+                "align_lidar", "denoise_lidar", "refine")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
 ALL_METHODS = METHODS + ("net-nolidar", "sgbm-filled", "sgbm+lidar", "guided-sgm",

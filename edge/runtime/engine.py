@@ -10,6 +10,7 @@ upsampling time of earlier frames, would finish after it; it always runs at leas
 
 from __future__ import annotations
 
+import importlib
 import math
 import os
 import time
@@ -116,7 +117,9 @@ class Engine:
         self.lidar_align = LidarAlign() if options.align_lidar else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
-        self.edge_match = make_edge_match(resolved, self.width)
+        self.band = load_band_refinement(options) if self.has_confidence else None
+        # the band refinement replaces the matching at the edges and its median
+        self.edge_match = None if self.band else make_edge_match(resolved, self.width)
         # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
         # "auto" starts early only where the graphs leave a core idle
         self.match_schedule = None if self.edge_match is None else MatchSchedule(
@@ -212,6 +215,8 @@ class Engine:
             text += ", at the camera's own size"
         m = self.edge_match
         source = " (the bundle's)" if self.edge_match_source == "bundle" else ""
+        if self.band is not None:
+            return text + ", band refinement"
         if m is None:
             return text + f", edge matching off{source}"
         count = m.num_disparities or AUTO
@@ -255,6 +260,7 @@ class Engine:
         disp, confidence = self._select(frame, disp, confidence, has_points)
         disp, prepared = self._match(frame, matching, disp, confidence)
         disp = self._median(frame, prepared, disp)
+        disp = self._refine(frame, disp, confidence)
         self._upsample_ms = frame.after_steps_ms if self._upsample_ms == 0 else \
             0.8 * self._upsample_ms + 0.2 * frame.after_steps_ms  # for the deadline
         if not plan.identity:
@@ -420,6 +426,19 @@ class Engine:
         frame.stage("edge_match", t)
         return disp, prepared
 
+    def _refine(self, frame: _Frame, disp: np.ndarray,
+                confidence: np.ndarray | None) -> np.ndarray:
+        """The band refinement (`edge.runtime.band_sgm`), where asked for; its changed pixels
+        are the frame's matched ones."""
+        if self.band is None or confidence is None:
+            return disp
+        left, right = self._stage_pair()
+        t = time.perf_counter()
+        disp, frame.counts["matched_px"] = self.band.refine(
+            left, right, disp, confidence, self._inputs["sparse"][0, 0])
+        frame.stage("band_refine", t)
+        return disp
+
     def _median(self, frame: _Frame, prepared: Prepared | None,
                 disp: np.ndarray) -> np.ndarray:
         """The matching's grey-guided weighted median over its gate (where it ran)."""
@@ -473,6 +492,21 @@ def make_edge_match(options: EngineOptions, width: int) -> EdgeMatch | None:
     if count >= width:  # StereoBM would silently find nothing
         raise ConfigError("edge_match", f"below the bundle's input width ({width} px)", count)
     return EdgeMatch(count, **settings)
+
+
+def load_band_refinement(options: EngineOptions):
+    """`edge.runtime.band_sgm` where `refine` is "band" (its numba kernels compiled or loaded
+    from numba's cache on first use), else None; ConfigError naming the extra when numba is
+    missing."""
+    if options.refine != "band":
+        return None
+    try:
+        band_sgm = importlib.import_module("edge_depth.runtime.band_sgm")
+    except ImportError as exc:
+        raise ConfigError("refine", "numba installed for \"band\" (pip install "
+                          "'edge-depth[band]')", f"band without it ({exc})") from None
+    band_sgm.use_threads(options.threads)
+    return band_sgm
 
 
 def usable_cores() -> int:

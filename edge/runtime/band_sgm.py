@@ -1,0 +1,334 @@
+"""Semi-global matching in a disparity band around the network's estimate (an experiment:
+not in the engine; `experiments/band_refine.py`, docs/experiments.md).
+
+The network's upsampled disparity is close almost everywhere and off by a few to tens of
+pixels at depth edges and thin structures, finer than its 1/8 grid; full-resolution matching
+finds those but, searched over the whole range, also finds far-off wrong minima in weak
+texture. This searches only `prior ± half` at each pixel (`half` from the network's
+confidence: `band_half_widths`) and aggregates a census cost along 8 paths as Hirschmüller's
+SGM does (PAMI 2008):
+
+    L_r(p, d) = C(p, d) + min(L_r(p−r, d), L_r(p−r, d±1) + P1, min_i L_r(p−r, i) + P2)
+                − min_i L_r(p−r, i),      P2 = max(P1, P2' / |I(p) − I(p−r)|)
+
+with each pixel's labels relative to its own band: a neighbour's label is matched to this
+pixel's by their absolute disparity. At each LiDAR pixel the cost is modulated by Poggi et
+al.'s inverted Gaussian (CVPR 2019), `C·k·(1 − exp(−(d − g)² / (2c²)))`. The winner of the
+summed cost, with the parabola through its neighbours, replaces the prior where it is inside
+the band, unique by `uniqueness` % and agrees with the right view's winner within `lr_max`
+(Hirschmüller's check, the right view's disparity read from the left's sums); the prior stays
+elsewhere (a winner on the band's edge means the match lies beyond it).
+
+Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, check 1 px); the
+band's widths and the 3×3 median before the check are this stage's own. Compiled with numba
+(the four downward and the four upward paths on two threads, float32 costs so that the
+labels run in SIMD lanes).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numba
+import numpy as np
+
+CENSUS_W, CENSUS_H = 9, 7
+WORST = CENSUS_W * CENSUS_H - 1  # the census cost where the right pixel leaves the image
+OUTSIDE = 1000  # the cost of a label outside a pixel's own band (never chosen)
+BIG = 1e6  # beyond any path cost: the labels a neighbour does not have
+BIG32 = np.float32(BIG)
+
+
+@dataclass(frozen=True)
+class BandSgmConfig:
+    """The refinement's constants."""
+
+    min_band: int = 4  # half-width of the band (px) where the network is sure
+    max_band: int = 32  # half-width where it is not
+    p1: int = 10
+    p2: int = 120
+    k: float = 10.0
+    c: float = 1.0
+    lr_max: float = 1.0  # left-right check tolerance (px)
+    uniqueness: int = 0  # % by which the winner's S must be below the next (beyond ±1)
+    min_change: float = 1.0  # px: the prior stays where the match is this close to it
+    quantile: float = 0.0  # the band: this interval of the confidence's error model; 0 = linear
+    net_weight: float = 1.0  # the network's −log p(d) in the cost: census units per nat
+    median: int = 1  # 1: a 3x3 median of both views' winners before the check
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.min_band <= self.max_band <= 128:
+            raise ValueError(f"need 0 ≤ min_band ≤ max_band ≤ 128, got {self.min_band}, "
+                             f"{self.max_band}")
+
+
+@numba.njit(cache=True, parallel=True)
+def census(grey: np.ndarray) -> np.ndarray:
+    """The 9×7 census of an (H, W) uint8 image: bit set where the neighbour is darker than
+    the centre, border replicated; (H, W) uint64."""
+    h, w = grey.shape
+    ry, rx = CENSUS_H // 2, CENSUS_W // 2
+    out = np.zeros((h, w), np.uint64)
+    for y in numba.prange(h):
+        for x in range(w):
+            centre = grey[y, x]
+            bits = np.uint64(0)
+            for dy in range(-ry, ry + 1):
+                yy = min(max(y + dy, 0), h - 1)
+                for dx in range(-rx, rx + 1):
+                    if dy == 0 and dx == 0:
+                        continue
+                    xx = min(max(x + dx, 0), w - 1)
+                    bits = (bits << np.uint64(1)) | np.uint64(grey[yy, xx] < centre)
+            out[y, x] = bits
+    return out
+
+
+@numba.njit(cache=True, inline="always")
+def _popcount(v: np.uint64) -> int:
+    v = v - ((v >> np.uint64(1)) & np.uint64(0x5555555555555555))
+    v = (v & np.uint64(0x3333333333333333)) + ((v >> np.uint64(2)) & np.uint64(0x3333333333333333))
+    v = (v + (v >> np.uint64(4))) & np.uint64(0x0F0F0F0F0F0F0F0F)
+    return int((v * np.uint64(0x0101010101010101)) >> np.uint64(56))
+
+
+@numba.njit(cache=True, parallel=True)
+def band_cost(cl: np.ndarray, cr: np.ndarray, lo: np.ndarray, count: np.ndarray,
+              start: np.ndarray, sparse: np.ndarray, prior: np.ndarray,
+              confidence: np.ndarray, k: float, c: float, net_weight: float) -> np.ndarray:
+    """The ragged cost volume, flat float32: pixel p's labels d = lo(p) … lo(p) + count(p) − 1
+    at start(p) …: the census Hamming distance (WORST where x − d leaves the image), plus
+    `net_weight` × the network's −log p(d) under its Laplace error model (`band_half_widths`),
+    multiplied at LiDAR pixels (sparse > 0) by Poggi's inverted Gaussian."""
+    h, w = cl.shape
+    cost = np.empty(start[-1], np.float32)
+    for y in numba.prange(h):
+        for x in range(w):
+            p = y * w + x
+            g = sparse[y, x]
+            certainty = -np.log(max(1.0 - confidence[y, x], 1e-3))  # 1 / the Laplace scale
+            for i in range(count[y, x]):
+                d = lo[y, x] + i
+                value = float(WORST if x - d < 0 else _popcount(cl[y, x] ^ cr[y, x - d]))
+                value += net_weight * abs(d - prior[y, x]) * certainty
+                if g > 0:
+                    value *= k * (1.0 - np.exp(-(d - g) ** 2 / (2.0 * c * c)))
+                cost[start[p] + i] = value
+    return cost
+
+
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _step(before: np.ndarray, q: np.uint64, lo_q: np.uint64, n_q: np.uint64,
+          floor: np.float32, jump: np.float32, p1: np.float32, cost: np.ndarray, c: np.uint64,
+          lo_p: np.uint64, n_p: np.uint64, scratch: np.ndarray, out: np.ndarray, o: np.uint64,
+          sums: np.ndarray) -> np.float32:
+    """One pixel of one path: L(p, ·) from the previous pixel's L (`before[q:q + n_q]`, its
+    labels from disparity lo_q, its minimum `floor`) and p's costs `cost[c:c + n_p]` (from
+    disparity lo_p) into `out[o:o + n_p]`, added to `sums`; returns L(p)'s minimum. The
+    previous costs are laid into `scratch` by absolute disparity (BIG elsewhere: labels the
+    previous pixel does not have), read there without a branch, and cleared again; every
+    index is unsigned (numba tests signed ones for wrap-around, which keeps a loop from
+    running in SIMD lanes). Measured faster than reading `before` directly with the few
+    labels at the bands' ends tested apart."""
+    pad = np.uint64(2)
+    for j in range(n_q):
+        scratch[lo_q + pad + j] = before[q + j]
+    least = BIG32
+    a = lo_p + pad
+    one = np.uint64(1)
+    for i in range(n_p):
+        near = min(scratch[a + i - one], scratch[a + i + one]) + p1
+        value = cost[c + i] + min(min(scratch[a + i], near), jump) - floor
+        out[o + i] = value
+        sums[i] += value
+        least = min(least, value)
+    for j in range(n_q):
+        scratch[lo_q + pad + j] = BIG
+    return least
+
+
+@numba.njit(cache=True, fastmath=True)
+def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
+           grey: np.ndarray, p1: np.float32, penalties: np.ndarray, down: bool,
+           total: np.ndarray) -> None:
+    """Four of the eight paths, row by row: down (top to bottom: the three arriving from the
+    row above, and left to right along the row) or up (the mirror four); their sum written to
+    `total` (ragged, as `cost`) once per pixel. Only the last row's path costs are kept, each
+    pixel's at its offset within its row. `penalties[g]`: P2 at a grey-level step g."""
+    h, w = lo.shape
+    dy, dx_row = (1, 1) if down else (-1, -1)
+    widest = 0
+    for y in range(h):
+        widest = max(widest, start[(y + 1) * w] - start[y * w])
+    before = np.empty((3, widest), np.float32)
+    now = np.empty((3, widest), np.float32)
+    floor_before = np.zeros((3, w), np.float32)
+    floor_now = np.zeros((3, w), np.float32)
+    along = np.empty(count.max(), np.float32)
+    sums = np.empty(count.max(), np.float32)
+    scratch = np.full(lo.max() + count.max() + 4, BIG, np.float32)
+    zero = np.uint64(0)
+    for step in range(h):
+        y = step if down else h - 1 - step
+        row = start[y * w]
+        row_before = start[(y - dy) * w] if 0 <= y - dy < h else 0
+        along_floor = BIG32
+        for visit in range(w):
+            x = visit if down else w - 1 - visit
+            p = y * w + x
+            n_p, lo_p, c = np.uint64(count[y, x]), np.uint64(lo[y, x]), np.uint64(start[p])
+            o = np.uint64(start[p] - row)
+            for i in range(n_p):
+                sums[i] = 0.0
+            px = x - dx_row
+            if visit == 0:
+                along_floor = BIG32
+                for i in range(n_p):
+                    along[i] = cost[c + i]
+                    sums[i] += cost[c + i]
+                    along_floor = min(along_floor, cost[c + i])
+            else:
+                jump = along_floor + penalties[abs(grey[y, x] - grey[y, px])]
+                along_floor = _step(along, zero, np.uint64(lo[y, px]), np.uint64(count[y, px]),
+                                    along_floor, jump, p1, cost, c, lo_p, n_p, scratch, along,
+                                    zero, sums)
+            for k in range(3):
+                px = x - (k - 1)
+                if step == 0 or px < 0 or px >= w:
+                    least = BIG32
+                    for i in range(n_p):
+                        now[k, o + i] = cost[c + i]
+                        sums[i] += cost[c + i]
+                        least = min(least, cost[c + i])
+                    floor_now[k, x] = least
+                else:
+                    py = y - dy
+                    q = np.uint64(start[py * w + px] - row_before)
+                    floor = floor_before[k, px]
+                    jump = floor + penalties[abs(grey[y, x] - grey[py, px])]
+                    floor_now[k, x] = _step(before[k], q, np.uint64(lo[py, px]),
+                                            np.uint64(count[py, px]), floor, jump, p1, cost,
+                                            c, lo_p, n_p, scratch, now[k], o, sums)
+            for i in range(n_p):
+                total[c + i] = sums[i]
+        before, now = now, before
+        floor_before, floor_now = floor_now, floor_before
+
+
+@numba.njit(cache=True, parallel=True)
+def aggregate(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
+              grey: np.ndarray, p1: np.float32, penalties: np.ndarray) -> np.ndarray:
+    """S over the 8 paths as two partial sums (2, labels) float32, ragged as `cost`: the four
+    down paths and the four up paths, each on its own thread."""
+    totals = np.empty((2, cost.shape[0]), np.float32)
+    for half in numba.prange(2):
+        _paths(cost, lo, count, start, grey, p1, penalties, half == 0, totals[half])
+    return totals
+
+
+@numba.njit(cache=True, parallel=True)
+def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
+            uniqueness: int, left: np.ndarray, right: np.ndarray) -> None:
+    """The left view's winner of S with the parabola's sub-pixel step (`left`, NaN where it
+    sits on the band's edge — the match lies beyond the band — or is not unique) and the
+    right view's integer winner (`right`, -1 where no left pixel reaches it): the minimum of
+    S over the left pixels that meet that right pixel (Hirschmüller's check without a second
+    matching)."""
+    h, w = lo.shape
+    for y in numba.prange(h):
+        right_cost = np.full(w, np.inf, np.float32)
+        for x in range(w):
+            right[y, x] = -1.0
+        for x in range(w):
+            s, n = start[y * w + x], count[y, x]
+            best = 0
+            for i in range(n):
+                value = totals[0, s + i] + totals[1, s + i]
+                xr = x - (lo[y, x] + i)
+                if 0 <= xr < w and value < right_cost[xr]:
+                    right_cost[xr] = value
+                    right[y, xr] = lo[y, x] + i
+                if value < totals[0, s + best] + totals[1, s + best]:
+                    best = i
+            second = np.inf
+            for i in range(n):
+                if abs(i - best) > 1:
+                    second = min(second, totals[0, s + i] + totals[1, s + i])
+            low = totals[0, s + best] + totals[1, s + best]
+            if best == 0 or best == n - 1 or low * (100 + uniqueness) >= second * 100:
+                left[y, x] = np.nan
+                continue
+            before = totals[0, s + best - 1] + totals[1, s + best - 1]
+            after = totals[0, s + best + 1] + totals[1, s + best + 1]
+            curvature = before - 2 * low + after
+            offset = 0.0 if curvature <= 0 else (before - after) / (2.0 * curvature)
+            left[y, x] = lo[y, x] + best + offset
+
+
+def checked(left: np.ndarray, right: np.ndarray, lr_max: float) -> np.ndarray:
+    """Where the left winner agrees with the right view's at x − round(d) within `lr_max`."""
+    h, w = left.shape
+    finite = np.isfinite(left)
+    xs = np.arange(w)[None, :] - np.rint(np.where(finite, left, 0)).astype(np.int64)
+    inside = finite & (xs >= 0) & (xs < w)
+    seen = np.take_along_axis(right, np.clip(xs, 0, w - 1), axis=1)
+    return inside & (np.abs(left - seen) <= lr_max)
+
+
+def use_threads(threads: int) -> None:
+    """The kernels' threads: the engine's, at most numba's pool."""
+    pool = numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    numba.set_num_threads(max(1, min(int(threads), pool)))
+
+
+def band_half_widths(confidence: np.ndarray | None, shape: tuple[int, int],
+                     config: BandSgmConfig) -> np.ndarray:
+    """Each pixel's band half-width (int32). With `quantile`: the network's error read as
+    Laplace with P(|e| ≤ 1 px) = confidence c, scale b = −1 / ln(1 − c), whose `quantile`
+    interval is b·ln(1 / (1 − quantile)); clipped to [min_band, max_band]. Else linear: min_band
+    at c = 1, max_band at 0."""
+    if confidence is None:
+        return np.full(shape, config.max_band, np.int32)
+    c = np.clip(confidence, 0.0, 1.0 - 1e-6)
+    if config.quantile > 0:
+        width = np.log(1.0 / (1.0 - config.quantile)) / -np.log1p(-c)
+        return np.clip(np.ceil(width), config.min_band, config.max_band).astype(np.int32)
+    spread = config.max_band - config.min_band
+    return (config.min_band + np.rint(spread * (1.0 - c))).astype(np.int32)
+
+
+def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
+           confidence: np.ndarray | None, sparse: np.ndarray,
+           config: BandSgmConfig | None = None) -> tuple[np.ndarray, int]:
+    """The prior (H, W) float32 px refined by SGM in its band: (disparity, pixels changed).
+    `left`, `right` rectified grey (uint8 or float 0-255); `sparse` LiDAR disparity, 0 = none."""
+    config = config or BandSgmConfig()
+    grey_l = np.ascontiguousarray(np.clip(left, 0, 255).astype(np.uint8))
+    grey_r = np.ascontiguousarray(np.clip(right, 0, 255).astype(np.uint8))
+    finite = np.ascontiguousarray(np.where(np.isfinite(prior), prior, 0.0), np.float32)
+    half = band_half_widths(confidence, prior.shape, config)
+    centre = np.rint(finite).astype(np.int32)
+    lo = np.maximum(centre - half, 0).astype(np.int32)
+    count = (centre + half - lo + 1).astype(np.int32)
+    start = np.zeros(count.size + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    certain = np.zeros(prior.shape, np.float32) if confidence is None else \
+        np.ascontiguousarray(np.clip(confidence, 0.0, 1.0), np.float32)
+    points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
+                                  np.float32)
+    cost = band_cost(census(grey_l), census(grey_r), lo, count, start, points, finite,
+                     certain, config.k, config.c, config.net_weight)
+    steps = np.maximum(np.arange(256), 1)
+    penalties = np.maximum(config.p1, config.p2 // steps).astype(np.float32)
+    totals = aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
+                       penalties)
+    left_d = np.empty(prior.shape, np.float32)
+    right_d = np.empty(prior.shape, np.float32)
+    winners(totals, lo, count, start, config.uniqueness, left_d, right_d)
+    if config.median:
+        left_d = cv2.medianBlur(left_d, 3)
+        right_d = cv2.medianBlur(right_d, 3)
+    keep = checked(left_d, right_d, config.lr_max)
+    keep &= np.abs(left_d - finite) > config.min_change
+    return np.where(keep, left_d, finite).astype(np.float32), int(keep.sum())
