@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # A command run with an AVX2-only CPU's kernels on a host that has AVX-512 (and VNNI, BF16):
 # OpenVINO's oneDNN limited to AVX2 (its int8 then without dot products, no bf16), OpenCV's
-# AVX-512 dispatch off, NumPy's AVX-512 loops off and OpenBLAS as Haswell. The host's clock,
+# AVX-512 dispatch off, NumPy's AVX-512 loops off, OpenBLAS and numba as Haswell. The host's clock,
 # caches and memory stay its own: ratios between stages and against SGBM carry over to an
 # AVX2 CPU, milliseconds do not. ONNX Runtime's kernels cannot be limited (use OpenVINO).
 #     bash experiments/avx2_kernels.sh .venv/bin/python tools/bench.py --runs 3
@@ -10,4 +10,5 @@ export ONEDNN_MAX_CPU_ISA=AVX2
 export OPENCV_CPU_DISABLE=AVX512-SKX
 export NPY_DISABLE_CPU_FEATURES="X86_V4 AVX512_ICL AVX512_SPR"
 export OPENBLAS_CORETYPE=Haswell
+export NUMBA_CPU_NAME=haswell  # numba compiles for Haswell (AVX2, no AVX-512)
 exec "$@"

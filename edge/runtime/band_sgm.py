@@ -33,6 +33,8 @@ import cv2
 import numba
 import numpy as np
 
+from edge_depth.baselines import nearest_point
+
 CENSUS_W, CENSUS_H = 9, 7
 WORST = CENSUS_W * CENSUS_H - 1  # the census cost where the right pixel leaves the image
 OUTSIDE = 1000  # the cost of a label outside a pixel's own band (never chosen)
@@ -55,6 +57,9 @@ class BandSgmConfig:
     min_change: float = 1.0  # px: the prior stays where the match is this close to it
     quantile: float = 0.0  # the band: this interval of the confidence's error model; 0 = linear
     net_weight: float = 1.0  # the network's −log p(d) in the cost: census units per nat
+    lidar_reach: float = 8.0  # px: the band also spans the nearest LiDAR point within this
+    choose_fallback: int = 1  # 1: where the check fails, the nearest point where S is lower there
+    paths: int = 4  # 4 (no diagonals: ~30 % less time, within 0.005 px here) or 8
     median: int = 1  # 1: a 3x3 median of both views' winners before the check
 
     def __post_init__(self) -> None:
@@ -63,25 +68,33 @@ class BandSgmConfig:
                              f"{self.max_band}")
 
 
-@numba.njit(cache=True, parallel=True)
 def census(grey: np.ndarray) -> np.ndarray:
     """The 9×7 census of an (H, W) uint8 image: bit set where the neighbour is darker than
     the centre, border replicated; (H, W) uint64."""
-    h, w = grey.shape
     ry, rx = CENSUS_H // 2, CENSUS_W // 2
+    return _census(np.pad(np.ascontiguousarray(grey, np.uint8), ((ry, ry), (rx, rx)),
+                          mode="edge"))
+
+
+@numba.njit(cache=True, parallel=True)
+def _census(padded: np.ndarray) -> np.ndarray:
+    """`census` of the image inside `padded` (its border CENSUS_H // 2 rows and
+    CENSUS_W // 2 columns wide): one pass over a row per neighbour, in SIMD lanes."""
+    ry, rx = CENSUS_H // 2, CENSUS_W // 2
+    h, w = padded.shape[0] - 2 * ry, padded.shape[1] - 2 * rx
     out = np.zeros((h, w), np.uint64)
+    one = np.uint64(1)
     for y in numba.prange(h):
-        for x in range(w):
-            centre = grey[y, x]
-            bits = np.uint64(0)
-            for dy in range(-ry, ry + 1):
-                yy = min(max(y + dy, 0), h - 1)
-                for dx in range(-rx, rx + 1):
-                    if dy == 0 and dx == 0:
-                        continue
-                    xx = min(max(x + dx, 0), w - 1)
-                    bits = (bits << np.uint64(1)) | np.uint64(grey[yy, xx] < centre)
-            out[y, x] = bits
+        centre = padded[y + ry, rx:rx + w]
+        bits = out[y]
+        for dy in range(-ry, ry + 1):
+            row = padded[y + ry + dy]
+            for dx in range(-rx, rx + 1):
+                if dy == 0 and dx == 0:
+                    continue
+                neighbour = row[rx + dx:rx + dx + w]
+                for x in range(w):
+                    bits[x] = (bits[x] << one) | np.uint64(neighbour[x] < centre[x])
     return out
 
 
@@ -121,20 +134,21 @@ def band_cost(cl: np.ndarray, cr: np.ndarray, lo: np.ndarray, count: np.ndarray,
 @numba.njit(cache=True, fastmath=True, inline="always")
 def _step(before: np.ndarray, q: np.uint64, lo_q: np.uint64, n_q: np.uint64,
           floor: np.float32, jump: np.float32, p1: np.float32, cost: np.ndarray, c: np.uint64,
-          lo_p: np.uint64, n_p: np.uint64, scratch: np.ndarray, out: np.ndarray, o: np.uint64,
-          sums: np.ndarray) -> np.float32:
+          lo_p: np.uint64, n_p: np.uint64, scratch: np.ndarray, out: np.ndarray,
+          out_bits: np.ndarray, o: np.uint64, sums: np.ndarray, least: np.ndarray) -> None:
     """One pixel of one path: L(p, ·) from the previous pixel's L (`before[q:q + n_q]`, its
     labels from disparity lo_q, its minimum `floor`) and p's costs `cost[c:c + n_p]` (from
-    disparity lo_p) into `out[o:o + n_p]`, added to `sums`; returns L(p)'s minimum. The
-    previous costs are laid into `scratch` by absolute disparity (BIG elsewhere: labels the
-    previous pixel does not have), read there without a branch, and cleared again; every
-    index is unsigned (numba tests signed ones for wrap-around, which keeps a loop from
-    running in SIMD lanes). Measured faster than reading `before` directly with the few
-    labels at the bands' ends tested apart."""
+    disparity lo_p) into `out[o:o + n_p]`, added to `sums`; L(p)'s minimum into `least[0]`.
+
+    Written so that each loop runs in SIMD lanes: the previous costs are laid into `scratch`
+    by absolute disparity (BIG elsewhere: labels the previous pixel does not have), read there
+    without a branch, and cleared again; every index is unsigned (numba tests signed ones for
+    wrap-around); and the minimum is taken over the costs' bits as int32 (`out_bits`, the same
+    memory: non-negative floats order as their bits), since numba's float minimum over a loop
+    stays scalar."""
     pad = np.uint64(2)
     for j in range(n_q):
         scratch[lo_q + pad + j] = before[q + j]
-    least = BIG32
     a = lo_p + pad
     one = np.uint64(1)
     for i in range(n_p):
@@ -142,32 +156,38 @@ def _step(before: np.ndarray, q: np.uint64, lo_q: np.uint64, n_q: np.uint64,
         value = cost[c + i] + min(min(scratch[a + i], near), jump) - floor
         out[o + i] = value
         sums[i] += value
-        least = min(least, value)
     for j in range(n_q):
         scratch[lo_q + pad + j] = BIG
-    return least
+    bits = out_bits[o]
+    for i in range(n_p):
+        bits = min(bits, out_bits[o + i])
+    least.view(np.int32)[0] = bits
 
 
 @numba.njit(cache=True, fastmath=True)
 def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
            grey: np.ndarray, p1: np.float32, penalties: np.ndarray, down: bool,
-           total: np.ndarray) -> None:
-    """Four of the eight paths, row by row: down (top to bottom: the three arriving from the
-    row above, and left to right along the row) or up (the mirror four); their sum written to
-    `total` (ragged, as `cost`) once per pixel. Only the last row's path costs are kept, each
-    pixel's at its offset within its row. `penalties[g]`: P2 at a grey-level step g."""
+           diagonals: bool, total: np.ndarray) -> None:
+    """Four of the eight paths (two without the diagonals), row by row: down (top to bottom:
+    the three arriving from the row above, and left to right along the row) or up (the
+    mirror four); their sum written to `total` (ragged, as `cost`) once per pixel. Only the
+    last row's path costs are kept, each pixel's at its offset within its row.
+    `penalties[g]`: P2 at a grey-level step g."""
     h, w = lo.shape
     dy, dx_row = (1, 1) if down else (-1, -1)
     widest = 0
     for y in range(h):
         widest = max(widest, start[(y + 1) * w] - start[y * w])
-    before = np.empty((3, widest), np.float32)
-    now = np.empty((3, widest), np.float32)
+    before = np.empty(3 * widest, np.float32)
+    now = np.empty(3 * widest, np.float32)
+    before_bits, now_bits = before.view(np.int32), now.view(np.int32)
     floor_before = np.zeros((3, w), np.float32)
     floor_now = np.zeros((3, w), np.float32)
     along = np.empty(count.max(), np.float32)
+    along_bits = along.view(np.int32)
     sums = np.empty(count.max(), np.float32)
     scratch = np.full(lo.max() + count.max() + 4, BIG, np.float32)
+    least = np.empty(1, np.float32)
     zero = np.uint64(0)
     for step in range(h):
         y = step if down else h - 1 - step
@@ -190,80 +210,100 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
                     along_floor = min(along_floor, cost[c + i])
             else:
                 jump = along_floor + penalties[abs(grey[y, x] - grey[y, px])]
-                along_floor = _step(along, zero, np.uint64(lo[y, px]), np.uint64(count[y, px]),
-                                    along_floor, jump, p1, cost, c, lo_p, n_p, scratch, along,
-                                    zero, sums)
-            for k in range(3):
+                _step(along, zero, np.uint64(lo[y, px]), np.uint64(count[y, px]), along_floor,
+                      jump, p1, cost, c, lo_p, n_p, scratch, along, along_bits, zero, sums,
+                      least)
+                along_floor = least[0]
+            for k in range(0 if diagonals else 1, 3 if diagonals else 2):
                 px = x - (k - 1)
+                ko = np.uint64(k * widest) + o
                 if step == 0 or px < 0 or px >= w:
-                    least = BIG32
+                    lowest = BIG32
                     for i in range(n_p):
-                        now[k, o + i] = cost[c + i]
+                        now[ko + i] = cost[c + i]
                         sums[i] += cost[c + i]
-                        least = min(least, cost[c + i])
-                    floor_now[k, x] = least
+                        lowest = min(lowest, cost[c + i])
+                    floor_now[k, x] = lowest
                 else:
                     py = y - dy
-                    q = np.uint64(start[py * w + px] - row_before)
+                    q = np.uint64(k * widest + start[py * w + px] - row_before)
                     floor = floor_before[k, px]
                     jump = floor + penalties[abs(grey[y, x] - grey[py, px])]
-                    floor_now[k, x] = _step(before[k], q, np.uint64(lo[py, px]),
-                                            np.uint64(count[py, px]), floor, jump, p1, cost,
-                                            c, lo_p, n_p, scratch, now[k], o, sums)
+                    _step(before, q, np.uint64(lo[py, px]), np.uint64(count[py, px]), floor,
+                          jump, p1, cost, c, lo_p, n_p, scratch, now, now_bits, ko, sums,
+                          least)
+                    floor_now[k, x] = least[0]
             for i in range(n_p):
                 total[c + i] = sums[i]
         before, now = now, before
+        before_bits, now_bits = now_bits, before_bits
         floor_before, floor_now = floor_now, floor_before
 
 
 @numba.njit(cache=True, parallel=True)
 def aggregate(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
-              grey: np.ndarray, p1: np.float32, penalties: np.ndarray) -> np.ndarray:
+              grey: np.ndarray, p1: np.float32, penalties: np.ndarray,
+              diagonals: bool = True) -> np.ndarray:
     """S over the 8 paths as two partial sums (2, labels) float32, ragged as `cost`: the four
     down paths and the four up paths, each on its own thread."""
     totals = np.empty((2, cost.shape[0]), np.float32)
     for half in numba.prange(2):
-        _paths(cost, lo, count, start, grey, p1, penalties, half == 0, totals[half])
+        _paths(cost, lo, count, start, grey, p1, penalties, half == 0, diagonals,
+               totals[half])
     return totals
 
 
 @numba.njit(cache=True, parallel=True)
 def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
-            uniqueness: int, left: np.ndarray, right: np.ndarray) -> None:
-    """The left view's winner of S with the parabola's sub-pixel step (`left`, NaN where it
-    sits on the band's edge — the match lies beyond the band — or is not unique) and the
-    right view's integer winner (`right`, -1 where no left pixel reaches it): the minimum of
-    S over the left pixels that meet that right pixel (Hirschmüller's check without a second
-    matching)."""
+            uniqueness: int, prior: np.ndarray, near: np.ndarray, left: np.ndarray,
+            right: np.ndarray, fallback: np.ndarray) -> None:
+    """The left view's winner of S (the two partial sums, added into `totals[0]`) with the
+    parabola's sub-pixel step (`left`, NaN where it sits on the band's edge — the match lies
+    beyond the band — or is not unique by `uniqueness` %) and the right view's integer winner
+    (`right`, -1 where no left pixel reaches it): the minimum of S over the left pixels that
+    meet that right pixel (Hirschmüller's check without a second matching)."""
     h, w = lo.shape
+    total, other = totals[0], totals[1]
+    order = total.view(np.int32)
+    for y in numba.prange(h):
+        for j in range(start[y * w], start[(y + 1) * w]):
+            total[j] += other[j]
     for y in numba.prange(h):
         right_cost = np.full(w, np.inf, np.float32)
+        right[y] = -1.0
         for x in range(w):
-            right[y, x] = -1.0
-        for x in range(w):
-            s, n = start[y * w + x], count[y, x]
+            s, n, first = start[y * w + x], count[y, x], lo[y, x]
+            fallback[y, x] = prior[y, x]  # the network's, or the nearest point where S says so
+            i_prior, i_near = int(np.rint(prior[y, x])) - first, int(np.rint(near[y, x])) - first
+            if near[y, x] > 0 and 0 <= i_near < n and 0 <= i_prior < n and \
+                    total[s + i_near] < total[s + i_prior]:
+                fallback[y, x] = near[y, x]
+            for i in range(min(n, x - first + 1)):  # the labels whose right pixel is inside
+                if total[s + i] < right_cost[x - first - i]:
+                    right_cost[x - first - i] = total[s + i]
+                    right[y, x - first - i] = first + i
+            lowest = order[s]  # the minimum over the bits: a loop in SIMD lanes (`_step`)
+            for i in range(1, n):
+                lowest = min(lowest, order[s + i])
             best = 0
-            for i in range(n):
-                value = totals[0, s + i] + totals[1, s + i]
-                xr = x - (lo[y, x] + i)
-                if 0 <= xr < w and value < right_cost[xr]:
-                    right_cost[xr] = value
-                    right[y, xr] = lo[y, x] + i
-                if value < totals[0, s + best] + totals[1, s + best]:
-                    best = i
-            second = np.inf
-            for i in range(n):
-                if abs(i - best) > 1:
-                    second = min(second, totals[0, s + i] + totals[1, s + i])
-            low = totals[0, s + best] + totals[1, s + best]
-            if best == 0 or best == n - 1 or low * (100 + uniqueness) >= second * 100:
+            while order[s + best] != lowest:
+                best += 1
+            low = total[s + best]
+            if best == 0 or best == n - 1:
                 left[y, x] = np.nan
                 continue
-            before = totals[0, s + best - 1] + totals[1, s + best - 1]
-            after = totals[0, s + best + 1] + totals[1, s + best + 1]
+            if uniqueness > 0:
+                second = np.inf
+                for i in range(n):
+                    if abs(i - best) > 1:
+                        second = min(second, total[s + i])
+                if low * (100 + uniqueness) >= second * 100:
+                    left[y, x] = np.nan
+                    continue
+            before, after = total[s + best - 1], total[s + best + 1]
             curvature = before - 2 * low + after
             offset = 0.0 if curvature <= 0 else (before - after) / (2.0 * curvature)
-            left[y, x] = lo[y, x] + best + offset
+            left[y, x] = first + best + offset
 
 
 def checked(left: np.ndarray, right: np.ndarray, lr_max: float) -> np.ndarray:
@@ -310,7 +350,17 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     half = band_half_widths(confidence, prior.shape, config)
     centre = np.rint(finite).astype(np.int32)
     lo = np.maximum(centre - half, 0).astype(np.int32)
-    count = (centre + half - lo + 1).astype(np.int32)
+    hi = centre + half
+    valid = np.isfinite(sparse) & (sparse > 0)
+    nearby = np.zeros(prior.shape, np.float32)
+    if config.lidar_reach > 0 and valid.any():  # the band spans the nearest point's value too
+        near, distance = nearest_point(sparse, valid)
+        close = distance <= config.lidar_reach
+        nearby = np.where(close, near, 0.0).astype(np.float32)
+        g = np.rint(near).astype(np.int32)
+        lo = np.where(close, np.minimum(lo, np.maximum(g - 1, 0)), lo).astype(np.int32)
+        hi = np.where(close, np.maximum(hi, g + 1), hi)
+    count = (hi - lo + 1).astype(np.int32)
     start = np.zeros(count.size + 1, np.int64)
     np.cumsum(count, out=start[1:])
     certain = np.zeros(prior.shape, np.float32) if confidence is None else \
@@ -322,13 +372,18 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     steps = np.maximum(np.arange(256), 1)
     penalties = np.maximum(config.p1, config.p2 // steps).astype(np.float32)
     totals = aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
-                       penalties)
+                       penalties, config.paths == 8)
     left_d = np.empty(prior.shape, np.float32)
     right_d = np.empty(prior.shape, np.float32)
-    winners(totals, lo, count, start, config.uniqueness, left_d, right_d)
+    fallback = np.empty(prior.shape, np.float32)
+    winners(totals, lo, count, start, config.uniqueness, finite, nearby, left_d, right_d,
+            fallback)
+    if not config.choose_fallback:
+        fallback = finite
     if config.median:
         left_d = cv2.medianBlur(left_d, 3)
         right_d = cv2.medianBlur(right_d, 3)
     keep = checked(left_d, right_d, config.lr_max)
     keep &= np.abs(left_d - finite) > config.min_change
-    return np.where(keep, left_d, finite).astype(np.float32), int(keep.sum())
+    out = np.where(keep, left_d, fallback).astype(np.float32)
+    return out, int(np.count_nonzero(out != finite))
