@@ -1,28 +1,32 @@
-"""Semi-global matching in a disparity band around the network's estimate (an experiment:
-not in the engine; `experiments/band_refine.py`, docs/experiments.md).
+"""Semi-global matching in a disparity band around the network's estimate: the engine's
+`[engine] refine = "band"` (an experiment, off by default; docs/results.md).
 
 The network's upsampled disparity is close almost everywhere and off by a few to tens of
 pixels at depth edges and thin structures, finer than its 1/8 grid; full-resolution matching
 finds those but, searched over the whole range, also finds far-off wrong minima in weak
-texture. This searches only `prior ± half` at each pixel (`half` from the network's
-confidence: `band_half_widths`) and aggregates a census cost along 8 paths as Hirschmüller's
-SGM does (PAMI 2008):
+texture. This searches only a band of disparities at each pixel — the network's estimate ±
+`band_half_widths` (from its confidence), widened to the nearest LiDAR point's value within
+`lidar_reach` px — and aggregates a census cost along Hirschmüller's paths (PAMI 2008; 4 by
+default, 8 with the diagonals):
 
     L_r(p, d) = C(p, d) + min(L_r(p−r, d), L_r(p−r, d±1) + P1, min_i L_r(p−r, i) + P2)
                 − min_i L_r(p−r, i),      P2 = max(P1, P2' / |I(p) − I(p−r)|)
 
-with each pixel's labels relative to its own band: a neighbour's label is matched to this
-pixel's by their absolute disparity. At each LiDAR pixel the cost is modulated by Poggi et
-al.'s inverted Gaussian (CVPR 2019), `C·k·(1 − exp(−(d − g)² / (2c²)))`. The winner of the
-summed cost, with the parabola through its neighbours, replaces the prior where it is inside
-the band, unique by `uniqueness` % and agrees with the right view's winner within `lr_max`
-(Hirschmüller's check, the right view's disparity read from the left's sums); the prior stays
-elsewhere (a winner on the band's edge means the match lies beyond it).
+with each pixel's labels its own (a ragged volume): a neighbour's label is matched to this
+pixel's by their absolute disparity. The cost is the census Hamming distance, plus
+`net_weight` × the network's −log p(d) under a Laplace error model with P(|e| ≤ 1 px) = its
+confidence, times Poggi et al.'s inverted Gaussian at each LiDAR pixel (CVPR 2019). The winner
+of the summed cost, with the parabola through its neighbours, replaces the estimate where it
+is inside the band and agrees with the right view's winner within `lr_max` (Hirschmüller's
+check, the right view's disparity read from the left's sums) after a 3×3 median of both, and
+differs from the estimate by more than `min_change` (the network's own 1 px); elsewhere the
+estimate stays, or the nearest LiDAR point's value where the summed cost is lower there.
 
-Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, check 1 px); the
-band's widths and the 3×3 median before the check are this stage's own. Compiled with numba
-(the four downward and the four upward paths on two threads, float32 costs so that the
-labels run in SIMD lanes).
+Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, check 1 px);
+the band's widths, the Laplace weight, the reach and the rest are this stage's own, chosen on
+the published pairs and the rig's test split and judged on variants of the pairs it was not
+chosen on (docs/experiments.md, 2026-12-07). Compiled with numba: the downward and the upward
+paths on two threads, float32 costs, loops written to run in SIMD lanes (`_step`).
 """
 
 from __future__ import annotations
@@ -37,7 +41,6 @@ from edge_depth.baselines import nearest_point
 
 CENSUS_W, CENSUS_H = 9, 7
 WORST = CENSUS_W * CENSUS_H - 1  # the census cost where the right pixel leaves the image
-OUTSIDE = 1000  # the cost of a label outside a pixel's own band (never chosen)
 BIG = 1e6  # beyond any path cost: the labels a neighbour does not have
 BIG32 = np.float32(BIG)
 

@@ -242,9 +242,10 @@ class Engine:
         The stages in order: prepare (scale and pad to the bundle) → encode → iterate (the
         GRU steps under the deadline) → upsample (and the confidence) → select (the LiDAR or
         the edge selection) → match (the full-resolution matching at the unsure edges) →
-        median → restore (to the camera's size) → depth. `started` (time.perf_counter()) is
-        when the deadline's clock began; default now. `record`, if given, collects each
-        graph's input feeds (quantization calibration)."""
+        median, or with `refine = "band"` the band refinement in their place
+        (`edge.runtime.band_sgm`) → restore (to the camera's size) → depth. `started`
+        (time.perf_counter()) is when the deadline's clock began; default now. `record`, if
+        given, collects each graph's input feeds (quantization calibration)."""
         t_engine = time.perf_counter()
         iters = self.default_iters if iters is None else int(iters)
         if iters < 1:
