@@ -121,7 +121,9 @@ class DepthResult:
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
     replaced by a side's value (None when it did not run). matched_px: pixels the
-    full-resolution block matching (`edge.runtime.edge_match`) replaced (None when off);
+    full-resolution block matching (`edge.runtime.edge_match`) replaced, or with `refine =
+    "band"` those the band refinement changed (its match or the LiDAR's nearest point; None
+    when neither ran);
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off);
     match_far_px: its gated pixels far from every LiDAR point that SGBM matched (0: a map
     dense enough that it did not run; None when off).

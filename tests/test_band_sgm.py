@@ -37,6 +37,65 @@ def test_the_aggregation_is_guided_sgms_on_a_band_over_the_whole_range():
     np.testing.assert_array_equal(summed, expected.astype(np.float32))
 
 
+def _at(before, first, d):
+    """A previous pixel's path cost at disparity d (its labels from `first`); ∞ beyond."""
+    j = d - first
+    return before[j] if 0 <= j < len(before) else np.inf
+
+
+def reference_paths(cost, lo, count, grey, p1, p2, diagonals):
+    """Hirschmüller's recurrence written plainly over ragged bands: S summed over the paths
+    (dy, dx) with each pixel following (y − dy, x − dx); a list of per-pixel arrays."""
+    h, w = lo.shape
+    directions = [(0, 1), (0, -1), (1, 0), (-1, 0)]
+    if diagonals:
+        directions += [(1, 1), (1, -1), (-1, 1), (-1, -1)]
+    total = [[np.zeros(count[y, x]) for x in range(w)] for y in range(h)]
+    for dy, dx in directions:
+        paths = [[None] * w for _ in range(h)]
+        ys = range(h) if dy >= 0 else range(h - 1, -1, -1)
+        xs = list(range(w) if dx >= 0 else range(w - 1, -1, -1))
+        for y in ys:
+            for x in xs:
+                here = cost[y][x]
+                py, px = y - dy, x - dx
+                if not (0 <= py < h and 0 <= px < w):
+                    paths[y][x] = here.copy()
+                else:
+                    before, first = paths[py][px], lo[py, px]
+                    floor = before.min()
+                    big = max(p1, p2 // max(abs(int(grey[y, x]) - int(grey[py, px])), 1))
+                    paths[y][x] = np.array([
+                        here[i] + min(_at(before, first, d), _at(before, first, d - 1) + p1,
+                                      _at(before, first, d + 1) + p1, floor + big) - floor
+                        for i, d in enumerate(range(lo[y, x], lo[y, x] + count[y, x]))])
+                total[y][x] += paths[y][x]
+    return total
+
+
+@pytest.mark.parametrize("diagonals", [False, True])
+def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
+    rng = np.random.default_rng(5)
+    h, w = 9, 14
+    lo = rng.integers(0, 12, (h, w)).astype(np.int32)
+    count = rng.integers(1, 9, (h, w)).astype(np.int32)
+    start = np.zeros(count.size + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    flat = rng.integers(0, 62, start[-1]).astype(np.float32)
+    grey = rng.integers(0, 256, (h, w)).astype(np.int32)
+    penalties = np.maximum(10, 120 // np.maximum(np.arange(256), 1)).astype(np.float32)
+    totals = band_sgm.aggregate(flat, lo, count, start, grey, np.float32(10), penalties,
+                                diagonals)
+    got = totals[0] + totals[1]
+    cost = [[flat[start[y * w + x]:start[y * w + x + 1]].astype(np.float64) for x in range(w)]
+            for y in range(h)]
+    expected = reference_paths(cost, lo, count, grey, 10, 120, diagonals)
+    for y in range(h):
+        for x in range(w):
+            np.testing.assert_allclose(got[start[y * w + x]:start[y * w + x + 1]],
+                                       expected[y][x], rtol=0, atol=1e-3)
+
+
 def test_an_unsure_estimate_a_few_px_off_is_refined_onto_the_plane():
     left, right = shifted_pair(random_texture(), disparity=7)
     prior = np.full(left.shape, 10.0, np.float32)  # 3 px off
@@ -47,13 +106,32 @@ def test_an_unsure_estimate_a_few_px_off_is_refined_onto_the_plane():
     assert changed > 0.9 * inner.size
 
 
-def test_a_sure_estimate_is_not_moved_beyond_its_band():
+def test_a_sure_estimate_moves_within_its_band_and_never_beyond_it():
     left, right = shifted_pair(random_texture(), disparity=7)
-    prior = np.full(left.shape, 20.0, np.float32)  # 13 px off, the band ±4 where sure
-    sure = np.full(left.shape, 0.99, np.float32)
-    out, _ = refine(left, right, prior, sure, np.zeros_like(prior), BandSgmConfig())
-    assert np.all(np.abs(out - 20.0) <= 4.0)
-    assert np.all(out > 7.0 + 4.0)  # the plane lies outside the band: never reached
+    sure = np.full(left.shape, 0.99, np.float32)  # the band ±4
+    nearby, _ = refine(left, right, np.full(left.shape, 9.0, np.float32), sure,
+                       np.zeros(left.shape, np.float32))
+    assert np.mean(np.abs(nearby[4:-4, 12:-5] - 7.0) < 0.5) > 0.9  # 2 px off: reached
+    far, _ = refine(left, right, np.full(left.shape, 20.0, np.float32), sure,
+                    np.zeros(left.shape, np.float32))
+    assert np.all(np.abs(far - 20.0) <= 4.0)  # 13 px off: the plane lies beyond the band
+
+
+def test_bad_estimates_and_confidences_neither_crash_nor_invent_values():
+    left, right = shifted_pair(random_texture(), disparity=7)
+    prior = np.full(left.shape, 7.0, np.float32)
+    prior[:, :10] = -40.0  # far below 0
+    prior[5:8, 20:30] = np.nan
+    prior[10, 40:50] = np.inf
+    confidence = np.full(left.shape, 0.5, np.float32)
+    confidence[20:25] = np.nan
+    out, changed = refine(left, right, prior, confidence, np.zeros_like(prior))
+    assert np.isnan(out[5:8, 20:30]).all() and np.isinf(out[10, 40:50]).all()
+    known = np.isfinite(prior)
+    assert np.isfinite(out[known]).all() and out[known].min() >= -40.0
+    assert 0 < changed < known.sum()
+    with pytest.raises(ValueError, match="paths"):
+        BandSgmConfig(paths=6)
 
 
 def test_a_lidar_point_decides_between_equal_matches():

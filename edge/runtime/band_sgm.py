@@ -43,6 +43,7 @@ CENSUS_W, CENSUS_H = 9, 7
 WORST = CENSUS_W * CENSUS_H - 1  # the census cost where the right pixel leaves the image
 BIG = 1e6  # beyond any path cost: the labels a neighbour does not have
 BIG32 = np.float32(BIG)
+MAX_LABELS = 257  # a band's labels at most (the network's and the LiDAR's values far apart)
 
 
 @dataclass(frozen=True)
@@ -69,6 +70,8 @@ class BandSgmConfig:
         if not 0 <= self.min_band <= self.max_band <= 128:
             raise ValueError(f"need 0 ≤ min_band ≤ max_band ≤ 128, got {self.min_band}, "
                              f"{self.max_band}")
+        if self.paths not in (4, 8):
+            raise ValueError(f"paths: 4 or 8, got {self.paths}")
 
 
 def census(grey: np.ndarray) -> np.ndarray:
@@ -345,14 +348,54 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
            confidence: np.ndarray | None, sparse: np.ndarray,
            config: BandSgmConfig | None = None) -> tuple[np.ndarray, int]:
     """The prior (H, W) float32 px refined by SGM in its band: (disparity, pixels changed).
-    `left`, `right` rectified grey (uint8 or float 0-255); `sparse` LiDAR disparity, 0 = none."""
+    `left`, `right` rectified grey (uint8 or float 0-255); `confidence` 0-1 (NaN read as 0;
+    None: every band its widest, no error model); `sparse` LiDAR disparity, 0 = none. Pixels
+    whose prior is not finite keep it; a negative prior is searched from 0."""
     config = config or BandSgmConfig()
+    h, w = prior.shape
     grey_l = np.ascontiguousarray(np.clip(left, 0, 255).astype(np.uint8))
     grey_r = np.ascontiguousarray(np.clip(right, 0, 255).astype(np.uint8))
-    finite = np.ascontiguousarray(np.where(np.isfinite(prior), prior, 0.0), np.float32)
+    known = np.isfinite(prior)
+    finite = np.ascontiguousarray(np.where(known, prior, 0.0), np.float32)
+    certain = None if confidence is None else np.ascontiguousarray(
+        np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0), np.float32)
+    lo, count, start, nearby = _bands(finite, certain, sparse, config)
+    points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
+                                  np.float32)
+    cost = band_cost(census(grey_l), census(grey_r), lo, count, start, points, finite,
+                     np.zeros((h, w), np.float32) if certain is None else certain,
+                     config.k, config.c, config.net_weight)
+    steps = np.maximum(np.arange(256), 1)
+    penalties = np.maximum(config.p1, config.p2 // steps).astype(np.float32)
+    totals = aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
+                       penalties, config.paths == 8)
+    left_d = np.empty((h, w), np.float32)
+    right_d = np.empty((h, w), np.float32)
+    fallback = np.empty((h, w), np.float32)
+    winners(totals, lo, count, start, config.uniqueness, finite, nearby, left_d, right_d,
+            fallback)
+    if not config.choose_fallback:
+        fallback = finite
+    if config.median:  # OpenCV's median has no notion of NaN: the rejected as -1, then again
+        left_d = cv2.medianBlur(np.nan_to_num(left_d, nan=-1.0), 3)
+        left_d[left_d < 0] = np.nan
+        right_d = cv2.medianBlur(right_d, 3)
+    keep = checked(left_d, right_d, config.lr_max)
+    keep &= np.abs(left_d - finite) > config.min_change
+    out = np.where(keep, left_d, fallback).astype(np.float32)
+    out[~known] = prior[~known]
+    return out, int(np.count_nonzero(out[known] != finite[known]))
+
+
+def _bands(prior: np.ndarray, confidence: np.ndarray | None, sparse: np.ndarray,
+           config: BandSgmConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Each pixel's band (its first disparity `lo` ≥ 0 and its label `count` ≥ 1, at most
+    MAX_LABELS), the ragged volume's offsets `start` (H·W + 1) and the nearest LiDAR point's
+    value within `lidar_reach` px (0: none)."""
+    h, w = prior.shape
     half = band_half_widths(confidence, prior.shape, config)
-    centre = np.rint(finite).astype(np.int32)
-    lo = np.maximum(centre - half, 0).astype(np.int32)
+    centre = np.clip(np.rint(prior), 0, w - 1).astype(np.int32)
+    lo = np.maximum(centre - half, 0)
     hi = centre + half
     valid = np.isfinite(sparse) & (sparse > 0)
     nearby = np.zeros(prior.shape, np.float32)
@@ -360,33 +403,10 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
         near, distance = nearest_point(sparse, valid)
         close = distance <= config.lidar_reach
         nearby = np.where(close, near, 0.0).astype(np.float32)
-        g = np.rint(near).astype(np.int32)
-        lo = np.where(close, np.minimum(lo, np.maximum(g - 1, 0)), lo).astype(np.int32)
+        g = np.clip(np.rint(near), 0, w - 1).astype(np.int32)
+        lo = np.where(close, np.minimum(lo, np.maximum(g - 1, 0)), lo)
         hi = np.where(close, np.maximum(hi, g + 1), hi)
-    count = (hi - lo + 1).astype(np.int32)
+    count = np.clip(hi - lo + 1, 1, MAX_LABELS).astype(np.int32)
     start = np.zeros(count.size + 1, np.int64)
     np.cumsum(count, out=start[1:])
-    certain = np.zeros(prior.shape, np.float32) if confidence is None else \
-        np.ascontiguousarray(np.clip(confidence, 0.0, 1.0), np.float32)
-    points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
-                                  np.float32)
-    cost = band_cost(census(grey_l), census(grey_r), lo, count, start, points, finite,
-                     certain, config.k, config.c, config.net_weight)
-    steps = np.maximum(np.arange(256), 1)
-    penalties = np.maximum(config.p1, config.p2 // steps).astype(np.float32)
-    totals = aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
-                       penalties, config.paths == 8)
-    left_d = np.empty(prior.shape, np.float32)
-    right_d = np.empty(prior.shape, np.float32)
-    fallback = np.empty(prior.shape, np.float32)
-    winners(totals, lo, count, start, config.uniqueness, finite, nearby, left_d, right_d,
-            fallback)
-    if not config.choose_fallback:
-        fallback = finite
-    if config.median:
-        left_d = cv2.medianBlur(left_d, 3)
-        right_d = cv2.medianBlur(right_d, 3)
-    keep = checked(left_d, right_d, config.lr_max)
-    keep &= np.abs(left_d - finite) > config.min_change
-    out = np.where(keep, left_d, fallback).astype(np.float32)
-    return out, int(np.count_nonzero(out != finite))
+    return lo.astype(np.int32), count, start, nearby

@@ -117,7 +117,7 @@ class Engine:
         self.lidar_align = LidarAlign() if options.align_lidar else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
-        self.band = load_band_refinement(options) if self.has_confidence else None
+        self.band = load_band_refinement(options)
         # the band refinement replaces the matching at the edges and its median
         self.edge_match = None if self.band else make_edge_match(resolved, self.width)
         # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
@@ -429,12 +429,15 @@ class Engine:
 
     def _refine(self, frame: _Frame, disp: np.ndarray,
                 confidence: np.ndarray | None) -> np.ndarray:
-        """The band refinement (`edge.runtime.band_sgm`), where asked for; its changed pixels
-        are the frame's matched ones."""
-        if self.band is None or confidence is None:
+        """The band refinement (`edge.runtime.band_sgm`), where asked for (without the
+        bundle's confidence every band is its widest); its changed pixels are the frame's
+        matched ones. Its threads are set on every call: numba keeps them per calling thread
+        (the pipelined daemon and the ROS 2 node infer on threads of their own)."""
+        if self.band is None:
             return disp
         left, right = self._stage_pair()
         t = time.perf_counter()
+        self.band.use_threads(self.options.threads)
         disp, frame.counts["matched_px"] = self.band.refine(
             left, right, disp, confidence, self._inputs["sparse"][0, 0])
         frame.stage("band_refine", t)
@@ -506,7 +509,6 @@ def load_band_refinement(options: EngineOptions):
     except ImportError as exc:
         raise ConfigError("refine", "numba installed for \"band\" (pip install "
                           "'edge-depth[band]')", f"band without it ({exc})") from None
-    band_sgm.use_threads(options.threads)
     return band_sgm
 
 
