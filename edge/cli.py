@@ -168,6 +168,16 @@ def _add_synth_parser(sub) -> None:
     p.add_argument("--turn-deg", type=float, default=0.0,
                    help="--mcap of the rig: the robot turns back and forth by this many "
                         "degrees (a 2 s period, a new scene every 20 frames; 0: still)")
+    p.add_argument("--motion", choices=("still", "forward", "turn", "mover"), default=None,
+                   help="--mcap of the rig: one world in motion, ground truth on every frame "
+                        "(forward: the robot drives at 0.3 m/s; turn: 0.2 m/s turning 15°/s; "
+                        "mover: 0.2 m/s while the nearest object crosses at 0.3 m/s; "
+                        "edge.sim.motion)")
+    p.add_argument("--fps", type=float, default=10.0,
+                   help="--motion: the camera's frame rate (10)")
+    p.add_argument("--scan-every", type=positive_int, default=1,
+                   help="--motion: a LiDAR scan with every this many frames (1; 3 at 30 fps "
+                        "is a 10 Hz LiDAR)")
     p.add_argument("--lidar-late-ms", type=float, default=0.0,
                    help="with --turn-deg: the LiDAR's stamps run this late, an offset the "
                         "recorded calibration does not know of (what the calibration watch "
@@ -294,6 +304,13 @@ def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
     if (args.turn_deg or args.lidar_late_ms) and (args.world != "rig" or not args.mcap):
         parser.error("synth: --turn-deg and --lidar-late-ms make a recording of the rig "
                      "(--mcap FILE)")
+    if args.motion and (args.world != "rig" or not args.mcap or args.turn_deg):
+        parser.error("synth: --motion makes a recording of the rig (--mcap FILE), without "
+                     "--turn-deg")
+    if (args.fps != 10.0 or args.scan_every != 1) and not args.motion:
+        parser.error("synth: --fps and --scan-every apply to --motion")
+    if not 0 < args.fps <= 1000:
+        parser.error(f"synth: --fps must be in (0, 1000], got {args.fps:g}")
     if args.lidar_late_ms and not args.turn_deg:
         parser.error("synth: --lidar-late-ms shows only on a turning robot: give --turn-deg")
     if args.clean_cameras or args.view_spread != 1.0:
@@ -325,12 +342,16 @@ def synth(args: argparse.Namespace) -> int:
         return 0
     if args.mcap:
         from edge_depth.sim import RigConfig
+        from edge_depth.sim.motion import KINDS
         from edge_depth.sim_recording import write_sim_recording
 
         w, h = args.size
+        motion = KINDS[args.motion] if args.motion else None
         n = write_sim_recording(args.mcap, args.count, args.seed, RigConfig(width=w, height=h),
-                                args.lidar)
-        print(f"wrote {args.mcap} ({args.count} frames, {n} messages)")
+                                args.lidar, 1000.0 / args.fps, motion, args.scan_every)
+        moving = f", a world {args.motion} at {args.fps:g} fps, a scan every " \
+            f"{args.scan_every} frames" if motion else ""
+        print(f"wrote {args.mcap} ({args.count} frames{moving}, {n} messages)")
         return 0
     if args.world == "things" and args.scene_folders:
         from edge_depth.sim.export import things_folders_command

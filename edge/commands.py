@@ -199,6 +199,10 @@ def print_replay_summary(done: ReplayRun, path: str, calib: str | None) -> None:
         print(f"overall EPE {stats.metrics.mean('epe'):.3f} px, bad-3 "
               f"{stats.metrics.mean('bad3'):.2f}% over {len(stats.metrics)} "
               "frames with ground truth")
+    if stats.instability:
+        print(f"temporal instability {stats.instability.mean('instability'):.3f} px (mean "
+              "|Δ output − Δ ground truth| per pixel between consecutive frames with ground "
+              f"truth, {len(stats.instability)} pairs)")
 
 
 def replay_calibration(source, calib):

@@ -30,7 +30,7 @@ from edge_depth.capture.sync import LidarSync, SyncConfig
 from edge_depth.errors import EdgeError
 from edge_depth.health import OutputHealth, score_frame
 from edge_depth.mcap_log import McapLogger
-from edge_depth.metrics import disparity_metrics
+from edge_depth.metrics import disparity_metrics, error_map, temporal_instability
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_denoise import smooths
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
@@ -106,6 +106,8 @@ class PipelineStats:
     timings: deque = field(default_factory=lambda: deque(maxlen=HISTORY))
     window: list[dict] = field(default_factory=list)
     metrics: MetricsMean = field(default_factory=lambda: MetricsMean())
+    # `edge.metrics.temporal_instability` over consecutive frames with ground truth
+    instability: MetricsMean = field(default_factory=lambda: MetricsMean())
     done: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # monotonic s
     watch_ms: deque = field(default_factory=lambda: deque(maxlen=HISTORY))  # each sample's
     # the frames whose points were deskewed: the most a point moved, px
@@ -167,6 +169,7 @@ class Pipeline:
             log.warning("no LiDAR extrinsics in the calibration: running stereo only (add a "
                         "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
+        self._last_error: np.ndarray | None = None  # the last frame's error map (GT frames)
         if engine is not None:
             engine.warm_up(camera=tuple(stereo.image_size))
 
@@ -364,11 +367,17 @@ class Pipeline:
             if found.moves:
                 timings.update(lidar_dx_px=float(found.dx), lidar_dy_px=float(found.dy),
                                lidar_turn_deg=found.turn_deg)
-        metrics = None
+        metrics, error = None, None
         if p.gt is not None and p.gt.shape == result.disparity.shape:
             metrics = disparity_metrics(result.disparity, p.gt)
+            error = error_map(result.disparity, p.gt)
         health = score_frame(result.disparity, p.left, p.sparse)
         with self._lock:
+            last, self._last_error = self._last_error, error
+            if error is not None and last is not None and last.shape == error.shape:
+                change = temporal_instability(error, last)
+                if np.isfinite(change):
+                    self.stats.instability.add(dict(instability=change))
             self.health.add(health)
             self.stats.frames += 1
             self.stats.done.append(time.monotonic())

@@ -9,6 +9,29 @@ from __future__ import annotations
 import numpy as np
 
 
+def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
+    """pred − gt (px, float32) where the GT is known, NaN elsewhere; a hole (pred ≤ 0 or not
+    finite) counts as −gt, as in `disparity_metrics`."""
+    with np.errstate(invalid="ignore"):
+        known = np.isfinite(gt) & (gt > 0)
+        has = np.isfinite(pred) & (pred > 0)
+    error = np.where(has, pred, 0.0).astype(np.float32) - np.where(known, gt, 0.0)
+    error[~known] = np.nan
+    return error.astype(np.float32, copy=False)
+
+
+def temporal_instability(error: np.ndarray, previous: np.ndarray) -> float:
+    """Mean |e_t − e_(t−1)| (px) over the pixels where both frames' `error_map`s are known:
+    how much the output changed from one frame to the next beyond what the ground truth
+    changed (Δ output − Δ GT at each pixel; no motion compensation, so at a camera's rate,
+    where the image moves a pixel or two a frame, part of it is the errors moving with the
+    scene). NaN where no pixel is known in both."""
+    both = np.isfinite(error) & np.isfinite(previous)
+    if not both.any():
+        return float("nan")
+    return float(np.mean(np.abs(error[both] - previous[both]), dtype=np.float64))
+
+
 def disparity_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None
                       ) -> dict[str, float]:
     """EPE (px), bad-1/2/3 (% of pixels off by more than 1/2/3 px) and density (% predicted).

@@ -6,16 +6,21 @@ from __future__ import annotations
 
 from edge_depth.capture.sim import SimSource
 from edge_depth.sim import RigConfig
+from edge_depth.sim.motion import Motion
 from edge_depth.types import GroundTruth
 
 
 def write_sim_recording(path, count: int, seed: int = 0, rig: RigConfig | None = None,
-                        lidar: str = "beams16", period_ms: float = 100.0) -> int:
+                        lidar: str = "beams16", period_ms: float = 100.0,
+                        motion: Motion | None = None, scan_every: int = 1) -> int:
     """Record rig scenes as a robot would (raw topics, calibration) plus /sim/gt_disparity,
-    for replay tests and demos. Returns the number of messages."""
+    for replay tests and demos; with `motion`, one world moving (`edge.sim.motion`), the
+    ground truth on every frame and a scan with every `scan_every` frames. Returns the number
+    of messages."""
     from edge_depth.mcap_log import RAW_TOPICS, McapLogger
 
-    source = SimSource(count, seed, rig, lidar, period_ms)
+    source = SimSource(count, seed, rig, lidar, period_ms, motion=motion,
+                       scan_every=scan_every)
     with McapLogger(path, topics=RAW_TOPICS) as logger:
         logger.set_calibration(*source.calibration)
         for event in source:

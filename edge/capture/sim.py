@@ -1,7 +1,9 @@
 """The synthetic rig as a virtual robot: a source of rendered frames, scans and ground truth.
 
 Each scene is one moment: the LiDAR scan is stamped `lidar_lag_ms` before the frame (a
-revolution that ended just before the exposure), the frame at `period_ms` intervals.
+revolution that ended just before the exposure), the frame at `period_ms` intervals. With a
+`motion` (`edge.sim.motion`) every frame is the same world moved to the frame's time, with its
+ground truth, and `scan_every` frames share one scan (a camera faster than the LiDAR).
 """
 
 from __future__ import annotations
@@ -10,6 +12,7 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.capture import Source
 from edge_depth.sim import RigConfig, make_sample
 from edge_depth.sim.lidar import default_T_cam_lidar
+from edge_depth.sim.motion import Motion, moving_sample
 from edge_depth.types import GroundTruth, LidarScan
 
 
@@ -17,12 +20,16 @@ class SimSource(Source):
     def __init__(self, count: int, seed: int = 0, rig: RigConfig | None = None,
                  lidar: str = "beams16", period_ms: float = 100.0, lidar_lag_ms: float = 5.0,
                  start_ns: int = 1_000_000_000, realtime: bool = False,
-                 distinct: int | None = None) -> None:
+                 distinct: int | None = None, motion: Motion | None = None,
+                 scan_every: int = 1) -> None:
         """`distinct`: render only that many scenes and cycle through them (a live sim
         camera must cost the host what a camera does, ~nothing: rendering one takes longer
-        than a frame period)."""
+        than a frame period). `motion`: one world moving (`edge.sim.motion`) instead of a
+        new scene a frame; `scan_every`: a scan with every that many frames."""
+        if scan_every < 1:
+            raise ValueError(f"scan_every: >= 1, got {scan_every}")
         self.count, self.seed, self.rig, self.lidar = count, seed, rig or RigConfig(), lidar
-        self.distinct = distinct
+        self.distinct, self.motion, self.scan_every = distinct, motion, scan_every
         self._cache: dict[int, object] = {}
         self.period_ns, self.lag_ns = int(period_ms * 1e6), int(lidar_lag_ms * 1e6)
         self.start_ns = start_ns
@@ -38,6 +45,9 @@ class SimSource(Source):
         return stereo, LidarExtrinsics(default_T_cam_lidar())
 
     def _sample(self, i: int):
+        if self.motion is not None:
+            return moving_sample(self.seed, i * self.period_ns / 1e9, self.motion, self.rig,
+                                 self.lidar, frame=i)
         if self.distinct is None:
             return make_sample(self.seed + i, self.rig, self.lidar)
         key = i % self.distinct
@@ -58,8 +68,9 @@ class SimSource(Source):
                 return
             stamp = self.start_ns + i * self.period_ns
             sample = self._sample(i)
-            self.scans += 1
-            yield LidarScan(stamp - self.lag_ns, sample.scan.points, sample.scan.intensity)
+            if i % self.scan_every == 0:
+                self.scans += 1
+                yield LidarScan(stamp - self.lag_ns, sample.scan.points, sample.scan.intensity)
             self.frames += 1
             yield sample.frame(stamp_ns=stamp, seq=i)
             yield GroundTruth(stamp, sample.disp_left)

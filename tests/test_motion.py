@@ -1,0 +1,123 @@
+"""edge.sim.motion: one world seen from a moving camera, with an object moving on its own;
+the ground truth on every frame follows the geometry, and `synth --mcap --motion` records it
+with a camera faster than the LiDAR."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+
+from edge_depth.cli import main as cli_main
+from edge_depth.metrics import error_map, temporal_instability
+from edge_depth.sim.motion import (
+    KINDS,
+    Motion,
+    lift,
+    moving_sample,
+    plane_of,
+    scene_at,
+    start_world,
+)
+from edge_depth.sim.rig import make_sample
+from edge_depth.sim.scene import LEFT, RigConfig
+
+RIG = RigConfig(width=192, height=120, focal_px=150.0, max_disparity_px=24.0)
+SEED = 11
+
+
+def world():
+    return start_world(SEED, RIG)
+
+
+def test_a_still_world_is_the_same_on_every_frame_and_its_first_is_make_samples():
+    first = moving_sample(SEED, 0.0, KINDS["still"], RIG)
+    later = moving_sample(SEED, 0.7, KINDS["still"], RIG, frame=21)
+    np.testing.assert_array_equal(first.disp_left, later.disp_left)
+    plain = make_sample(SEED, replace(RIG, max_disparity_px=RIG.max_disparity_px / 2))
+    # the same scene; only an ellipse's outline, carried as a 48-gon, differs at its rim
+    assert np.mean(np.abs(first.disp_left - plain.disp_left) > 0.01) < 0.01
+
+
+def test_a_background_point_seen_driving_forward_has_the_disparity_geometry_gives():
+    motion = Motion(speed_mps=0.3, yaw_dps=10.0)
+    scene0, scene1 = world(), scene_at(world(), 0.5, motion)
+    background0, background1 = scene0.layers[0], scene1.layers[0]
+    assert background0.kind == "background"
+    # a background pixel lifted into the world, seen by the camera 0.5 s later
+    uv = np.array([[40.0, 30.0], [150.0, 90.0]])
+    points = lift(plane_of(background0, RIG), uv, RIG)
+    yaw = np.radians(10.0 * 0.5)
+    R = np.array([[np.cos(yaw), 0, -np.sin(yaw)], [0, 1, 0], [np.sin(yaw), 0, np.cos(yaw)]])
+    seen = (points - np.array([0.0, 0.0, 0.15])) @ R.T
+    u = RIG.cx + RIG.focal_px * seen[:, 0] / seen[:, 2]
+    v = RIG.cy + RIG.focal_px * seen[:, 1] / seen[:, 2]
+    expected = RIG.focal_px * RIG.baseline_m / seen[:, 2]
+    got = background1.disparity(LEFT, u, v, RIG.cx, RIG.cy)
+    np.testing.assert_allclose(got, expected, rtol=1e-9)
+    assert np.all(expected > background0.disparity(LEFT, uv[:, 0], uv[:, 1], RIG.cx,
+                                                   RIG.cy))  # nearer now
+
+
+def test_only_the_mover_moves_against_the_world():
+    still_objects = Motion(speed_mps=0.2)
+    moving_object = Motion(speed_mps=0.2, mover_mps=(0.3, 0.0, 0.0))
+    a, b = scene_at(world(), 0.5, still_objects), scene_at(world(), 0.5, moving_object)
+    assert len(a.layers) == len(b.layers)
+    differ = [k for k, (x, y) in enumerate(zip(a.layers, b.layers, strict=True))
+              if not np.allclose(x.plane, y.plane) or
+              (x.vertices is not None and not np.allclose(x.vertices, y.vertices))]
+    assert len(differ) == 1
+    k = differ[0]
+    # moved right by 0.15 m: its outline's centre moves right by about f·0.15 / Z px
+    shift = b.layers[k].vertices.mean(axis=0)[0] - a.layers[k].vertices.mean(axis=0)[0]
+    depth = RIG.focal_px * RIG.baseline_m / a.layers[k].plane[0]
+    assert 0.5 * RIG.focal_px * 0.15 / depth < shift < 2.0 * RIG.focal_px * 0.15 / depth
+
+
+def test_synth_records_a_moving_world_with_truth_on_every_frame(tmp_path, capsys):
+    out = tmp_path / "forward.mcap"
+    assert cli_main(["synth", "--mcap", str(out), "--count", "7", "--size", "192x120",
+                     "--motion", "forward", "--fps", "30", "--scan-every", "3"]) == 0
+    assert "a world forward at 30 fps" in capsys.readouterr().out
+    topics: Counter = Counter()
+    stamps: dict[str, list[int]] = {}
+    with out.open("rb") as f:
+        for _, channel, message in make_reader(f).iter_messages():
+            topics[channel.topic] += 1
+            stamps.setdefault(channel.topic, []).append(message.log_time)
+    assert topics["/stereo/left/image_rect"] == 7 and topics["/sim/gt_disparity"] == 7
+    assert topics["/lidar/points"] == 3  # frames 0, 3 and 6
+    frame_gap = np.diff(sorted(stamps["/stereo/left/image_rect"]))
+    np.testing.assert_allclose(frame_gap, 1e9 / 30, atol=1)
+
+
+def test_temporal_instability_is_the_change_of_the_error_beyond_the_truths():
+    gt = np.full((4, 6), 10.0, np.float32)
+    gt[0, 0] = np.nan  # unknown
+    first = error_map(gt + 0.5, gt)
+    assert np.isnan(first[0, 0]) and np.allclose(first[1:], 0.5)
+    moved_gt = gt + 2.0  # the truth changed by 2 px; an output that follows it is stable
+    assert temporal_instability(error_map(moved_gt + 0.5, moved_gt), first) == 0.0
+    wobbly = moved_gt + 0.5
+    wobbly[2] += 1.0  # one row of 6 known pixels in 23 jumps by a pixel
+    assert temporal_instability(error_map(wobbly, moved_gt), first) == \
+        pytest.approx(6 / 23)
+    hole = moved_gt.copy()
+    hole[3, 5] = 0.0  # a hole counts as the whole truth, as in disparity_metrics
+    assert temporal_instability(error_map(hole, moved_gt), error_map(moved_gt, moved_gt)) == \
+        pytest.approx(12.0 / 23)
+
+
+def test_replay_of_a_moving_world_reports_its_temporal_instability(tmp_path, capsys):
+    recording = tmp_path / "still.mcap"
+    assert cli_main(["synth", "--mcap", str(recording), "--count", "4", "--size", "192x120",
+                     "--motion", "still"]) == 0
+    assert cli_main(["replay", str(recording), "--out", str(tmp_path / "out.mcap")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines()
+                if x.startswith("temporal instability"))
+    value = float(line.split()[2])
+    assert 0.0 < value < 2.0 and "3 pairs" in line
