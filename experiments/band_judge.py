@@ -3,13 +3,13 @@ not designed on: the shipped engine, the engine with the refinement, guided SGM 
 the SGBM + LiDAR fusion, EPE px / bad-3 % per set.
 
     python tools/real_pairs.py --rows R --out DIR/aloe_rR ...; python tools/real_pairs.py
-        --motorcycle --rows R --out DIR/moto_rR ... (round 1: R = 10, 40; round 2: 14, 48)
+        --motorcycle --rows R --out DIR/moto_rR ... (rounds 1-3: R = 10, 40; 14, 48; 12, 56)
     python experiments/band_judge.py DIR/aloe_r10 DIR/aloe_r40 DIR/moto_r10 DIR/moto_r40 \
         [--round 1|2] [--json OUT]
 
 Kinds (ROUNDS; `--round 1`, seed 9301, none used in the refinement's design, which saw only
 the published pairs at 16 rows and the rig's test split; `--round 2`, after round 1, other
-parameters, seed 9502, for 14 and 48 rows):
+parameters, seed 9502, for 14 and 48 rows; `--round 3`, seed 9703, 12 and 56 rows):
 - noisy: N(0, σ) on every point and mixed returns (round 1: σ 0.8 px, within 2 px at share
   0.4; round 2: 1.1, within 3 px at 0.25);
 - moved: the map turned and moved (0.4°, (−2, 1) px; −0.3°, (2, 0));
@@ -48,7 +48,7 @@ from edge_depth.sim.folder import read_scene_folder  # noqa: E402
 # each round's seed, and its kinds: name -> ((σ px, mixed share, mixed reach px, drop share,
 # turn °, dx px, dy px), the right camera's (gain, offset, gamma, noise σ) or None). Round 2
 # was written after round 1 was judged, for the candidate that came of it: other densities
-# (14 and 48 rows), parameters and seed.
+# (14 and 48 rows), parameters and seed; round 3 after round 2 (12 and 56 rows).
 ROUNDS = {
     1: (9301, {
         "noisy": ((0.8, 0.4, 2, 0.0, 0.0, 0, 0), None),
@@ -61,6 +61,12 @@ ROUNDS = {
         "moved": ((0.0, 0.0, 0, 0.0, -0.3, 2, 0), None),
         "photo": ((0.0, 0.0, 0, 0.0, 0.0, 0, 0), (1.15, -15.0, 1.1, 3.0)),
         "all": ((0.5, 0.5, 1, 0.25, 0.0, -1, 1), (1.15, -15.0, 1.1, 3.0)),
+    }),
+    3: (9703, {
+        "noisy": ((0.7, 0.6, 2, 0.0, 0.0, 0, 0), None),
+        "moved": ((0.0, 0.0, 0, 0.0, 0.6, 1, 2), None),
+        "photo": ((0.0, 0.0, 0, 0.0, 0.0, 0, 0), (0.7, 25.0, 1.0, 2.5)),
+        "all": ((0.9, 0.2, 3, 0.5, -0.4, 0, -2), (0.7, 25.0, 1.0, 2.5)),
     }),
 }
 

@@ -73,7 +73,8 @@ def run(folders: list[Path], variants: dict[str, BandSgmConfig], no_lidar: bool,
 def parse_variant(text: str) -> tuple[str, BandSgmConfig]:
     name, _, values = text.partition("=")
     fields = dict(kv.split(":") for kv in values.split(",") if kv)
-    ints = {"min_band", "max_band", "p1", "p2", "median", "uniqueness", "paths", "choose_fallback"}
+    ints = {"min_band", "max_band", "p1", "p2", "median", "uniqueness", "paths",
+            "choose_fallback", "refine_margin_px"}
     return name, BandSgmConfig(**{k: int(v) if k in ints else float(v)
                                   for k, v in fields.items()})
 

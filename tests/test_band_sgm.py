@@ -109,11 +109,12 @@ def test_an_unsure_estimate_a_few_px_off_is_refined_onto_the_plane():
 def test_a_sure_estimate_moves_within_its_band_and_never_beyond_it():
     left, right = shifted_pair(random_texture(), disparity=7)
     sure = np.full(left.shape, 0.99, np.float32)  # the band ±4
+    every_pixel = BandSgmConfig(refine_below=1.0)  # sure pixels refined too
     nearby, _ = refine(left, right, np.full(left.shape, 9.0, np.float32), sure,
-                       np.zeros(left.shape, np.float32))
+                       np.zeros(left.shape, np.float32), every_pixel)
     assert np.mean(np.abs(nearby[4:-4, 12:-5] - 7.0) < 0.5) > 0.9  # 2 px off: reached
     far, _ = refine(left, right, np.full(left.shape, 20.0, np.float32), sure,
-                    np.zeros(left.shape, np.float32))
+                    np.zeros(left.shape, np.float32), every_pixel)
     assert np.all(np.abs(far - 20.0) <= 4.0)  # 13 px off: the plane lies beyond the band
 
 
@@ -175,3 +176,16 @@ def test_the_band_refinement_without_numba_is_one_clear_line(monkeypatch):
     monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
     with pytest.raises(ConfigError, match=r"edge-depth\[band\]"):
         Engine(precision="int8", threads=1, refine="band")
+
+
+def test_only_the_pixels_the_network_is_unsure_of_and_their_neighbours_are_refined():
+    left, right = shifted_pair(random_texture(), disparity=7)
+    prior = np.full(left.shape, 9.0, np.float32)  # 2 px off everywhere
+    confidence = np.full(left.shape, 0.95, np.float32)
+    confidence[15:30, 40:70] = 0.2
+    out, changed = refine(left, right, prior, confidence, np.zeros_like(prior))
+    near = np.zeros(left.shape, bool)
+    near[13:32, 38:72] = True  # the unsure block and refine_margin_px (2) around it
+    assert np.all(out[~near] == 9.0)
+    assert np.mean(np.abs(out[15:30, 40:70] - 7.0) < 0.5) > 0.9
+    assert changed == np.count_nonzero(out != 9.0)

@@ -20,7 +20,10 @@ of the summed cost, with the parabola through its neighbours, replaces the estim
 is inside the band and agrees with the right view's winner within `lr_max` (Hirschmüller's
 check, the right view's disparity read from the left's sums) after a 3×3 median of both, and
 differs from the estimate by more than `min_change` (the network's own 1 px); elsewhere the
-estimate stays, or the nearest LiDAR point's value where the summed cost is lower there.
+estimate stays, or the nearest LiDAR point's value where the summed cost is lower there. Only
+the pixels whose confidence is under `refine_below` (0.9), and those within
+`refine_margin_px` of them, are refined; the paths start afresh after the others, which keep
+the network's estimate (the aggregation's cost is per pixel: this halves it).
 
 Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, check 1 px);
 the band's widths, the Laplace weight, the reach and the rest are this stage's own, chosen on
@@ -64,6 +67,8 @@ class BandSgmConfig:
     lidar_reach: float = 8.0  # px: the band also spans the nearest LiDAR point within this
     choose_fallback: int = 1  # 1: where the check fails, the nearest point where S is lower there
     paths: int = 4  # 4 (no diagonals: ~30 % less time, within 0.005 px here) or 8
+    refine_below: float = 0.9  # only pixels under this confidence (and near them) refined
+    refine_margin_px: int = 2  # how near
     median: int = 1  # 1: a 3x3 median of both views' winners before the check
 
     def __post_init__(self) -> None:
@@ -203,12 +208,14 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
         for visit in range(w):
             x = visit if down else w - 1 - visit
             p = y * w + x
+            if count[y, x] == 0:  # not refined: the paths through it start again after it
+                continue
             n_p, lo_p, c = np.uint64(count[y, x]), np.uint64(lo[y, x]), np.uint64(start[p])
             o = np.uint64(start[p] - row)
             for i in range(n_p):
                 sums[i] = 0.0
             px = x - dx_row
-            if visit == 0:
+            if visit == 0 or count[y, px] == 0:
                 along_floor = BIG32
                 for i in range(n_p):
                     along[i] = cost[c + i]
@@ -221,9 +228,9 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
                       least)
                 along_floor = least[0]
             for k in range(0 if diagonals else 1, 3 if diagonals else 2):
-                px = x - (k - 1)
+                px, py = x - (k - 1), y - dy
                 ko = np.uint64(k * widest) + o
-                if step == 0 or px < 0 or px >= w:
+                if step == 0 or px < 0 or px >= w or count[py, px] == 0:
                     lowest = BIG32
                     for i in range(n_p):
                         now[ko + i] = cost[c + i]
@@ -231,7 +238,6 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
                         lowest = min(lowest, cost[c + i])
                     floor_now[k, x] = lowest
                 else:
-                    py = y - dy
                     q = np.uint64(k * widest + start[py * w + px] - row_before)
                     floor = floor_before[k, px]
                     jump = floor + penalties[abs(grey[y, x] - grey[py, px])]
@@ -280,6 +286,9 @@ def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
         for x in range(w):
             s, n, first = start[y * w + x], count[y, x], lo[y, x]
             fallback[y, x] = prior[y, x]  # the network's, or the nearest point where S says so
+            if n == 0:  # not refined
+                left[y, x] = np.nan
+                continue
             i_prior, i_near = int(np.rint(prior[y, x])) - first, int(np.rint(near[y, x])) - first
             if near[y, x] > 0 and 0 <= i_near < n and 0 <= i_prior < n and \
                     total[s + i_near] < total[s + i_prior]:
@@ -389,9 +398,9 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
 
 def _bands(prior: np.ndarray, confidence: np.ndarray | None, sparse: np.ndarray,
            config: BandSgmConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Each pixel's band (its first disparity `lo` ≥ 0 and its label `count` ≥ 1, at most
-    MAX_LABELS), the ragged volume's offsets `start` (H·W + 1) and the nearest LiDAR point's
-    value within `lidar_reach` px (0: none)."""
+    """Each pixel's band (its first disparity `lo` ≥ 0 and its label `count` 1 … MAX_LABELS,
+    0 where the pixel is not refined: `refine_below`), the ragged volume's offsets `start`
+    (H·W + 1) and the nearest LiDAR point's value within `lidar_reach` px (0: none)."""
     h, w = prior.shape
     half = band_half_widths(confidence, prior.shape, config)
     centre = np.clip(np.rint(prior), 0, w - 1).astype(np.int32)
@@ -407,6 +416,11 @@ def _bands(prior: np.ndarray, confidence: np.ndarray | None, sparse: np.ndarray,
         lo = np.where(close, np.minimum(lo, np.maximum(g - 1, 0)), lo)
         hi = np.where(close, np.maximum(hi, g + 1), hi)
     count = np.clip(hi - lo + 1, 1, MAX_LABELS).astype(np.int32)
+    if confidence is not None and config.refine_below < 1.0:  # the sure pixels keep theirs
+        unsure = (confidence < config.refine_below).astype(np.uint8)
+        side = 2 * config.refine_margin_px + 1
+        unsure = cv2.dilate(unsure, np.ones((side, side), np.uint8))
+        count[unsure == 0] = 0
     start = np.zeros(count.size + 1, np.int64)
     np.cumsum(count, out=start[1:])
     return lo.astype(np.int32), count, start, nearby

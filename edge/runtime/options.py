@@ -83,8 +83,8 @@ class EngineOptions:
                           "semi-global matching in a band around it as wide as its "
                           "confidence says, the LiDAR and the network guiding the cost, in "
                           "place of the edge matching and its median; more accurate on the "
-                          "real pairs with a sparse LiDAR, mixed with a dense one, worse on "
-                          "the synthetic rig, 1.5x the engine's time (docs/results.md); needs "
+                          "real pairs with a sparse LiDAR, less with a dense one, worse on "
+                          "the synthetic rig, 1.2x the engine's time (docs/results.md); needs "
                           "numba: pip install 'edge-depth[band]'", choices=("off", "band"))
     edge_match: int | str = _option(BUNDLE, 'the full-resolution matching at the network\'s '
                                     'uncertain edges: "auto" (StereoBM\'s disparity count per '
