@@ -35,6 +35,7 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
+SIM_MOTION_FRAMES = 60  # with camera.sim_motion: this many frames of the moving world, looped
 
 
 @dataclasses.dataclass
@@ -252,6 +253,7 @@ def open_sources(config, max_frames: int | None = None):
     from edge_depth.capture import MergedSource
     from edge_depth.capture.sim import SimSource
     from edge_depth.sim import RigConfig
+    from edge_depth.sim.motion import KINDS
 
     cam, lid = config.camera, config.lidar
     stereo = lidar = None
@@ -271,9 +273,12 @@ def open_sources(config, max_frames: int | None = None):
     sources = []
     if cam.source == "sim":
         w, h = cam.size
+        moving = cam.sim_motion != "none"
         sim = SimSource(max_frames or 10**9, 1_000_000, RigConfig(width=w, height=h),
                         lidar=lid.sim_pattern, period_ms=1000.0 / cam.fps, realtime=True,
-                        distinct=SIM_SCENES)
+                        distinct=SIM_MOTION_FRAMES if moving else SIM_SCENES,
+                        motion=KINDS[cam.sim_motion] if moving else None,
+                        scan_every=lid.sim_every)
         if stereo is None:
             stereo, lidar = sim.calibration
         if lid.model == "none":

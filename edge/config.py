@@ -5,6 +5,9 @@
     size = [640, 400]
     fps = 30.0
     device_id = ""              # "" = the first OAK found
+    sim_motion = "none"         # source "sim": "none" (a new scene a frame) | "still" |
+                                # "forward" | "turn" | "mover": one world in motion
+                                # (edge.sim.motion), SIM_MOTION_FRAMES of it looped
 
     [lidar]                     # model: "ld06" | "ld19" | "rplidar-a1" | "rplidar-a2" |
     model = "ld06"              #        "sim" (with camera.source = "sim") | "none"
@@ -12,6 +15,7 @@
     baudrate = 0                # 0 = the model's default
     sim_pattern = "beams16"     # model "sim": "beams16" | "beams32" | "beams64" | "planar"
                                 # (one scan line, as an LD06's)
+    sim_every = 1               # model "sim": a scan with every this many camera frames
 
     [calibration]
     file = "calib.toml"         # stereo + [lidar] T_cam_lidar; "" = the OAK's factory
@@ -69,6 +73,7 @@ class CameraConfig:
     size: tuple[int, int] = (640, 400)
     fps: float = 30.0
     device_id: str = ""
+    sim_motion: str = "none"  # edge.sim.motion.KINDS' names, or "none"
 
 
 @dataclass(frozen=True)
@@ -77,6 +82,7 @@ class LidarConfig:
     port: str = "/dev/ttyUSB0"
     baudrate: int = 0
     sim_pattern: str = "beams16"  # edge.sim.lidar.PATTERNS' names
+    sim_every: int = 1
 
 
 @dataclass(frozen=True)
@@ -138,6 +144,7 @@ CHOICES = {
     ("camera", "source"): ("oak", "sim"),
     ("lidar", "model"): ("ld06", "ld19", "rplidar-a1", "rplidar-a2", "sim", "none"),
     ("lidar", "sim_pattern"): ("beams16", "beams32", "beams64", "planar"),
+    ("camera", "sim_motion"): ("none", "still", "forward", "turn", "mover"),
     ("sync", "mode"): ("auto", "nearest", "accumulate"),
     ("log", "compression"): ("lz4", "zstd", "none"),
     ("log", "profile"): ("foxglove", "ros2"),
@@ -148,6 +155,7 @@ RANGES = {
     ("camera", "size"): (64, 16384),  # each side; below 64 the network's 1/4-resolution
     #                                   features and StereoBM's window have nothing to match
     ("lidar", "baudrate"): (0, 10_000_000),
+    ("lidar", "sim_every"): (1, 1000),
     ("sync", "window_ms"): (1.0, 10_000.0),
     ("sync", "max_wait_ms"): (0.0, 10_000.0),
     ("log", "rotate_mb"): (1.0, 1e7),

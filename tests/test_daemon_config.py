@@ -46,6 +46,8 @@ def write(tmp_path, text, name="robot.toml"):
     ("[motors]\n", "motors"),
     ("[camera]\nsource = 'oak'\n[lidar]\nmodel = 'sim'\n", "lidar.model"),
     ("[lidar]\nsim_pattern = 'velodyne'\n", "lidar.sim_pattern"),
+    ("[camera]\nsim_motion = 'spin'\n", "camera.sim_motion"),
+    ("[lidar]\nsim_every = 0\n", "lidar.sim_every"),
     # values that are the right type but cannot be meant (tracebacks or hangs)
     ("[camera]\nfps = 1e-300\n", "camera.fps"),
     ("[camera]\nfps = 1e-3\n", "camera.fps"),

@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from mcap.reader import make_reader
 
+from edge_depth.capture.sim import SimSource
 from edge_depth.cli import main as cli_main
 from edge_depth.metrics import error_map, temporal_instability
 from edge_depth.sim.motion import (
@@ -24,6 +25,7 @@ from edge_depth.sim.motion import (
 )
 from edge_depth.sim.rig import make_sample
 from edge_depth.sim.scene import LEFT, RigConfig
+from edge_depth.types import GroundTruth, LidarScan, StereoFrame
 
 RIG = RigConfig(width=192, height=120, focal_px=150.0, max_disparity_px=24.0)
 SEED = 11
@@ -121,3 +123,17 @@ def test_replay_of_a_moving_world_reports_its_temporal_instability(tmp_path, cap
                 if x.startswith("temporal instability"))
     value = float(line.split()[2])
     assert 0.0 < value < 2.0 and "3 pairs" in line
+
+
+def test_the_sim_robot_loops_a_moving_world_with_a_scan_every_third_frame():
+    source = SimSource(7, SEED, RIG, period_ms=1000 / 30, distinct=3, motion=KINDS["mover"],
+                       scan_every=3)
+    events = list(source)
+    frames = [e for e in events if isinstance(e, StereoFrame)]
+    truths = [e for e in events if isinstance(e, GroundTruth)]
+    scans = [e for e in events if isinstance(e, LidarScan)]
+    assert len(frames) == len(truths) == 7 and len(scans) == 3  # frames 0, 3 and 6
+    # three frames of motion rendered once, then looped: frame 3 is frame 0 again
+    np.testing.assert_array_equal(truths[3].disparity, truths[0].disparity)
+    assert not np.array_equal(truths[1].disparity, truths[0].disparity)
+    np.testing.assert_allclose(np.diff([f.stamp_ns for f in frames]), 1e9 / 30, atol=1)

@@ -45,15 +45,20 @@ class SimSource(Source):
         return stereo, LidarExtrinsics(default_T_cam_lidar())
 
     def _sample(self, i: int):
+        """Frame i: a scene of its own, or the moving world at frame i's time; with
+        `distinct`, the first `distinct` of them rendered once and looped (a moving world
+        then starts again every `distinct` frames: a scene cut)."""
+        key = i if self.distinct is None else i % self.distinct
+        if key in self._cache:
+            return self._cache[key]
         if self.motion is not None:
-            return moving_sample(self.seed, i * self.period_ns / 1e9, self.motion, self.rig,
-                                 self.lidar, frame=i)
-        if self.distinct is None:
-            return make_sample(self.seed + i, self.rig, self.lidar)
-        key = i % self.distinct
-        if key not in self._cache:
-            self._cache[key] = make_sample(self.seed + key, self.rig, self.lidar)
-        return self._cache[key]
+            sample = moving_sample(self.seed, key * self.period_ns / 1e9, self.motion, self.rig,
+                                   self.lidar, frame=key)
+        else:
+            sample = make_sample(self.seed + key, self.rig, self.lidar)
+        if self.distinct is not None:
+            self._cache[key] = sample
+        return sample
 
     def __iter__(self):
         import time
