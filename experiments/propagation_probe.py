@@ -11,7 +11,9 @@ For each kind, a sequence of `--frames` frames at `--fps` with a scan on every `
   the frames between;
 - turned: the same, warped by the camera's turn between the key frame and the frame as
   `edge.camera_turn.TurnMeter` measures it from the left images (a rotation about the
-  vertical axis: the homography K R K⁻¹; no translation, no independent motion).
+  vertical axis: the homography K R K⁻¹; no translation, no independent motion);
+- flow: the same, carried along the optical flow from the frame's left image to the key
+  frame's (OpenCV's DIS, its ultrafast preset): any motion, the disparity itself unchanged.
 EPE px / bad-3 % on key and in-between frames, the temporal instability over the sequence
 (`edge.metrics.temporal_instability`) and each method's median time a frame.
 """
@@ -45,13 +47,26 @@ def turn_warp(disparity: np.ndarray, yaw_deg: float, rig: RigConfig) -> np.ndarr
                                borderMode=cv2.BORDER_REPLICATE)
 
 
+def flow_warp(disparity: np.ndarray, key_left: np.ndarray, left: np.ndarray, dis) -> np.ndarray:
+    """The key frame's disparity carried to the current frame along the optical flow from the
+    current left image to the key frame's (OpenCV's DIS): each pixel takes the key frame's
+    disparity where its content was then."""
+    flow = dis.calc(left, key_left, None)
+    h, w = left.shape
+    xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
+    return cv2.remap(disparity, xs + flow[..., 0], ys + flow[..., 1], cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+
+
 def run_kind(kind: str, args, engine: Engine) -> dict:
     rig = RigConfig()
     period = 1.0 / args.fps
     samples = [moving_sample(args.seed, i * period, KINDS[kind], rig, frame=i)
                for i in range(args.frames)]
     rows: dict[str, dict[str, list]] = {m: {"key": [], "between": [], "errors": [], "ms": []}
-                                        for m in ("per frame", "hold", "turned")}
+                                        for m in ("per frame", "hold", "turned", "flow")}
+    dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
+    key_left = None
     sparse = None
     key_disp = None
     meter = TurnMeter(rig.focal_px)
@@ -68,8 +83,9 @@ def run_kind(kind: str, args, engine: Engine) -> dict:
         rate = meter.rate() if i > 0 else None
         turn_ms = (time.perf_counter() - t) * 1000
         if is_key:
-            key_disp, turn_since_key = per_frame, 0.0
-            held, turned, cost = per_frame, per_frame, engine_ms
+            key_disp, turn_since_key, key_left = per_frame, 0.0, s.left
+            held, turned, flowed, cost, flow_ms = per_frame, per_frame, per_frame, engine_ms, \
+                engine_ms
         else:
             # TurnMeter's rate is positive when the image moves right: the camera turning left
             turn_since_key -= (rate or 0.0) * period
@@ -77,8 +93,11 @@ def run_kind(kind: str, args, engine: Engine) -> dict:
             turned = turn_warp(key_disp, turn_since_key, rig)
             cost = turn_ms + (time.perf_counter() - t) * 1000
             held = key_disp
+            t = time.perf_counter()
+            flowed = flow_warp(key_disp, key_left, s.left, dis)
+            flow_ms = (time.perf_counter() - t) * 1000
         for name, disp, ms in (("per frame", per_frame, engine_ms), ("hold", held, 0.0),
-                               ("turned", turned, cost)):
+                               ("turned", turned, cost), ("flow", flowed, flow_ms)):
             m = disparity_metrics(disp, s.disp_left)
             rows[name]["key" if is_key else "between"].append((m["epe"], m["bad3"]))
             rows[name]["errors"].append(error_map(disp, s.disp_left))
