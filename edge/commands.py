@@ -23,7 +23,7 @@ from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig, check_output_path
 from edge_depth.daemon import Pipeline, PipelineStats, lidar_summary, watch_summary
 from edge_depth.errors import ConfigError
-from edge_depth.frame_summary import format_latency, selection_summary, summarise
+from edge_depth.frame_summary import format_latency, rate_summary, selection_summary, summarise
 from edge_depth.loggers import open_logger
 from edge_depth.runner import StopFlag, run
 from edge_depth.runtime.engine import Engine
@@ -148,9 +148,10 @@ def replay_command(path, out, options: EngineOptions | None = None, calib=None, 
     log.info("engine: %s", engine.describe())
 
     def on_output(frame, output) -> None:
-        m = output.metrics
-        line = (f"frame {frame.seq}: {output.result.iterations} it, "
-                f"{output.result.timings_ms['engine']:.0f} ms")
+        m, timings = output.metrics, output.result.timings_ms
+        line = f"frame {frame.seq}: " + (
+            f"{output.result.iterations} it, {timings['engine']:.0f} ms" if "engine" in timings
+            else f"carried from the key frame, {timings.get('propagate', 0.0):.0f} ms")
         if m is not None:
             line += f", EPE {m['epe']:.2f} px, bad-3 {m['bad3']:.1f}%"
         print(line, flush=True)
@@ -186,6 +187,8 @@ def print_replay_summary(done: ReplayRun, path: str, calib: str | None) -> None:
         print(watched)
     if selected := selection_summary(stats.timings):
         print(selected)
+    if rated := rate_summary(pipeline.propagator):
+        print(rated)
     if unhealthy := pipeline.health.summary():
         print(unhealthy)
     if source.stats.lost:
@@ -395,6 +398,8 @@ def print_run_summary(stats, pipeline: Pipeline, logger, config, elapsed: float)
         print(watched)
     if selected := selection_summary(stats.timings):
         print(selected)
+    if rated := rate_summary(pipeline.propagator):
+        print(rated)
     if unhealthy := pipeline.health.summary():
         print(unhealthy)
     if lat:

@@ -33,6 +33,7 @@ from edge_depth.mcap_log import McapLogger
 from edge_depth.metrics import disparity_metrics, error_map, temporal_instability
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_denoise import smooths
+from edge_depth.runtime.propagate import Propagator
 from edge_depth.types import DepthResult, LidarScan, StereoFrame
 
 log = logging.getLogger(__name__)
@@ -170,6 +171,9 @@ class Pipeline:
                         "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
         self._last_error: np.ndarray | None = None  # the last frame's error map (GT frames)
+        # [engine] rate = "camera": key frames and the frames between (edge.runtime.propagate)
+        self.propagator = Propagator() if engine is not None and \
+            engine.options.rate == "camera" else None
         if engine is not None:
             engine.warm_up(camera=tuple(stereo.image_size))
 
@@ -308,10 +312,15 @@ class Pipeline:
         assert self.engine is not None, "the recorder infers nothing"
         p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
             - p.timings["project"]
+        carry = self.propagator
+        if carry is not None and not carry.wants_engine(p.frame.stamp_ns, p.points_stamp_ns):
+            return carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m)
         result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,
                                    baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,
                                    started=p.t0)
+        if carry is not None:
+            carry.key(p.frame.stamp_ns, p.points_stamp_ns, p.left, result)
         return result
 
     def watch_sample(self, p: Prepared) -> None:

@@ -31,6 +31,15 @@ def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[floa
     return [t[key] for t in timings if key in t]
 
 
+def rate_summary(propagator) -> str | None:
+    """The closing line of `[engine] rate = "camera"` (None otherwise): key frames and the
+    frames carried between them."""
+    if propagator is None:
+        return None
+    return (f"Camera rate: {propagator.keys} key frames (the engine), {propagator.carried} "
+            "carried along the optical flow between scans")
+
+
 def selection_summary(timings: list[dict]) -> str | None:
     """The closing lines about the selections, one each: the share of each frame's pixels
     it replaced (None when the engine ran none)."""

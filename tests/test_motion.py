@@ -7,6 +7,7 @@ from __future__ import annotations
 from collections import Counter
 from dataclasses import replace
 
+import cv2
 import numpy as np
 import pytest
 from mcap.reader import make_reader
@@ -14,6 +15,7 @@ from mcap.reader import make_reader
 from edge_depth.capture.sim import SimSource
 from edge_depth.cli import main as cli_main
 from edge_depth.metrics import error_map, temporal_instability
+from edge_depth.runtime.propagate import Propagator
 from edge_depth.sim.motion import (
     KINDS,
     Motion,
@@ -25,7 +27,7 @@ from edge_depth.sim.motion import (
 )
 from edge_depth.sim.rig import make_sample
 from edge_depth.sim.scene import LEFT, RigConfig
-from edge_depth.types import GroundTruth, LidarScan, StereoFrame
+from edge_depth.types import DepthResult, GroundTruth, LidarScan, StereoFrame
 
 RIG = RigConfig(width=192, height=120, focal_px=150.0, max_disparity_px=24.0)
 SEED = 11
@@ -137,3 +139,40 @@ def test_the_sim_robot_loops_a_moving_world_with_a_scan_every_third_frame():
     np.testing.assert_array_equal(truths[3].disparity, truths[0].disparity)
     assert not np.array_equal(truths[1].disparity, truths[0].disparity)
     np.testing.assert_allclose(np.diff([f.stamp_ns for f in frames]), 1e9 / 30, atol=1)
+
+
+def test_a_key_frames_depth_is_carried_along_the_images_motion():
+    rng = np.random.default_rng(3)
+    texture = cv2.GaussianBlur(rng.uniform(0, 255, (120, 220)).astype(np.float32), (0, 0), 1.5)
+    key_left = np.clip(texture[:, 10:202], 0, 255).astype(np.uint8)
+    left = np.clip(texture[:, 14:206], 0, 255).astype(np.uint8)  # the view moved 4 px left
+    disparity = np.full((120, 192), 10.0, np.float32)
+    disparity[:, 96:] = 20.0  # a depth edge at x = 96 in the key frame
+    key = DepthResult(stamp_ns=0, disparity=disparity, depth=np.zeros_like(disparity),
+                      valid=np.ones((120, 192), bool), iterations=4)
+    carry = Propagator()
+    assert carry.wants_engine(0, 5)
+    carry.key(0, 5, key_left, key)
+    assert not carry.wants_engine(33_000_000, 5)  # the same scan: carried
+    assert carry.wants_engine(33_000_000, 6)  # a fresh scan: a key frame
+    assert carry.wants_engine(300_000_000, 5)  # too old to carry
+    out = carry.carry(33_000_000, left, 150.0, 0.075)
+    # the edge now at x = 92: content at x in this frame was at x + 4 in the key frame
+    assert np.all(out.disparity[20:100, 40:88] == pytest.approx(10.0, abs=0.2))
+    assert np.all(out.disparity[20:100, 96:150] == pytest.approx(20.0, abs=0.2))
+    assert out.iterations == 0 and "propagate" in out.timings_ms
+    np.testing.assert_allclose(out.depth[50, 50], 150.0 * 0.075 / out.disparity[50, 50])
+
+
+def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, capsys):
+    recording = tmp_path / "forward.mcap"
+    assert cli_main(["synth", "--mcap", str(recording), "--count", "9", "--size", "192x120",
+                     "--motion", "forward", "--fps", "30", "--scan-every", "3"]) == 0
+    assert cli_main(["replay", str(recording), "--out", str(tmp_path / "out.mcap"),
+                     "--rate", "camera"]) == 0
+    out = capsys.readouterr().out
+    line = next(x for x in out.splitlines() if x.startswith("Camera rate:"))
+    keys, carried = int(line.split()[2]), int(line.split()[7])
+    assert keys + carried == 9 and 3 <= keys <= 5 and carried >= 4
+    assert sum("carried from the key frame" in x for x in out.splitlines()) == carried
+    assert "over 9 frames with ground truth" in out
