@@ -295,6 +295,8 @@ def fleet(args: argparse.Namespace) -> int:
 
 def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> None:
     """The combinations of `synth` flags that mean nothing: a usage error each."""
+    from edge_depth.sim.motion import MAX_SECONDS as MAX_MOTION_SECONDS
+
     if (args.out is None) == (args.mcap is None):
         parser.error("synth: give --out DIR (scene folders) or --mcap FILE (a recording)")
     if args.world == "things" and args.mcap:
@@ -311,6 +313,10 @@ def check_synth(args: argparse.Namespace, parser: argparse.ArgumentParser) -> No
         parser.error("synth: --fps and --scan-every apply to --motion")
     if not 0 < args.fps <= 1000:
         parser.error(f"synth: --fps must be in (0, 1000], got {args.fps:g}")
+    if args.motion and args.count / args.fps > MAX_MOTION_SECONDS:
+        parser.error(f"synth: --motion for at most {MAX_MOTION_SECONDS:g} s (--count / --fps; "
+                     f"got {args.count / args.fps:g} s): beyond it the moving world leaves "
+                     "the range it was made for")
     if args.lidar_late_ms and not args.turn_deg:
         parser.error("synth: --lidar-late-ms shows only on a turning robot: give --turn-deg")
     if args.clean_cameras or args.view_spread != 1.0:

@@ -35,7 +35,8 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 SIM_SCENES = 8  # the sim camera renders this many scenes once and cycles them
-SIM_MOTION_FRAMES = 60  # with camera.sim_motion: this many frames of the moving world, looped
+SIM_MOTION_FRAMES = 60  # with camera.sim_motion: this many frames of the moving world,
+# played forward and back
 
 
 @dataclasses.dataclass

@@ -7,7 +7,8 @@
     device_id = ""              # "" = the first OAK found
     sim_motion = "none"         # source "sim": "none" (a new scene a frame) | "still" |
                                 # "forward" | "turn" | "mover": one world in motion
-                                # (edge.sim.motion), SIM_MOTION_FRAMES of it looped
+                                # (edge.sim.motion), SIM_MOTION_FRAMES of it played
+                                # forward and back
 
     [lidar]                     # model: "ld06" | "ld19" | "rplidar-a1" | "rplidar-a2" |
     model = "ld06"              #        "sim" (with camera.source = "sim") | "none"
@@ -335,6 +336,10 @@ def load_robot_config(path: str | Path) -> RobotConfig:
     built["log"] = _log_out(built["log"], path)
     _warn_threads(built["engine"], path)
     config = RobotConfig(**built, path=path)
+    if config.lidar.sim_every > 1 and config.camera.sim_motion == "none":
+        raise ConfigError("lidar.sim_every", "1 unless camera.sim_motion is a moving world "
+                          "(each frame is a scene of its own: a scan from another frame "
+                          "would be another scene's)", config.lidar.sim_every, path)
     if config.lidar.model == "sim" and config.camera.source != "sim":
         raise ConfigError("lidar.model", "'sim' only with camera.source = 'sim'", "sim", path)
     if config.camera.source == "sim" and config.lidar.model not in ("sim", "none"):

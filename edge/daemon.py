@@ -67,6 +67,7 @@ class Prepared:
     queued_ms: float = 0.0  # from prepared to the engine's start (pipelined: the hand-off)
     points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
     points_stamp_ns: int | None = None  # ... their stamp in the camera's clock
+    carried: bool = False  # [engine] rate = "camera": the key frame's depth carried here
 
 
 # frames of timings kept for the summaries: a daemon runs for days, and a frame's dict of ~22
@@ -170,10 +171,15 @@ class Pipeline:
             log.warning("no LiDAR extrinsics in the calibration: running stereo only (add a "
                         "[lidar] section: edge-depth calibrate lidar)")
         self._lock = threading.Lock()
-        self._last_error: np.ndarray | None = None  # the last frame's error map (GT frames)
+        # the last frame's (seq, error map), the map None without ground truth
+        self._last_error: tuple[int, np.ndarray | None] | None = None
         # [engine] rate = "camera": key frames and the frames between (edge.runtime.propagate)
         self.propagator = Propagator() if engine is not None and \
             engine.options.rate == "camera" else None
+        if self.propagator is not None and sync.mode == "accumulate":
+            log.warning("[engine] rate = \"camera\" carries depth between the scans of a "
+                        "spinning LiDAR (sync \"nearest\"); with sync \"accumulate\" (a 2-D "
+                        "scanner) every frame gets points of its own and is a key frame")
         if engine is not None:
             engine.warm_up(camera=tuple(stereo.image_size))
 
@@ -185,6 +191,9 @@ class Pipeline:
         self._projected: tuple[np.ndarray, np.ndarray] | None = None  # (points, their map)
         self.watch = None if lidar is None or self.watch_every < 1 else \
             CalibrationWatch(stereo, lidar.T_cam_lidar, self.watch_every)
+        carry = getattr(self, "propagator", None)  # set after the first calibration
+        if carry is not None:  # no key frame of the old calibration carried
+            carry.last = None
         if self.turn is not None:  # a recording's own calibration, later
             self.turn = TurnMeter(stereo.focal_px)
         if self.logger is not None:
@@ -314,6 +323,7 @@ class Pipeline:
             - p.timings["project"]
         carry = self.propagator
         if carry is not None and not carry.wants_engine(p.frame.stamp_ns, p.points_stamp_ns):
+            p.carried = True
             return carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m)
         result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,
@@ -333,8 +343,8 @@ class Pipeline:
         t = time.perf_counter()
         try:
             watch.frame(p.frame.stamp_ns, p.left)  # every frame: the turn between frames
-            if p.points is None or not watch.due():
-                return
+            if p.points is None or p.carried or not watch.due():  # a carried frame: the
+                return  # engine's last encoding is its key frame's
             gap_s = 0.0 if p.points_stamp_ns is None else \
                 (p.points_stamp_ns - p.frame.stamp_ns) / 1e9
             watch.add(stereo_reference(self.engine), p.points, gap_s)
@@ -381,10 +391,11 @@ class Pipeline:
             metrics = disparity_metrics(result.disparity, p.gt)
             error = error_map(result.disparity, p.gt)
         health = score_frame(result.disparity, p.left, p.sparse)
-        with self._lock:
-            last, self._last_error = self._last_error, error
-            if error is not None and last is not None and last.shape == error.shape:
-                change = temporal_instability(error, last)
+        with self._lock:  # the instability between consecutive frames only (not over a drop)
+            last, self._last_error = self._last_error, (frame.seq, error)
+            if error is not None and last is not None and last[0] == frame.seq - 1 and \
+                    last[1] is not None and last[1].shape == error.shape:
+                change = temporal_instability(error, last[1])
                 if np.isfinite(change):
                     self.stats.instability.add(dict(instability=change))
             self.health.add(health)

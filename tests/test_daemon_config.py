@@ -48,6 +48,7 @@ def write(tmp_path, text, name="robot.toml"):
     ("[lidar]\nsim_pattern = 'velodyne'\n", "lidar.sim_pattern"),
     ("[camera]\nsim_motion = 'spin'\n", "camera.sim_motion"),
     ("[lidar]\nsim_every = 0\n", "lidar.sim_every"),
+    ("[camera]\nsource = 'sim'\n[lidar]\nmodel = 'sim'\nsim_every = 3\n", "lidar.sim_every"),
     # values that are the right type but cannot be meant (tracebacks or hangs)
     ("[camera]\nfps = 1e-300\n", "camera.fps"),
     ("[camera]\nfps = 1e-3\n", "camera.fps"),

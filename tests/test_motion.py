@@ -82,6 +82,14 @@ def test_only_the_mover_moves_against_the_world():
     assert 0.5 * RIG.focal_px * 0.15 / depth < shift < 2.0 * RIG.focal_px * 0.15 / depth
 
 
+def test_synth_refuses_a_moving_world_longer_than_it_was_made_for(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_:
+        cli_main(["synth", "--mcap", str(tmp_path / "long.mcap"), "--count", "91",
+                  "--motion", "turn", "--fps", "30"])
+    assert exit_.value.code == 2 and "at most 3 s" in capsys.readouterr().err
+    assert not (tmp_path / "long.mcap").exists()
+
+
 def test_synth_records_a_moving_world_with_truth_on_every_frame(tmp_path, capsys):
     out = tmp_path / "forward.mcap"
     assert cli_main(["synth", "--mcap", str(out), "--count", "7", "--size", "192x120",
@@ -135,8 +143,9 @@ def test_the_sim_robot_loops_a_moving_world_with_a_scan_every_third_frame():
     truths = [e for e in events if isinstance(e, GroundTruth)]
     scans = [e for e in events if isinstance(e, LidarScan)]
     assert len(frames) == len(truths) == 7 and len(scans) == 3  # frames 0, 3 and 6
-    # three frames of motion rendered once, then looped: frame 3 is frame 0 again
-    np.testing.assert_array_equal(truths[3].disparity, truths[0].disparity)
+    # three frames of motion rendered once, played forward and back: 0 1 2 1 0 1 2
+    np.testing.assert_array_equal(truths[3].disparity, truths[1].disparity)
+    np.testing.assert_array_equal(truths[4].disparity, truths[0].disparity)
     assert not np.array_equal(truths[1].disparity, truths[0].disparity)
     np.testing.assert_allclose(np.diff([f.stamp_ns for f in frames]), 1e9 / 30, atol=1)
 

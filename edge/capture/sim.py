@@ -46,9 +46,9 @@ class SimSource(Source):
 
     def _sample(self, i: int):
         """Frame i: a scene of its own, or the moving world at frame i's time; with
-        `distinct`, the first `distinct` of them rendered once and looped (a moving world
-        then starts again every `distinct` frames: a scene cut)."""
-        key = i if self.distinct is None else i % self.distinct
+        `distinct`, the first `distinct` of them rendered once and looped — a moving world
+        played forward and back (the robot reversing), so that its loop has no scene cut."""
+        key = i if self.distinct is None else _looped(i, self.distinct, self.motion is not None)
         if key in self._cache:
             return self._cache[key]
         if self.motion is not None:
@@ -79,3 +79,12 @@ class SimSource(Source):
             self.frames += 1
             yield sample.frame(stamp_ns=stamp, seq=i)
             yield GroundTruth(stamp, sample.disp_left)
+
+
+def _looped(i: int, count: int, back_and_forth: bool) -> int:
+    """Frame i of a loop of `count` frames: 0, 1, …, count − 1, 0, 1, … or, back and forth,
+    0, 1, …, count − 1, count − 2, …, 1, 0, 1, …"""
+    if not back_and_forth or count < 2:
+        return i % count
+    key = i % (2 * count - 2)
+    return key if key < count else 2 * count - 2 - key

@@ -30,6 +30,10 @@ from edge_depth.sim.rig import SyntheticSample, _camera, random_scene
 from edge_depth.sim.scene import LEFT, RIGHT, Layer, RigConfig, Scene
 
 ELLIPSE_VERTICES = 48
+# the longest sequence a recording may ask for: beyond it the turning world's background
+# plane reaches the horizon at the image's corners (seeds 0, 1, 19 at 15°/s within 2 s leave
+# corners without a surface, their truth unknown) and driving carries surfaces past the range
+MAX_SECONDS = 3.0
 MIN_DEPTH_M = 0.3  # a layer with a point nearer than this (or behind) leaves the frame
 # a moving world's nearest surfaces start at half the rig's disparity range (1.1 m on the
 # default rig): a second or two of driving then keeps them within the range the network was
@@ -40,8 +44,9 @@ START_RANGE_SHARE = 0.5
 @dataclass(frozen=True)
 class Motion:
     """How the world moves: the camera forward at `speed_mps` (its z), turning at `yaw_dps`
-    (positive: to the right), and the scene's nearest object (its largest layer by mean
-    disparity) moving at `mover_mps` (x, y, z in the first frame's camera axes)."""
+    (positive: to the right), and the scene's nearest object (the layer with the highest
+    disparity at its outline's centre) moving at `mover_mps` (x, y, z in the first frame's
+    camera axes)."""
 
     speed_mps: float = 0.0
     yaw_dps: float = 0.0
@@ -137,7 +142,10 @@ def moved_layer(layer: Layer, rig: RigConfig, t: float, motion: Motion,
     seen = (points + offset - c) @ R.T
     if verts is not None and seen[:, 2].min() < MIN_DEPTH_M:
         return None
-    m_world = m / (1.0 + m @ offset)  # the plane moved with the layer
+    moved_by = 1.0 + m @ offset
+    if abs(moved_by) < 1e-9:  # the plane moved onto the first camera's centre
+        return None
+    m_world = m / moved_by  # the plane moved with the layer
     denominator = 1.0 - m_world @ c
     if abs(denominator) < 1e-9:
         return None
