@@ -323,8 +323,10 @@ class Pipeline:
             - p.timings["project"]
         carry = self.propagator
         if carry is not None and not carry.wants_engine(p.frame.stamp_ns, p.points_stamp_ns):
-            p.carried = True
-            return carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m)
+            carried = carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m)
+            if carried is not None:  # else the flow is lost: a key frame
+                p.carried = True
+                return carried
         result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,
                                    baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,

@@ -36,8 +36,10 @@ def rate_summary(propagator) -> str | None:
     frames carried between them."""
     if propagator is None:
         return None
-    return (f"Camera rate: {propagator.keys} key frames (the engine), {propagator.carried} "
-            "carried along the optical flow between scans")
+    lost = f" ({propagator.lost} of the key frames where the flow was lost)" \
+        if propagator.lost else ""
+    return (f"Camera rate: {propagator.keys} key frames (the engine){lost}, "
+            f"{propagator.carried} carried along the optical flow between scans")
 
 
 def selection_summary(timings: list[dict]) -> str | None:

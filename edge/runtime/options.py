@@ -79,11 +79,11 @@ class EngineOptions:
                                  "the nearest LiDAR point, if it has one")
     edge_select: bool = _option(True, "on frames without LiDAR points, the bundle's per-cell "
                                 "choice of an edge's near or far side, if it has one")
-    rate: str = _option("lidar", "lidar: the engine on every frame it is given (a frame per "
-                        "scan at most where the LiDAR is slower); camera: the engine on key "
-                        "frames (a fresh scan) and, on the frames between, the key frame's "
-                        "depth carried along the optical flow (~2.5 ms a frame; "
-                        "edge.runtime.propagate)", choices=("lidar", "camera"))
+    rate: str = _option("lidar", "lidar: the engine on every frame it is given; camera (an "
+                        "experiment, a spinning LiDAR paired by \"nearest\"): the engine on "
+                        "key frames (a fresh scan, or where the optical flow is lost) and, on "
+                        "the frames between, the key frame's depth carried along the flow "
+                        "(~3 ms a frame; edge.runtime.propagate)", choices=("lidar", "camera"))
     refine: str = _option("off", "band (an experiment): the network's estimate refined by "
                           "semi-global matching in a band around it as wide as its "
                           "confidence says, the LiDAR and the network guiding the cost, in "

@@ -1,7 +1,8 @@
 """Depth at the camera's rate (`[engine] rate = "camera"`): the engine on key frames — a frame
 with a scan its key frame did not have — and, on the frames between, the last key frame's
 disparity and confidence carried along the optical flow from the frame's left image to the
-key frame's (OpenCV's DIS, its ultrafast preset: ~2.5 ms a 640×400 frame on two cores).
+key frame's (OpenCV's DIS, its ultrafast preset: ~2.5 ms a 640×400 frame on two cores, and
+~1 ms more for the check that the flow is not lost: `LOST_RESIDUAL`).
 
 Any motion is carried (the camera's turn and drive, an object's own), the disparity itself is
 not changed: driving at 0.3 m/s it grows by ~3 % between scans at 1 m (docs/experiments.md,
@@ -22,6 +23,11 @@ import numpy as np
 from edge_depth.types import DepthResult
 
 MAX_KEY_AGE_S = 0.25  # a key frame carried no further than this (a stalled LiDAR)
+# the flow is lost (a scene cut, a blur, a flash) where the key frame's left image carried
+# along it differs from the frame's by more than this mean |Δ| (grey levels): on the moving sim
+# worlds a carry reads 2-6 over one or two frames and 11 over three, a scene cut 65; at 20 the
+# live sim robot (frames dropped, carries longer) lost 4-5 carries a run that were not cuts
+LOST_RESIDUAL = 32.0
 
 
 @dataclass
@@ -38,7 +44,7 @@ class Propagator:
     def __init__(self) -> None:
         self.flow = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
         self.last: KeyFrame | None = None
-        self.keys = self.carried = 0
+        self.keys = self.carried = self.lost = 0
 
     def wants_engine(self, stamp_ns: int, scan_ns: int | None) -> bool:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
@@ -53,8 +59,9 @@ class Propagator:
         self.keys += 1
 
     def carry(self, stamp_ns: int, left: np.ndarray, focal_px: float | None,
-              baseline_m: float | None) -> DepthResult:
-        """The last key frame's disparity (and confidence) seen from this frame."""
+              baseline_m: float | None) -> DepthResult | None:
+        """The last key frame's disparity (and confidence) seen from this frame; None when
+        the flow is lost (LOST_RESIDUAL): the frame must be a key frame."""
         from edge_depth.runtime.engine import disparity_to_depth
 
         last = self.last
@@ -70,6 +77,10 @@ class Propagator:
         def carried(image: np.ndarray) -> np.ndarray:
             return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
+        residual = cv2.absdiff(carried(np.ascontiguousarray(last.left, np.uint8)), grey)
+        if float(np.mean(residual)) > LOST_RESIDUAL:
+            self.lost += 1
+            return None
         disparity = carried(last.result.disparity)
         confidence = None if last.result.confidence is None else \
             carried(last.result.confidence)
