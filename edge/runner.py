@@ -242,6 +242,8 @@ class Runner:
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
                 lidar_noise_px=[round(s, 2) for s in replaced_shares(window, "lidar_noise_px")],
                 output_health=pipeline.health.diagnostics(),
+                **({} if pipeline.propagator is None else
+                   dict(camera_rate=pipeline.propagator.counters())),
                 **({} if pipeline.watch is None else
                    dict(calibration_watch=pipeline.watch.estimate().as_dict()))))
 

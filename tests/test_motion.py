@@ -4,6 +4,7 @@ with a camera faster than the LiDAR."""
 
 from __future__ import annotations
 
+import json
 import re
 from collections import Counter
 from dataclasses import replace
@@ -192,3 +193,7 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     assert keys + carried == 9 and 3 <= keys <= 5 and carried >= 4
     assert sum("carried from the key frame" in x for x in out.splitlines()) == carried
     assert "over 9 frames with ground truth" in out
+    with (tmp_path / "out.mcap").open("rb") as f:
+        diagnostics = [json.loads(m.data) for _, _, m in
+                       make_reader(f).iter_messages(topics=["/diagnostics"])]
+    assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0)

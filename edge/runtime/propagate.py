@@ -46,6 +46,11 @@ class Propagator:
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
 
+    def counters(self) -> dict[str, int]:
+        """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
+        whose flow was lost) and frames carried."""
+        return dict(key_frames=self.keys, carried=self.carried, lost=self.lost)
+
     def wants_engine(self, stamp_ns: int, scan_ns: int | None) -> bool:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
         did not have, or a key frame too old to carry."""
