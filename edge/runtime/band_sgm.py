@@ -368,9 +368,9 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     finite = np.ascontiguousarray(np.where(known, prior, 0.0), np.float32)
     certain = None if confidence is None else np.ascontiguousarray(
         np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0), np.float32)
-    lo, count, start, nearby = _bands(finite, certain, sparse, config)
     points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
-                                  np.float32)
+                                  np.float32)  # LiDAR disparity, 0 where none
+    lo, count, start, nearby = _bands(finite, certain, points, config)
     cost = band_cost(census(grey_l), census(grey_r), lo, count, start, points, finite,
                      np.zeros((h, w), np.float32) if certain is None else certain,
                      config.k, config.c, config.net_weight)
@@ -396,7 +396,7 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     return out, int(np.count_nonzero(out[known] != finite[known]))
 
 
-def _bands(prior: np.ndarray, confidence: np.ndarray | None, sparse: np.ndarray,
+def _bands(prior: np.ndarray, confidence: np.ndarray | None, points: np.ndarray,
            config: BandSgmConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Each pixel's band (its first disparity `lo` ≥ 0 and its label `count` 1 … MAX_LABELS,
     0 where the pixel is not refined: `refine_below`), the ragged volume's offsets `start`
@@ -406,10 +406,10 @@ def _bands(prior: np.ndarray, confidence: np.ndarray | None, sparse: np.ndarray,
     centre = np.clip(np.rint(prior), 0, w - 1).astype(np.int32)
     lo = np.maximum(centre - half, 0)
     hi = centre + half
-    valid = np.isfinite(sparse) & (sparse > 0)
+    valid = points > 0
     nearby = np.zeros(prior.shape, np.float32)
     if config.lidar_reach > 0 and valid.any():  # the band spans the nearest point's value too
-        near, distance = nearest_point(sparse, valid)
+        near, distance = nearest_point(points, valid)
         close = distance <= config.lidar_reach
         nearby = np.where(close, near, 0.0).astype(np.float32)
         g = np.clip(np.rint(near), 0, w - 1).astype(np.int32)

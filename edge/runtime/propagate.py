@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from edge_depth.runtime.engine import disparity_to_depth
 from edge_depth.types import DepthResult
 
 MAX_KEY_AGE_S = 0.25  # a key frame carried no further than this (a stalled LiDAR)
@@ -34,7 +35,7 @@ LOST_RESIDUAL = 32.0
 class KeyFrame:
     stamp_ns: int
     scan_ns: int | None  # the stamp of the scan it ran with (None: no LiDAR)
-    left: np.ndarray
+    left: np.ndarray  # grey uint8, contiguous (DIS's input)
     result: DepthResult
 
 
@@ -45,6 +46,7 @@ class Propagator:
         self.flow = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
+        self._grid: tuple[np.ndarray, np.ndarray] | None = None  # pixel coordinates (x, y)
 
     def counters(self) -> dict[str, int]:
         """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
@@ -60,29 +62,28 @@ class Propagator:
 
     def key(self, stamp_ns: int, scan_ns: int | None, left: np.ndarray,
             result: DepthResult) -> None:
-        self.last = KeyFrame(stamp_ns, scan_ns, left, result)
+        self.last = KeyFrame(stamp_ns, scan_ns, np.ascontiguousarray(left, np.uint8), result)
         self.keys += 1
 
     def carry(self, stamp_ns: int, left: np.ndarray, focal_px: float | None,
               baseline_m: float | None) -> DepthResult | None:
         """The last key frame's disparity (and confidence) seen from this frame; None when
         the flow is lost (LOST_RESIDUAL): the frame must be a key frame."""
-        from edge_depth.runtime.engine import disparity_to_depth
-
         last = self.last
         assert last is not None, "carry follows a key frame"
         t = time.perf_counter()
         grey = np.ascontiguousarray(left, np.uint8)
-        flow = self.flow.calc(grey, np.ascontiguousarray(last.left, np.uint8), None)
-        h, w = grey.shape
-        xs, ys = np.meshgrid(np.arange(w, dtype=np.float32), np.arange(h, dtype=np.float32))
-        xs += flow[..., 0]
-        ys += flow[..., 1]
+        flow = self.flow.calc(grey, last.left, None)
+        if self._grid is None or self._grid[0].shape != grey.shape:  # kept while the size stays
+            h, w = grey.shape
+            self._grid = np.meshgrid(np.arange(w, dtype=np.float32),
+                                     np.arange(h, dtype=np.float32))
+        xs, ys = self._grid[0] + flow[..., 0], self._grid[1] + flow[..., 1]
 
         def carried(image: np.ndarray) -> np.ndarray:
             return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
 
-        residual = cv2.absdiff(carried(np.ascontiguousarray(last.left, np.uint8)), grey)
+        residual = cv2.absdiff(carried(last.left), grey)
         if float(np.mean(residual)) > LOST_RESIDUAL:
             self.lost += 1
             return None

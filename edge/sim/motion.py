@@ -25,9 +25,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from edge_depth.sim.lidar import PATTERNS, LidarPattern, default_T_cam_lidar, simulate_scan
-from edge_depth.sim.rig import SyntheticSample, _camera, random_scene
-from edge_depth.sim.scene import LEFT, RIGHT, Layer, RigConfig, Scene
+from edge_depth.sim.lidar import PATTERNS, LidarPattern, default_T_cam_lidar
+from edge_depth.sim.rig import SyntheticSample, random_scene, render_sample
+from edge_depth.sim.scene import LEFT, Layer, RigConfig, Scene
 
 ELLIPSE_VERTICES = 48
 # the longest sequence a recording may ask for: beyond it the turning world's background
@@ -195,13 +195,4 @@ def moving_sample(seed: int, t: float, motion: Motion, rig: RigConfig | None = N
     scene = scene_at(world, t, motion)
     camera_rng, lidar_rng = (np.random.default_rng(s) for s in
                              np.random.SeedSequence([seed, frame]).spawn(2))
-    disp, occ, images = {}, {}, {}
-    for view in (LEFT, RIGHT):
-        disp[view], owner = scene.render_depth_order(view)
-        occ[view] = scene.occlusion(view, disp[view])
-        images[view] = _camera(scene.render_image(view, owner, disp[view]), rig, camera_rng)
-    scan = simulate_scan(scene, pattern, T, stamp_ns, lidar_rng)
-    return SyntheticSample(seed=seed, left=images[LEFT], right=images[RIGHT],
-                           disp_left=disp[LEFT], disp_right=disp[RIGHT], occ_left=occ[LEFT],
-                           occ_right=occ[RIGHT], scan=scan, T_cam_lidar=T, rig=rig,
-                           scene=scene)
+    return render_sample(seed, scene, pattern, T, stamp_ns, camera_rng, lidar_rng)

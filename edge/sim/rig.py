@@ -146,13 +146,23 @@ def make_sample(seed: int, rig: RigConfig | None = None,
     T = default_T_cam_lidar() if T_cam_lidar is None else np.asarray(T_cam_lidar, np.float64)
     scene_seq, camera_seq, lidar_seq = np.random.SeedSequence(seed).spawn(3)
     scene = random_scene(rig, np.random.default_rng(scene_seq))
-    camera_rng = np.random.default_rng(camera_seq)
+    return render_sample(seed, scene, pattern, T, stamp_ns, np.random.default_rng(camera_seq),
+                         np.random.default_rng(lidar_seq))
+
+
+def render_sample(seed: int, scene: Scene, pattern: LidarPattern, T_cam_lidar: np.ndarray,
+                  stamp_ns: int, camera_rng: np.random.Generator,
+                  lidar_rng: np.random.Generator) -> SyntheticSample:
+    """A scene's both views (the camera's gain, bias and noise from `camera_rng`), their
+    exact disparity and occlusion, and a LiDAR scan of it (its noise from `lidar_rng`)."""
+    rig = scene.rig
     disp, occ, images = {}, {}, {}
     for view in (LEFT, RIGHT):
         disp[view], owner = scene.render_depth_order(view)
         occ[view] = scene.occlusion(view, disp[view])
         images[view] = _camera(scene.render_image(view, owner, disp[view]), rig, camera_rng)
-    scan = simulate_scan(scene, pattern, T, stamp_ns, np.random.default_rng(lidar_seq))
+    scan = simulate_scan(scene, pattern, T_cam_lidar, stamp_ns, lidar_rng)
     return SyntheticSample(seed=seed, left=images[LEFT], right=images[RIGHT],
                            disp_left=disp[LEFT], disp_right=disp[RIGHT], occ_left=occ[LEFT],
-                           occ_right=occ[RIGHT], scan=scan, T_cam_lidar=T, rig=rig, scene=scene)
+                           occ_right=occ[RIGHT], scan=scan, T_cam_lidar=T_cam_lidar, rig=rig,
+                           scene=scene)
