@@ -306,7 +306,7 @@ def print_node_summary(stats, pipeline, source, outputs, elapsed: float) -> None
     """The node's closing lines: frames, drops, what came in and went out, the LiDAR's and
     the calibration watch's lines, the latency."""
     from edge_depth.daemon import lidar_summary, watch_summary
-    from edge_depth.frame_summary import format_latency, summarise
+    from edge_depth.frame_summary import format_latency, rate_summary, summarise
 
     counters = source.counters()
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "
@@ -317,6 +317,8 @@ def print_node_summary(stats, pipeline, source, outputs, elapsed: float) -> None
     print(lidar_summary(pipeline))
     if watched := watch_summary(pipeline, None, None):
         print(watched)
+    if rated := rate_summary(pipeline.propagator):
+        print(rated)
     if unhealthy := pipeline.health.summary():
         print(unhealthy)
     if lat := summarise(stats.timings):

@@ -1,6 +1,7 @@
 """The live ROS 2 node's rate and latency on the sim robot (README, docs/ros2.md).
 
-    python experiments/ros2_latency.py [--seconds 30] [--warmup 5] [--avx2] [-- NODE FLAGS]
+    python experiments/ros2_latency.py [--seconds 30] [--warmup 5] [--avx2] [--motion KIND]
+        [-- NODE FLAGS]
 
 A camera driver's stand-in publishes the sim robot's pair at 30 Hz (640x400 mono8, eight
 scenes rendered once and cycled, as the daemon's sim camera does) with wall-clock stamps, and
@@ -10,6 +11,9 @@ own (`--avx2`: under experiments/avx2_kernels.sh, an AVX2-only CPU's kernels); t
 collects /disparity and prints the depth rate, the end-to-end latency (output received minus
 its input's stamp, one host clock) median / p95 after the warm-up, and the node's closing
 summary (its drops). The DDS domain is a random one, discovery on localhost.
+`--motion KIND` (edge.sim.motion's kinds): one moving world instead of the eight scenes, 60
+frames (2 s) rendered once and played forward and back as the sim robot's `sim_motion` does,
+for `-- --rate camera` (between scans a new scene each frame is a lost flow: a key frame).
 """
 
 from __future__ import annotations
@@ -18,6 +22,7 @@ import argparse
 import json
 import os
 import random
+import re
 import signal
 import subprocess
 import sys
@@ -29,6 +34,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = 8
+MOVING_FRAMES = 60
 
 
 def start_node(calib: Path, avx2: bool, flags: list[str]) -> subprocess.Popen:
@@ -55,11 +61,19 @@ def main() -> int:
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--avx2", action="store_true")
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--motion", choices=("still", "forward", "turn", "mover"), default=None)
     p.add_argument("node_flags", nargs="*")
     args = p.parse_args()
     os.environ["ROS_DOMAIN_ID"] = str(random.randrange(1, 200))
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    samples = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(SCENES)]
+    if args.motion is None:
+        samples = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(SCENES)]
+    else:  # 0, 1, ..., 59, 58, ..., 1: no scene cut where the loop closes
+        from edge_depth.sim.motion import KINDS, moving_sample
+
+        ahead = [moving_sample(1_000_000, i / 30.0, KINDS[args.motion], RigConfig(),
+                               "beams16", frame=i) for i in range(MOVING_FRAMES)]
+        samples = ahead + ahead[-2:0:-1]
     calib = Path(tempfile.mkdtemp()) / "calib.toml"
     save_calibration(calib, samples[0].calibration(), LidarExtrinsics(samples[0].T_cam_lidar))
     node = start_node(calib, args.avx2, args.node_flags)
@@ -101,7 +115,8 @@ def main() -> int:
 
 def publish(camera, lidar, samples, seconds: float, LidarScan, StereoFrame) -> dict:
     """30 Hz frames, a scan on every third (stamped 5 ms before it); wall-clock stamps."""
-    start, i, sent = time.monotonic(), 0, {"frames": 0, "scans": 0, "start_ns": time.time_ns()}
+    start, i = time.monotonic(), 0
+    sent = {"frames": 0, "scans": 0, "start_ns": time.time_ns()}
     while (due := start + i / 30.0) < start + seconds:
         time.sleep(max(due - time.monotonic(), 0.0))
         s, stamp = samples[i % len(samples)], time.time_ns()
@@ -119,6 +134,8 @@ def report(received, sent: dict, args, log: str) -> None:
     kept = [(s, r) for s, r in received if s >= warm]
     latency = np.array([(r - s) / 1e6 for s, r in kept])
     rate = len(kept) / args.seconds
+    # rate "camera": the engine's runs (key frames: a frame with a scan no earlier one took)
+    keys = re.search(r"Camera rate: (\d+) key frames", log)
     isa = subprocess.run("grep -o -w 'avx512_vnni\\|avx_vnni\\|avx512_bf16' /proc/cpuinfo | "
                          "sort -u | tr '\\n' ' '", shell=True, capture_output=True,
                          text=True).stdout.strip() or "AVX2 only"
@@ -126,10 +143,13 @@ def report(received, sent: dict, args, log: str) -> None:
                   depth_received=len(kept), depth_hz=round(rate, 2),
                   latency_ms_median=round(float(np.median(latency)), 1) if kept else None,
                   latency_ms_p95=round(float(np.percentile(latency, 95)), 1) if kept else None,
+                  scans_with_key_frame=None if keys is None else
+                  round(int(keys.group(1)) / sent["scans"], 3),
                   kernels="AVX2 (avx2_kernels.sh)" if args.avx2 else "native", host_isa=isa)
     print(json.dumps(result))
     print("node:", *[line for line in log.splitlines() if " frames in " in line
-                     or line.startswith("latency") or line.startswith("frames with")], sep="\n")
+                     or line.startswith("latency") or line.startswith("frames with")
+                     or line.startswith("Camera rate")], sep="\n")
     if args.json:
         args.json.write_text(json.dumps(dict(result, node_log=log), indent=1))
 

@@ -196,12 +196,15 @@ def test_a_laserscan_lidar_works_with_only_a_topics_file(graph, samples, tmp_pat
     bag, calib, topics = peer_bag(tmp_path, samples)
     topics.write_text(topics.read_text().replace('lidar = "/points"', 'lidar = "/scan"'))
     node = start_node(["--calib", str(calib), "--topics", str(topics), "--qos", "reliable",
-                       "--max-frames", str(len(samples)), "--iters", "1", "--queue", "8"])
+                       "--max-frames", str(len(samples)), "--iters", "1", "--queue", "8",
+                       "--rate", "camera"])
     graph.play(bag)
     out = finish(node)
     first = summary_line(out)
     assert first.startswith(f"{len(samples)} frames in ") and f", {len(samples)} scans" in first
     assert "input errors none" in first
+    # at the camera's rate its closing lines say what the engine ran on: a scan a frame here
+    assert f"Camera rate: {len(samples)} key frames (the engine), 0 carried" in out
 
 
 def bad_bag(path: Path, samples) -> None:
