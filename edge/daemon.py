@@ -323,7 +323,8 @@ class Pipeline:
             - p.timings["project"]
         carry = self.propagator
         if carry is not None and not carry.wants_engine(p.frame.stamp_ns, p.points_stamp_ns):
-            carried = carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m)
+            carried = carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m,
+                                  self.principal_point)
             if carried is not None:  # else the flow is lost: a key frame
                 p.carried = True
                 return carried

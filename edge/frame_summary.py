@@ -39,7 +39,8 @@ def rate_summary(propagator) -> str | None:
     lost = f" ({propagator.lost} of the key frames where the flow was lost)" \
         if propagator.lost else ""
     return (f"Camera rate: {propagator.keys} key frames (the engine){lost}, "
-            f"{propagator.carried} carried along the optical flow between scans")
+            f"{propagator.carried} carried along the optical flow between scans "
+            f"({propagator.scaled} scaled by the camera's motion fitted to it)")
 
 
 def selection_summary(timings: list[dict]) -> str | None:

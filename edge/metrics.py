@@ -20,12 +20,23 @@ def error_map(pred: np.ndarray, gt: np.ndarray) -> np.ndarray:
     return error.astype(np.float32, copy=False)
 
 
-def temporal_instability(error: np.ndarray, previous: np.ndarray) -> float:
+def temporal_instability(error: np.ndarray, previous: np.ndarray,
+                         previous_at: np.ndarray | None = None) -> float:
     """Mean |e_t − e_(t−1)| (px) over the pixels where both frames' `error_map`s are known:
     how much the output changed from one frame to the next beyond what the ground truth
-    changed (Δ output − Δ GT at each pixel; no motion compensation, so at a camera's rate,
-    where the image moves a pixel or two a frame, part of it is the errors moving with the
-    scene). NaN where no pixel is known in both."""
+    changed (Δ output − Δ GT at each pixel). Without `previous_at` at the same pixel, so at
+    a camera's rate, where the image moves a pixel or two a frame, part of it is the errors
+    moving with the scene; `previous_at` ((H, W, 2) x, y, NaN where unknown: e.g.
+    `edge.sim.motion.positions_then`) compares each pixel with where its surface was in the
+    previous frame (nearest pixel): after the known motion. NaN where no pixel is known in
+    both."""
+    if previous_at is not None:
+        x, y = previous_at[..., 0], previous_at[..., 1]
+        known = np.isfinite(x) & np.isfinite(y)
+        h, w = previous.shape
+        xi = np.clip(np.rint(np.where(known, x, 0)), 0, w - 1).astype(np.intp)
+        yi = np.clip(np.rint(np.where(known, y, 0)), 0, h - 1).astype(np.intp)
+        previous = np.where(known, previous[yi, xi], np.nan)
     both = np.isfinite(error) & np.isfinite(previous)
     if not both.any():
         return float("nan")

@@ -22,8 +22,10 @@ from edge_depth.sim.motion import (
     KINDS,
     Motion,
     lift,
+    mover_mask,
     moving_sample,
     plane_of,
+    positions_then,
     scene_at,
     start_world,
 )
@@ -126,6 +128,29 @@ def test_temporal_instability_is_the_change_of_the_error_beyond_the_truths():
         pytest.approx(12.0 / 23)
 
 
+@pytest.mark.parametrize("kind", ["forward", "turn", "mover"])
+def test_where_each_pixels_surface_was_agrees_with_the_earlier_frames_truth(kind):
+    motion = KINDS[kind]
+    now = moving_sample(SEED, 0.3, motion, RIG, frame=9)
+    then = moving_sample(SEED, 0.0, motion, RIG, frame=0)
+    at = positions_then(SEED, 0.3, 0.0, motion, now.disp_left, then.disp_left, RIG)
+    known = np.isfinite(at[..., 0])
+    # known: the earlier frame's truth at the position is the surface's disparity then
+    assert known.mean() > 0.9
+    moved = at - np.stack(np.meshgrid(np.arange(RIG.width), np.arange(RIG.height)), -1)
+    assert np.nanmean(np.abs(moved)) > 0.3  # the image moved
+    mover = mover_mask(SEED, 0.3, motion, now.disp_left, RIG)
+    assert mover.mean() > 0.01 and known[mover].mean() > 0.8  # the mover's own motion too
+    # an error pattern carried with the scene is stable after the motion, not before it
+    rng = np.random.default_rng(0)
+    before = rng.normal(0.0, 1.0, now.disp_left.shape).astype(np.float32)
+    xi, yi = (np.rint(np.nan_to_num(at[..., k])).astype(int) for k in (0, 1))
+    carried = np.where(known, before[yi.clip(0, RIG.height - 1), xi.clip(0, RIG.width - 1)],
+                       np.nan)
+    assert temporal_instability(carried, before, at) == 0.0
+    assert temporal_instability(carried, before) > 0.5
+
+
 def test_replay_of_a_moving_world_reports_its_temporal_instability(tmp_path, capsys):
     recording = tmp_path / "still.mcap"
     assert cli_main(["synth", "--mcap", str(recording), "--count", "4", "--size", "192x120",
@@ -196,4 +221,37 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     with (tmp_path / "out.mcap").open("rb") as f:
         diagnostics = [json.loads(m.data) for _, _, m in
                        make_reader(f).iter_messages(topics=["/diagnostics"])]
-    assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0)
+    scaled = int(re.search(r"\((\d+) scaled by the camera's motion", line)[1])
+    assert 0 < scaled <= carried  # driving forward: the carried disparity grows
+    assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0,
+                                                  scaled=scaled)
+
+
+def test_the_cameras_motion_fitted_to_the_flow_gives_each_carried_pixels_new_disparity():
+    """A rigid scene seen from a camera that moved (ω, T) since its key frame: the motion
+    fitted to the flow is the motion, and the key frame's disparity carried to the frame and
+    scaled is the frame's own; a flow no rigid motion explains leaves it unscaled."""
+    from edge_depth.runtime.propagate import depth_change, ego_motion
+
+    h, w, f, b = 240, 320, 250.0, 0.075
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    rng = np.random.default_rng(3)
+    now = np.repeat(rng.uniform(6.0, 20.0, (h // 8, w // 8)), 8, 0).repeat(8, 1)
+    x, y = np.meshgrid(np.arange(w) - cx, np.arange(h) - cy)
+    z = f * b / now
+    points = np.stack([x * z / f, y * z / f, z], -1)
+    truth = np.array([0.004, -0.012, 0.002, 0.006, -0.003, 0.02])  # ω rad, T m
+    R = cv2.Rodrigues(truth[:3])[0]
+    key = points @ R.T + truth[3:]  # the frame's points in the key frame's camera
+    flow = np.stack([f * key[..., 0] / key[..., 2] - x, f * key[..., 1] / key[..., 2] - y],
+                    -1).astype(np.float32)
+    carried = (f * b / key[..., 2]).astype(np.float32)  # the key frame's disparity, carried
+    motion, residual, used = ego_motion(flow, carried, np.ones((h, w), bool), f, b, (cx, cy))
+    assert used > 1000 and residual < 0.1
+    np.testing.assert_allclose(motion, truth, atol=2e-3)
+    scale = depth_change(flow, carried, np.zeros((h, w), np.uint8), f, b, (cx, cy))
+    assert scale is not None
+    assert np.abs(carried * scale / now - 1).max() < 0.005  # the frame's own disparity
+    assert np.abs(carried / now - 1).max() > 0.02  # which the key frame's is not
+    chaos = rng.normal(0.0, 5.0, flow.shape).astype(np.float32)
+    assert depth_change(chaos, carried, np.zeros((h, w), np.uint8), f, b, (cx, cy)) is None

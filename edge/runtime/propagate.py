@@ -4,10 +4,13 @@ disparity and confidence carried along the optical flow from the frame's left im
 key frame's (OpenCV's DIS, its ultrafast preset: ~2.5 ms a 640×400 frame on two cores, and
 ~1 ms more for the check that the flow is not lost: `LOST_RESIDUAL`).
 
-Any motion is carried (the camera's turn and drive, an object's own), the disparity itself is
-not changed: driving at 0.3 m/s it grows by ~3 % between scans at 1 m (docs/experiments.md,
-2026-12-07: 1.13–1.22× the key frames' EPE between scans on the moving sim worlds, steadier
-than the engine on every frame). A key frame older than MAX_KEY_AGE_S is not carried. Keyed
+Any motion is carried (the camera's turn and drive, an object's own). The disparity itself
+changes as the camera moves (driving at 0.3 m/s it grows by ~3 % between scans at 1 m): the
+camera's motion since the key frame is fitted to the flow and the carried disparity
+(`ego_motion`: the motion field of a rigid scene, six unknowns, a robust least squares on a
+grid of pixels) and each pixel's disparity scaled by its depth's change; where the fit is
+unsure (few pixels, a large residual, an implausible change) it stays as it was. A key
+frame older than MAX_KEY_AGE_S is not carried. Keyed
 on the scan's stamp, so it carries between the scans of a spinning LiDAR paired by "nearest";
 with "accumulate" (a 2-D scanner) every frame has points of its own and is a key frame.
 """
@@ -29,6 +32,14 @@ MAX_KEY_AGE_S = 0.25  # a key frame carried no further than this (a stalled LiDA
 # worlds a carry reads 2-6 over one or two frames and 11 over three, a scene cut 65; at 20 the
 # live sim robot (frames dropped, carries longer) lost 4-5 carries a run that were not cuts
 LOST_RESIDUAL = 32.0
+INTERPOLATION = cv2.INTER_NEAREST
+FIT_PIXELS = 4000  # the motion fit reads a grid of about this many pixels (every 8th at 640x400)
+FIT_MIN_PIXELS = 500
+# the fit is unsure where the median pixel's flow misses the rigid motion's by more than
+# this (px: DIS's own error on the sim worlds is a few tenths) or where it would change a
+# disparity by more than MAX_SCALE_CHANGE between a key frame and a frame 0.25 s later
+FIT_MAX_RESIDUAL_PX = 1.5
+MAX_SCALE_CHANGE = 0.15
 
 
 @dataclass
@@ -46,12 +57,15 @@ class Propagator:
         self.flow = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_ULTRAFAST)
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
+        self.scaled = 0  # carried frames whose disparity the fitted motion scaled
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # pixel coordinates (x, y)
 
     def counters(self) -> dict[str, int]:
         """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
-        whose flow was lost) and frames carried."""
-        return dict(key_frames=self.keys, carried=self.carried, lost=self.lost)
+        whose flow was lost) and frames carried (`scaled`: of them, those whose disparity
+        the fitted motion changed)."""
+        return dict(key_frames=self.keys, carried=self.carried, lost=self.lost,
+                    scaled=self.scaled)
 
     def wants_engine(self, stamp_ns: int, scan_ns: int | None) -> bool:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
@@ -66,7 +80,8 @@ class Propagator:
         self.keys += 1
 
     def carry(self, stamp_ns: int, left: np.ndarray, focal_px: float | None,
-              baseline_m: float | None) -> DepthResult | None:
+              baseline_m: float | None,
+              principal_point: tuple[float, float] | None = None) -> DepthResult | None:
         """The last key frame's disparity (and confidence) seen from this frame; None when
         the flow is lost (LOST_RESIDUAL): the frame must be a key frame."""
         last = self.last
@@ -80,14 +95,20 @@ class Propagator:
                                      np.arange(h, dtype=np.float32))
         xs, ys = self._grid[0] + flow[..., 0], self._grid[1] + flow[..., 1]
 
-        def carried(image: np.ndarray) -> np.ndarray:
-            return cv2.remap(image, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        def carried(image: np.ndarray, how: int = cv2.INTER_LINEAR) -> np.ndarray:
+            return cv2.remap(image, xs, ys, how, borderMode=cv2.BORDER_REPLICATE)
 
         residual = cv2.absdiff(carried(last.left), grey)
         if float(np.mean(residual)) > LOST_RESIDUAL:
             self.lost += 1
             return None
-        disparity = carried(last.result.disparity)
+        disparity = carried(last.result.disparity, INTERPOLATION)
+        if focal_px and baseline_m:
+            scale = depth_change(flow, disparity, residual, focal_px, baseline_m,
+                                 principal_point)
+            if scale is not None:
+                disparity *= scale
+                self.scaled += 1
         confidence = None if last.result.confidence is None else \
             carried(last.result.confidence)
         depth, valid = disparity_to_depth(disparity, focal_px, baseline_m)
@@ -96,3 +117,67 @@ class Propagator:
                            valid=valid, iterations=0,
                            timings_ms={"propagate": (time.perf_counter() - t) * 1000},
                            confidence=confidence)
+
+
+def ego_motion(flow: np.ndarray, disparity: np.ndarray, usable: np.ndarray, focal_px: float,
+               baseline_m: float, principal_point: tuple[float, float]
+               ) -> tuple[np.ndarray, float, int] | None:
+    """The camera's motion from a frame to its key frame, fitted to the optical flow (frame
+    → key frame, (H, W, 2)) and the frame's disparity on a grid of `usable` pixels: a point
+    p of the frame is R p + T in the key frame's, R ≈ I + [ω]×, and its image moves by
+    ((f Tx − x Tz) d / (f B) + …, …) plus the rotation's terms (x, y from the principal
+    point), linear in (ω, T). Huber-weighted least squares (three passes, 1 px). Returns
+    ((ωx, ωy, ωz, Tx, Ty, Tz): rad, m), the median residual (px) and the pixels used; None
+    with fewer than FIT_MIN_PIXELS."""
+    f, b = float(focal_px), float(baseline_m)
+    cx, cy = principal_point
+    step = max(1, int(np.sqrt(disparity.size / FIT_PIXELS)))
+    grid = (slice(step // 2, None, step), slice(step // 2, None, step))
+    d = disparity[grid]
+    keep = usable[grid] & np.isfinite(d) & (d > 0)
+    if np.count_nonzero(keep) < FIT_MIN_PIXELS:
+        return None
+    ys, xs = np.nonzero(keep)
+    x = xs * step + step // 2 - cx
+    y = ys * step + step // 2 - cy
+    d = d[keep].astype(np.float64)
+    u, v = (flow[grid][..., k][keep].astype(np.float64) for k in (0, 1))
+    zero = np.zeros_like(x)
+    rows_u = np.stack([-x * y / f, f + x * x / f, -y, d / b, zero, -x * d / (f * b)], axis=1)
+    rows_v = np.stack([-(f + y * y / f), x * y / f, x, zero, d / b, -y * d / (f * b)], axis=1)
+    A, rhs = np.concatenate([rows_u, rows_v]), np.concatenate([u, v])
+    weight = np.ones(len(A))
+    for _ in range(3):  # the normal equations (6 x 6), columns scaled to one size
+        Aw = A * weight[:, None]
+        norm = np.sqrt(np.einsum("ij,ij->j", Aw, A)) + 1e-12
+        motion = np.linalg.solve((Aw.T @ A) / np.outer(norm, norm), (Aw.T @ rhs) / norm) / norm
+        miss = A @ motion - rhs
+        residual = np.hypot(miss[:len(x)], miss[len(x):])
+        weight = np.tile(1.0 / np.maximum(residual, 1.0), 2)  # Huber at 1 px
+    return motion, float(np.median(residual)), len(x)
+
+
+def depth_change(flow: np.ndarray, disparity: np.ndarray, residual: np.ndarray,
+                 focal_px: float, baseline_m: float,
+                 principal_point: tuple[float, float] | None = None) -> np.ndarray | None:
+    """Each pixel's disparity now over the key frame's (H, W) from `ego_motion`: its depth in
+    the key frame is z (1 + ωx y / f − ωy x / f) + Tz, so the ratio is 1 + ωx y / f −
+    ωy x / f + Tz d / (f B). Fitted on the pixels whose flow matches the images (`residual`,
+    the key frame's image carried along the flow against the frame's, under 8 grey levels).
+    None where the fit is unsure: too few pixels, a median residual over
+    FIT_MAX_RESIDUAL_PX, or a change over MAX_SCALE_CHANGE anywhere it reaches."""
+    h, w = disparity.shape
+    cx, cy = principal_point if principal_point is not None else ((w - 1) / 2, (h - 1) / 2)
+    fitted = ego_motion(flow, disparity, residual < 8, focal_px, baseline_m, (cx, cy))
+    if fitted is None or fitted[1] > FIT_MAX_RESIDUAL_PX:
+        return None
+    (wx, wy, _, _, _, tz), f = fitted[0], float(focal_px)
+    x = np.arange(w, dtype=np.float32) - np.float32(cx)
+    y = np.arange(h, dtype=np.float32) - np.float32(cy)
+    turn = (np.float32(wx / f) * y)[:, None] - (np.float32(wy / f) * x)[None, :]
+    with np.errstate(invalid="ignore"):
+        scale = 1.0 + turn + np.float32(tz / (f * baseline_m)) * np.nan_to_num(disparity)
+        if np.nanmax(np.abs(scale - 1.0)) > MAX_SCALE_CHANGE:
+            return None
+    return scale.astype(np.float32, copy=False)
+

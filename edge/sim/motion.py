@@ -196,3 +196,57 @@ def moving_sample(seed: int, t: float, motion: Motion, rig: RigConfig | None = N
     camera_rng, lidar_rng = (np.random.default_rng(s) for s in
                              np.random.SeedSequence([seed, frame]).spawn(2))
     return render_sample(seed, scene, pattern, T, stamp_ns, camera_rng, lidar_rng)
+
+
+def mover_mask(seed: int, t: float, motion: Motion, disparity: np.ndarray,
+               rig: RigConfig | None = None, tolerance_px: float = 0.25) -> np.ndarray:
+    """The pixels of the frame at time t that show the mover (its outline, where the frame's
+    exact `disparity` is its plane's: not hidden behind another layer)."""
+    rig = rig or RigConfig()
+    world = start_world(seed, rig)
+    k = mover_index(world)
+    h, w = disparity.shape
+    layer = None if k is None else moved_layer(world.layers[k], rig, t, motion,
+                                               np.asarray(motion.mover_mps, np.float64))
+    if layer is None:
+        return np.zeros((h, w), bool)
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    with np.errstate(invalid="ignore"):
+        on_plane = np.abs(layer.disparity(LEFT, u, v, rig.cx, rig.cy) - disparity) < tolerance_px
+    return layer.contains(u, v) & on_plane
+
+
+def positions_then(seed: int, t: float, t_then: float, motion: Motion, disparity: np.ndarray,
+                   disparity_then: np.ndarray, rig: RigConfig | None = None,
+                   tolerance_px: float = 0.5) -> np.ndarray:
+    """Where the surface at each pixel of the frame at time t is in the frame at `t_then`:
+    (H, W, 2) left-image (x, y), NaN where it is not seen then (outside the image, hidden —
+    that frame's exact `disparity_then` there is not the surface's — or unknown now). From
+    the frame's exact `disparity` and the known motion: the camera's poses, the mover's
+    own velocity on `mover_mask`'s pixels."""
+    rig = rig or RigConfig()
+    f, b = rig.focal_px, rig.baseline_m
+    h, w = disparity.shape
+    v, u = np.mgrid[0:h, 0:w].astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        z = np.where(np.isfinite(disparity) & (disparity > 0), f * b / disparity, np.nan)
+    seen = np.stack([(u - rig.cx) / f * z, (v - rig.cy) / f * z, z], axis=-1)
+    R, c = camera_pose(t, motion)
+    world = seen @ R + c  # P = Rᵀ p + c for each pixel's p
+    mover = mover_mask(seed, t, motion, disparity, rig)
+    world[mover] += np.asarray(motion.mover_mps, np.float64) * (t_then - t)
+    R_then, c_then = camera_pose(t_then, motion)
+    then = (world - c_then) @ R_then.T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = rig.cx + f * then[..., 0] / then[..., 2]
+        y = rig.cy + f * then[..., 1] / then[..., 2]
+        expected = f * b / then[..., 2]
+    xi, yi = np.rint(x), np.rint(y)
+    inside = (xi >= 0) & (xi < w) & (yi >= 0) & (yi < h) & (then[..., 2] > 0)
+    found = np.full((h, w), np.nan)
+    found[inside] = disparity_then[yi[inside].astype(int), xi[inside].astype(int)]
+    with np.errstate(invalid="ignore"):
+        shown = inside & (np.abs(found - expected) < tolerance_px)
+    out = np.stack([x, y], axis=-1).astype(np.float32)
+    out[~shown] = np.nan
+    return out
