@@ -68,6 +68,7 @@ class Prepared:
     points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
     points_stamp_ns: int | None = None  # ... their stamp in the camera's clock
     carried: bool = False  # [engine] rate = "camera": the key frame's depth carried here
+    arrived: float | None = None  # live: perf_counter as the frame entered the capture queue
 
 
 # frames of timings kept for the summaries: a daemon runs for days, and a frame's dict of ~22
@@ -258,9 +259,11 @@ class Pipeline:
         return out
 
     def prepare(self, frame: StereoFrame, gt: np.ndarray | None = None,
-                sync_wait_ms: float = 0.0) -> Prepared | None:
+                sync_wait_ms: float = 0.0, arrived: float | None = None) -> Prepared | None:
         """Stage 1: size check, rectification, the synced scans projected. None when the
-        frame is skipped (counted) or, recording, already logged."""
+        frame is skipped (counted) or, recording, already logged. `arrived`: live, the
+        perf_counter at which the frame entered the capture queue (its wait there and the
+        frame's whole time in the daemon, `end_to_end`, are then in the timings)."""
         t0 = time.perf_counter()
         if not self._size_fits(frame):
             return None
@@ -293,7 +296,8 @@ class Pipeline:
         t2 = time.perf_counter()
         return Prepared(frame, left, right, sparse, gt, t0, dict(
             rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
-            points=points if len(points) else None, points_stamp_ns=points_stamp_ns)
+            points=points if len(points) else None, points_stamp_ns=points_stamp_ns,
+            arrived=arrived)
 
     def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
         """The points' sparse disparity. While the camera turns, each point is first moved by
@@ -376,6 +380,12 @@ class Pipeline:
         timings = dict(result.timings_ms, **p.timings, engine_queue=p.queued_ms,
                        log=(t4 - t3) * 1000, log_raw=raw_ms, frame=(t4 - p.t0) * 1000,
                        iterations=result.iterations)
+        # capture_queue: live, the frame's wait for this thread (the LiDAR's wait is
+        # sync_wait); end_to_end: queued (or, without a queue, the LiDAR's wait) to logged
+        if p.arrived is not None:
+            timings["capture_queue"] = (p.t0 - p.arrived) * 1000 - p.timings["sync_wait"]
+        timings["end_to_end"] = timings["frame"] + p.timings["sync_wait"] + \
+            timings.get("capture_queue", 0.0)
         timings.update(_shares(result))
         if result.photometry_change is not None:  # [engine] match_photometry
             timings["photometry_change"] = result.photometry_change

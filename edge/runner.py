@@ -103,6 +103,7 @@ class Runner:
         self.finished = threading.Event()
         self.waiting: deque[StereoFrame] = deque()  # replay: frames held in stream time
         self.gts: dict[int, np.ndarray] = {}
+        self.arrived: dict[int, float] = {}  # live: perf_counter as each frame was queued
         self.last_diag = time.monotonic()
         self.last_stamp: int | None = None
         self.wait_ms = pipeline.sync.config.wait_ms
@@ -141,8 +142,10 @@ class Runner:
             if len(self.frames) >= self.queue_size:
                 dropped = self.frames.popleft()
                 self.gts.pop(dropped.stamp_ns, None)
+                self.arrived.pop(dropped.stamp_ns, None)
                 self.stats.drops += 1
             self.frames.append(frame)
+            self.arrived[frame.stamp_ns] = time.perf_counter()
             self.cond.notify()
 
     def process(self, frame: StereoFrame, sync_wait_ms: float = 0.0) -> None:
@@ -162,7 +165,8 @@ class Runner:
             gt = self.gts.pop(frame.stamp_ns, None)
             for stamp in [s for s in self.gts if s < frame.stamp_ns]:  # dropped, skipped
                 del self.gts[stamp]
-        return self._guarded(self.pipeline.prepare, frame, gt, sync_wait_ms)
+            arrived = self.arrived.pop(frame.stamp_ns, None)
+        return self._guarded(self.pipeline.prepare, frame, gt, sync_wait_ms, arrived)
 
     def _infer(self, prepared):
         return self._guarded(self.pipeline.infer, prepared)

@@ -202,6 +202,12 @@ def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined, rig_
                 on_output=lambda frame, out: seen.append(frame.seq), pipelined=pipelined)
     assert stats.drops > 0 and stats.frames + stats.drops == 8
     assert seen == sorted(seen) and seen[-1] == 7
+    # each frame's wait in the capture queue, and its whole time in the daemon
+    for t in stats.timings:
+        assert t["capture_queue"] >= -0.5  # two clocks: monotonic for the LiDAR's wait
+        assert t["end_to_end"] == pytest.approx(t["frame"] + t["sync_wait"] +
+                                                t["capture_queue"])
+    assert max(t["capture_queue"] for t in stats.timings) > 1.0  # a burst waits
 
 
 @pytest.mark.slow
