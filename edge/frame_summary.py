@@ -38,7 +38,8 @@ def rate_summary(propagator) -> str | None:
         return None
     lost = f" ({propagator.lost} of the key frames where the flow was lost)" \
         if propagator.lost else ""
-    return (f"Camera rate: {propagator.keys} key frames (the engine){lost}, "
+    return (f"Camera rate: {propagator.keys} key frames (the engine) on {propagator.scans} "
+            f"scans{lost}, "
             f"{propagator.carried} carried along the optical flow between scans "
             f"({propagator.scaled} scaled by the camera's motion fitted to it)")
 

@@ -134,8 +134,9 @@ def report(received, sent: dict, args, log: str) -> None:
     kept = [(s, r) for s, r in received if s >= warm]
     latency = np.array([(r - s) / 1e6 for s, r in kept])
     rate = len(kept) / args.seconds
-    # rate "camera": the engine's runs (key frames: a frame with a scan no earlier one took)
-    keys = re.search(r"Camera rate: (\d+) key frames", log)
+    # rate "camera": the scans a key frame ran with (each once) over the scans the node got
+    keyed = re.search(r"Camera rate: \d+ key frames \(the engine\) on (\d+) scans", log)
+    got = re.search(r" frames in [\d.]+ s, (\d+) scans", log)
     isa = subprocess.run("grep -o -w 'avx512_vnni\\|avx_vnni\\|avx512_bf16' /proc/cpuinfo | "
                          "sort -u | tr '\\n' ' '", shell=True, capture_output=True,
                          text=True).stdout.strip() or "AVX2 only"
@@ -143,8 +144,8 @@ def report(received, sent: dict, args, log: str) -> None:
                   depth_received=len(kept), depth_hz=round(rate, 2),
                   latency_ms_median=round(float(np.median(latency)), 1) if kept else None,
                   latency_ms_p95=round(float(np.percentile(latency, 95)), 1) if kept else None,
-                  scans_with_key_frame=None if keys is None else
-                  round(int(keys.group(1)) / sent["scans"], 3),
+                  scans_with_key_frame=None if keyed is None or got is None else
+                  round(int(keyed.group(1)) / max(int(got.group(1)), 1), 3),
                   kernels="AVX2 (avx2_kernels.sh)" if args.avx2 else "native", host_isa=isa)
     print(json.dumps(result))
     print("node:", *[line for line in log.splitlines() if " frames in " in line

@@ -139,8 +139,8 @@ def test_where_each_pixels_surface_was_agrees_with_the_earlier_frames_truth(kind
     assert known.mean() > 0.9
     moved = at - np.stack(np.meshgrid(np.arange(RIG.width), np.arange(RIG.height)), -1)
     assert np.nanmean(np.abs(moved)) > 0.3  # the image moved
-    mover = mover_mask(SEED, 0.3, motion, now.disp_left, RIG)
-    assert mover.mean() > 0.01 and known[mover].mean() > 0.8  # the mover's own motion too
+    mover = mover_mask(SEED, 0.3, motion, now.disp_left, RIG)  # ("mover": it moves itself)
+    assert mover.mean() > 0.01 and known[mover].mean() > 0.8
     # an error pattern carried with the scene is stable after the motion, not before it
     rng = np.random.default_rng(0)
     before = rng.normal(0.0, 1.0, now.disp_left.shape).astype(np.float32)
@@ -222,9 +222,10 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
         diagnostics = [json.loads(m.data) for _, _, m in
                        make_reader(f).iter_messages(topics=["/diagnostics"])]
     scaled = int(re.search(r"\((\d+) scaled by the camera's motion", line)[1])
-    assert 0 < scaled <= carried  # driving forward: the carried disparity grows
+    assert 0 < scaled <= carried  # driving forward: the carried disparity is changed
+    assert "on 3 scans" in line  # the recording's three, each once
     assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0,
-                                                  scaled=scaled)
+                                                  scaled=scaled, scans=3)
 
 
 def test_the_cameras_motion_fitted_to_the_flow_gives_each_carried_pixels_new_disparity():

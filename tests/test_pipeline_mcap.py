@@ -205,9 +205,10 @@ def test_a_burst_keeps_the_newest_frame_pipelined_or_not(engine, pipelined, rig_
     # each frame's wait in the capture queue, and its whole time in the daemon
     for t in stats.timings:
         assert t["capture_queue"] >= -0.5  # two clocks: monotonic for the LiDAR's wait
-        assert t["end_to_end"] == pytest.approx(t["frame"] + t["sync_wait"] +
-                                                t["capture_queue"])
-    assert max(t["capture_queue"] for t in stats.timings) > 1.0  # a burst waits
+        assert t["end_to_end"] >= max(t["frame"], t["capture_queue"]) - 0.5
+    if not pipelined:  # the burst came at once: the last frame waited for those before it
+        *before, last = stats.timings
+        assert last["capture_queue"] >= sum(t["frame"] for t in before) * 0.5
 
 
 @pytest.mark.slow

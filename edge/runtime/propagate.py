@@ -1,8 +1,9 @@
 """Depth at the camera's rate (`[engine] rate = "camera"`): the engine on key frames — a frame
 with a scan its key frame did not have — and, on the frames between, the last key frame's
 disparity and confidence carried along the optical flow from the frame's left image to the
-key frame's (OpenCV's DIS, its ultrafast preset: ~2.5 ms a 640×400 frame on two cores, and
-~1 ms more for the check that the flow is not lost: `LOST_RESIDUAL`).
+key frame's (OpenCV's DIS, its ultrafast preset: ~2.5 ms a 640×400 frame on two cores,
+~1 ms more for the check that the flow is not lost, `LOST_RESIDUAL`, and ~1.6 ms for the
+depth change below).
 
 Any motion is carried (the camera's turn and drive, an object's own). The disparity itself
 changes as the camera moves (driving at 0.3 m/s it grows by ~3 % between scans at 1 m): the
@@ -35,9 +36,11 @@ LOST_RESIDUAL = 32.0
 INTERPOLATION = cv2.INTER_NEAREST
 FIT_PIXELS = 4000  # the motion fit reads a grid of about this many pixels (every 8th at 640x400)
 FIT_MIN_PIXELS = 500
+FIT_MAX_GREY = 8  # a grid pixel is fitted where the carried image is within this of the frame's
 # the fit is unsure where the median pixel's flow misses the rigid motion's by more than
 # this (px: DIS's own error on the sim worlds is a few tenths) or where it would change a
-# disparity by more than MAX_SCALE_CHANGE between a key frame and a frame 0.25 s later
+# disparity by more than MAX_SCALE_CHANGE (on over 1 % of the pixels) between a key frame and
+# a frame 0.25 s later
 FIT_MAX_RESIDUAL_PX = 1.5
 MAX_SCALE_CHANGE = 0.15
 
@@ -58,14 +61,15 @@ class Propagator:
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
         self.scaled = 0  # carried frames whose disparity the fitted motion scaled
+        self.scans = 0  # scans a key frame ran with (each once)
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # pixel coordinates (x, y)
 
     def counters(self) -> dict[str, int]:
         """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
-        whose flow was lost) and frames carried (`scaled`: of them, those whose disparity
-        the fitted motion changed)."""
+        whose flow was lost; `scans`: the scans they ran with, each counted once) and frames
+        carried (`scaled`: of them, those whose disparity the fitted motion changed)."""
         return dict(key_frames=self.keys, carried=self.carried, lost=self.lost,
-                    scaled=self.scaled)
+                    scaled=self.scaled, scans=self.scans)
 
     def wants_engine(self, stamp_ns: int, scan_ns: int | None) -> bool:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
@@ -76,6 +80,8 @@ class Propagator:
 
     def key(self, stamp_ns: int, scan_ns: int | None, left: np.ndarray,
             result: DepthResult) -> None:
+        if scan_ns is not None and (self.last is None or self.last.scan_ns != scan_ns):
+            self.scans += 1
         self.last = KeyFrame(stamp_ns, scan_ns, np.ascontiguousarray(left, np.uint8), result)
         self.keys += 1
 
@@ -123,37 +129,44 @@ def ego_motion(flow: np.ndarray, disparity: np.ndarray, usable: np.ndarray, foca
                baseline_m: float, principal_point: tuple[float, float]
                ) -> tuple[np.ndarray, float, int] | None:
     """The camera's motion from a frame to its key frame, fitted to the optical flow (frame
-    → key frame, (H, W, 2)) and the frame's disparity on a grid of `usable` pixels: a point
-    p of the frame is R p + T in the key frame's, R ≈ I + [ω]×, and its image moves by
-    ((f Tx − x Tz) d / (f B) + …, …) plus the rotation's terms (x, y from the principal
-    point), linear in (ω, T). Huber-weighted least squares (three passes, 1 px). Returns
-    ((ωx, ωy, ωz, Tx, Ty, Tz): rad, m), the median residual (px) and the pixels used; None
-    with fewer than FIT_MIN_PIXELS."""
+    → key frame, (H, W, 2)) and the key frame's disparity carried to the frame, on a grid of
+    `usable` pixels whose flow stays in the image: a point p of the frame is R p + T in the
+    key frame's, R ≈ I + [ω]×, and its image moves by ((f Tx − x Tz) d / (f B) + …, …) plus
+    the rotation's terms (x, y from the principal point), linear in (ω, T). Huber-weighted
+    least squares (three passes, 1 px). Returns ((ωx, ωy, ωz, Tx, Ty, Tz): rad, m), the
+    median residual (px) and the pixels used; None with fewer than FIT_MIN_PIXELS or a
+    singular system."""
     f, b = float(focal_px), float(baseline_m)
     cx, cy = principal_point
+    h, w = disparity.shape
     step = max(1, int(np.sqrt(disparity.size / FIT_PIXELS)))
     grid = (slice(step // 2, None, step), slice(step // 2, None, step))
-    d = disparity[grid]
-    keep = usable[grid] & np.isfinite(d) & (d > 0)
+    d, moved = disparity[grid], flow[grid]
+    gy, gx = np.mgrid[step // 2:h:step, step // 2:w:step]
+    lands = (gx + moved[..., 0] >= 0) & (gx + moved[..., 0] <= w - 1) & \
+        (gy + moved[..., 1] >= 0) & (gy + moved[..., 1] <= h - 1)
+    keep = usable[grid] & lands & np.isfinite(d) & (d > 0)
     if np.count_nonzero(keep) < FIT_MIN_PIXELS:
         return None
-    ys, xs = np.nonzero(keep)
-    x = xs * step + step // 2 - cx
-    y = ys * step + step // 2 - cy
+    x, y = gx[keep] - cx, gy[keep] - cy
     d = d[keep].astype(np.float64)
-    u, v = (flow[grid][..., k][keep].astype(np.float64) for k in (0, 1))
+    u, v = (moved[..., k][keep].astype(np.float64) for k in (0, 1))
     zero = np.zeros_like(x)
     rows_u = np.stack([-x * y / f, f + x * x / f, -y, d / b, zero, -x * d / (f * b)], axis=1)
     rows_v = np.stack([-(f + y * y / f), x * y / f, x, zero, d / b, -y * d / (f * b)], axis=1)
     A, rhs = np.concatenate([rows_u, rows_v]), np.concatenate([u, v])
     weight = np.ones(len(A))
-    for _ in range(3):  # the normal equations (6 x 6), columns scaled to one size
-        Aw = A * weight[:, None]
-        norm = np.sqrt(np.einsum("ij,ij->j", Aw, A)) + 1e-12
-        motion = np.linalg.solve((Aw.T @ A) / np.outer(norm, norm), (Aw.T @ rhs) / norm) / norm
-        miss = A @ motion - rhs
-        residual = np.hypot(miss[:len(x)], miss[len(x):])
-        weight = np.tile(1.0 / np.maximum(residual, 1.0), 2)  # Huber at 1 px
+    try:
+        for _ in range(3):  # the normal equations (6 x 6), columns scaled to one size
+            Aw = A * weight[:, None]
+            norm = np.sqrt(np.einsum("ij,ij->j", Aw, A)) + 1e-12
+            motion = np.linalg.solve((Aw.T @ A) / np.outer(norm, norm),
+                                     (Aw.T @ rhs) / norm) / norm
+            miss = A @ motion - rhs
+            residual = np.hypot(miss[:len(x)], miss[len(x):])
+            weight = np.tile(1.0 / np.maximum(residual, 1.0), 2)  # Huber at 1 px
+    except np.linalg.LinAlgError:  # e.g. every usable pixel on one line
+        return None
     return motion, float(np.median(residual)), len(x)
 
 
@@ -161,23 +174,26 @@ def depth_change(flow: np.ndarray, disparity: np.ndarray, residual: np.ndarray,
                  focal_px: float, baseline_m: float,
                  principal_point: tuple[float, float] | None = None) -> np.ndarray | None:
     """Each pixel's disparity now over the key frame's (H, W) from `ego_motion`: its depth in
-    the key frame is z (1 + ωx y / f − ωy x / f) + Tz, so the ratio is 1 + ωx y / f −
-    ωy x / f + Tz d / (f B). Fitted on the pixels whose flow matches the images (`residual`,
-    the key frame's image carried along the flow against the frame's, under 8 grey levels).
-    None where the fit is unsure: too few pixels, a median residual over
-    FIT_MAX_RESIDUAL_PX, or a change over MAX_SCALE_CHANGE anywhere it reaches."""
+    the key frame is z (1 + ωx y / f − ωy x / f) + Tz, so to first order the ratio is
+    1 + ωx y / f − ωy x / f + Tz d / (f B). Fitted on the pixels whose flow matches the
+    images (`residual`, the key frame's image carried along the flow against the frame's,
+    under FIT_MAX_GREY). None where the fit is unsure: too few pixels, a median residual
+    over FIT_MAX_RESIDUAL_PX, or a change over MAX_SCALE_CHANGE on more than 1 % of the
+    known pixels; elsewhere each pixel's change is clipped to MAX_SCALE_CHANGE."""
     h, w = disparity.shape
     cx, cy = principal_point if principal_point is not None else ((w - 1) / 2, (h - 1) / 2)
-    fitted = ego_motion(flow, disparity, residual < 8, focal_px, baseline_m, (cx, cy))
+    fitted = ego_motion(flow, disparity, residual < FIT_MAX_GREY, focal_px, baseline_m,
+                        (cx, cy))
     if fitted is None or fitted[1] > FIT_MAX_RESIDUAL_PX:
         return None
     (wx, wy, _, _, _, tz), f = fitted[0], float(focal_px)
     x = np.arange(w, dtype=np.float32) - np.float32(cx)
     y = np.arange(h, dtype=np.float32) - np.float32(cy)
     turn = (np.float32(wx / f) * y)[:, None] - (np.float32(wy / f) * x)[None, :]
-    with np.errstate(invalid="ignore"):
-        scale = 1.0 + turn + np.float32(tz / (f * baseline_m)) * np.nan_to_num(disparity)
-        if np.nanmax(np.abs(scale - 1.0)) > MAX_SCALE_CHANGE:
-            return None
-    return scale.astype(np.float32, copy=False)
-
+    known = np.isfinite(disparity) & (disparity > 0)
+    change = turn + np.float32(tz / (f * baseline_m)) * np.where(known, disparity, 0.0)
+    beyond = int(np.count_nonzero(np.abs(change[known]) > MAX_SCALE_CHANGE))
+    if beyond > 0.01 * int(np.count_nonzero(known)):
+        return None
+    np.clip(change, -MAX_SCALE_CHANGE, MAX_SCALE_CHANGE, out=change)
+    return (1.0 + change).astype(np.float32, copy=False)
