@@ -339,3 +339,38 @@ def test_our_own_recording_played_to_the_nodes_default_topics_gives_replays_disp
     want, live = read_disparities(replayed), disparities(got)
     assert sorted(live) == sorted(want)
     assert max(np.abs(image - want[stamp]).max() for stamp, image in live.items()) < 1e-3
+
+
+def test_at_the_camera_rate_the_node_carries_between_scans_as_replay_does(graph, tmp_path):
+    """A moving world with a scan every third frame, played to the node at the camera's rate:
+    key frames on the scans, the frames between carried, the same frames and pixels as
+    `replay --rate camera` of the recording."""
+    from stereo_msgs.msg import DisparityImage
+
+    from edge_depth.calibration.io import save_calibration as save
+    from edge_depth.capture.recording_calibration import recording_calibration
+    from edge_depth.capture.replay import McapSource
+    from edge_depth.cli import main as cli_main
+    from edge_depth.commands import replay_command
+    from edge_depth.runtime.options import EngineOptions
+
+    rec = tmp_path / "forward.mcap"
+    assert cli_main(["synth", "--mcap", str(rec), "--count", "6", "--size", "192x120",
+                     "--motion", "forward", "--fps", "30", "--scan-every", "3"]) == 0
+    calib = tmp_path / "calib.toml"
+    save(calib, *recording_calibration(McapSource(rec))[:2])
+    got = graph.collect("/disparity", DisparityImage)
+    node = start_node(["--calib", str(calib), "--qos", "reliable", "--max-frames", "6",
+                       "--iters", "2", "--queue", "8", "--rate", "camera"])
+    assert graph.play_ours(rec) > 0
+    out = finish(node)
+    assert wait_for(lambda: len(got) == 6, 10.0), out
+    found = re.search(r"Camera rate: (\d+) key frames \(the engine\) on 2 scans, (\d+) carried",
+                      out)
+    assert found, out
+    assert int(found[1]) + int(found[2]) == 6 and int(found[2]) >= 2
+    replayed = tmp_path / "replay.mcap"
+    assert replay_command(rec, replayed, EngineOptions(iters=2, rate="camera")) == 0
+    want, live = read_disparities(replayed), disparities(got)
+    assert sorted(live) == sorted(want)
+    assert max(np.abs(image - want[stamp]).max() for stamp, image in live.items()) < 1e-3
