@@ -1,4 +1,4 @@
-"""Depth at the camera's rate judged on the moving worlds against the issue's bars: the
+"""Depth at the camera's rate judged on the moving worlds against its targets: the
 frames between scans against the key frames (all pixels, and the moving object's own), and
 the temporal instability after the known motion against the engine run on every frame.
 
