@@ -32,6 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
+from edge_depth.sim.motion import KINDS
+
 ROOT = Path(__file__).resolve().parents[1]
 SCENES = 8
 MOVING_FRAMES = 60
@@ -61,7 +63,7 @@ def main() -> int:
     p.add_argument("--warmup", type=float, default=5.0)
     p.add_argument("--avx2", action="store_true")
     p.add_argument("--json", type=Path, default=None)
-    p.add_argument("--motion", choices=("still", "forward", "turn", "mover"), default=None)
+    p.add_argument("--motion", choices=sorted(KINDS), default=None)
     p.add_argument("node_flags", nargs="*")
     args = p.parse_args()
     os.environ["ROS_DOMAIN_ID"] = str(random.randrange(1, 200))
@@ -69,7 +71,7 @@ def main() -> int:
     if args.motion is None:
         samples = [make_sample(1_000_000 + i, RigConfig(), "beams16") for i in range(SCENES)]
     else:  # 0, 1, ..., 59, 58, ..., 1: no scene cut where the loop closes
-        from edge_depth.sim.motion import KINDS, moving_sample
+        from edge_depth.sim.motion import moving_sample
 
         ahead = [moving_sample(1_000_000, i / 30.0, KINDS[args.motion], RigConfig(),
                                "beams16", frame=i) for i in range(MOVING_FRAMES)]

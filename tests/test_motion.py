@@ -256,3 +256,15 @@ def test_the_cameras_motion_fitted_to_the_flow_gives_each_carried_pixels_new_dis
     assert np.abs(carried / now - 1).max() > 0.02  # which the key frame's is not
     chaos = rng.normal(0.0, 5.0, flow.shape).astype(np.float32)
     assert depth_change(chaos, carried, np.zeros((h, w), np.uint8), f, b, (cx, cy)) is None
+
+
+def test_the_motion_kinds_the_config_and_synth_name_are_the_simulators():
+    """The robot config and the CLI spell the kinds out (neither imports the simulator to
+    build its choices); they must be edge.sim.motion's."""
+    from edge_depth.cli import build_parser
+    from edge_depth.config import CHOICES
+
+    assert set(CHOICES[("camera", "sim_motion")]) == {"none", *KINDS}
+    commands = next(a for a in build_parser()._actions if a.choices and "synth" in a.choices)
+    motion = next(a for a in commands.choices["synth"]._actions if a.dest == "motion")
+    assert set(motion.choices) == set(KINDS)
