@@ -49,7 +49,8 @@ bench: $(STAMP)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
 QUANTIZE_FLAGS ?=# e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
 SELECTIONS ?= fit# fit: on data/things_select; carry: the replaced bundle's (stage 16 shipped so)
-ITERS ?= 4# the bundle's default iterations: what it is quantized, fitted and run at
+ITERS ?= 4# the iterations the bundle is quantized and its selections fitted at
+RUN_ITERS ?= 3# the bundle's default iterations, what it runs at (model.json's default_iters)
 bundle: $(STAMP)
 	case "$(SELECTIONS)" in fit|carry) ;; *) echo "SELECTIONS=$(SELECTIONS): fit or carry" >&2; exit 2;; esac
 	test -d data/test16 || $(BIN)/edge-depth synth --out data/test16 --count 20 --seed 1000000 --lidar beams16
@@ -59,7 +60,7 @@ bundle: $(STAMP)
 	  || cp edge/models/default/model.json out/replaced-model.json)
 	rm -rf edge/models/default
 	$(BIN)/python tools/export.py $(CHECKPOINT) --out edge/models/default --size 640x400 \
-	  --iters $(ITERS)
+	  --iters $(RUN_ITERS)
 	$(BIN)/python tools/quantize.py edge/models/default --calib data/calib_mix --eval data/test16 \
 	  --iters $(ITERS) $(QUANTIZE_FLAGS)
 	if [ "$(SELECTIONS)" = carry ]; then \

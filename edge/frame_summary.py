@@ -14,12 +14,12 @@ from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
 from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct",
+NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct", "refined_pct",
                "match_beyond_pct", "match_far_pct", "photometry_change", "lidar_put_back",
                "lidar_dx_px", "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
-              "matched_pct": "Edge matching"}
+              "matched_pct": "Edge matching", "refined_pct": "Band refinement"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:

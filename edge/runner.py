@@ -237,6 +237,8 @@ class Runner:
                                           replaced_shares(window, "edge_replaced_pct")],
                 edge_match_replaced_pct=[round(s, 2) for s in
                                          replaced_shares(window, "matched_pct")],
+                band_refined_pct=[round(s, 2) for s in
+                                  replaced_shares(window, "refined_pct")],
                 edge_match_beyond_pct=[round(s, 2) for s in
                                        replaced_shares(window, "match_beyond_pct")],
                 edge_match_far_pct=[round(s, 2) for s in

@@ -121,9 +121,9 @@ class DepthResult:
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
     ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
     replaced by a side's value (None when it did not run). matched_px: pixels the
-    full-resolution block matching (`edge.runtime.edge_match`) replaced, or with `refine =
-    "band"` those the band refinement changed (its match or the LiDAR's nearest point; None
-    when neither ran);
+    full-resolution block matching (`edge.runtime.edge_match`, `refine = "off"`) replaced
+    (None when it did not run); refined_px: those the band refinement changed (its match or
+    the LiDAR's nearest point; None when it did not run);
     match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off);
     match_far_px: its gated pixels far from every LiDAR point that SGBM matched (0: a map
     dense enough that it did not run; None when off).
@@ -149,6 +149,7 @@ class DepthResult:
     selected_px: int | None = None
     edge_px: int | None = None
     matched_px: int | None = None
+    refined_px: int | None = None
     match_beyond_px: int | None = None
     match_far_px: int | None = None
     counted_px: int | None = None

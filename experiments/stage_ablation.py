@@ -1,9 +1,11 @@
-"""Each stage after the network switched off alone, at the defaults and with `--refine band`:
-what it earns on the published pairs, the rig's test split and round 2's variants of the
-pairs (`band_judge.py`).
+"""Each stage after the network switched off alone, at the defaults (the band refinement and
+its median) and with `--refine off` (the edge matching in the band's place): what it earns on
+the published pairs, the rig's test split and a round's variants of the pairs
+(`band_judge.py`).
 
     python experiments/stage_ablation.py --pairs DIR/aloe DIR/moto --rig DIR/test16 \
-        --variants DIR/aloe_r14 DIR/aloe_r48 DIR/moto_r14 DIR/moto_r48 [--stereo] [--json OUT]
+        --variants DIR/aloe_r14 DIR/aloe_r48 DIR/moto_r14 DIR/moto_r48 [--round 2] \
+        [--stereo] [--json OUT]
 
 `--stereo`: the pairs and the rig with the LiDAR zeroed (the variants left out: without
 LiDAR they are the pairs with the photometric change only). ONNX Runtime, int8. Prints mean
@@ -36,18 +38,21 @@ STAGES = {
     "LiDAR alignment": dict(align_lidar=False),
     "LiDAR selection": dict(lidar_select=False),
     "edge selection": dict(edge_select=False),
-    "edge matching (and its median, SGBM cases)": dict(edge_match=0),
+    "band refinement": dict(refine="off", edge_match=0, edge_median="off"),
     "weighted median": dict(edge_median="off"),
+}
+MATCHING_STAGES = {  # with refine = "off": the engine before the band
+    "edge matching (and its median, SGBM cases)": dict(edge_match=0),
     "SGBM far from the LiDAR / without points": dict(edge_match_far_px=0.0),
 }
-BAND_STAGES = ("photometric match", "LiDAR alignment", "LiDAR selection", "edge selection")
 
 
 def configurations() -> dict[str, dict]:
     configs = {"defaults": {}}
     configs.update({f"defaults − {k}": v for k, v in STAGES.items()})
-    configs["band"] = dict(refine="band")
-    configs.update({f"band − {k}": dict(STAGES[k], refine="band") for k in BAND_STAGES})
+    configs["refine off"] = dict(refine="off")
+    configs.update({f"refine off − {k}": dict(v, refine="off")
+                    for k, v in MATCHING_STAGES.items()})
     return configs
 
 
@@ -60,7 +65,7 @@ def inputs(args) -> dict[str, list]:
     rig = sorted(p for p in args.rig.iterdir() if p.is_dir())
     sets["rig"] = [(s.left, s.right, s.sparse, s.disp)
                    for s in map(read_scene_folder, rig)]
-    seed, kinds = ROUNDS[2]
+    seed, kinds = ROUNDS[args.round]
     sets["variants"] = []
     for folder in args.variants:
         s = read_scene_folder(folder)
@@ -77,6 +82,8 @@ def main() -> None:
     p.add_argument("--pairs", nargs="+", type=Path, required=True)
     p.add_argument("--rig", type=Path, required=True)
     p.add_argument("--variants", nargs="+", type=Path, required=True)
+    p.add_argument("--round", type=int, choices=sorted(ROUNDS), default=2,
+                   help="the variants' kinds (band_judge.py's rounds)")
     p.add_argument("--stereo", action="store_true", help="every set with its LiDAR zeroed")
     p.add_argument("--json", type=Path)
     args = p.parse_args()
@@ -99,11 +106,11 @@ def main() -> None:
     print("| configuration | " + " | ".join(names) + " |")
     print("|---|" + "---|" * len(names))
     for name, row in table.items():
-        base = table["band" if name.startswith("band") else "defaults"]
+        base = table["refine off" if name.startswith("refine off") else "defaults"]
         cells = []
         for n in names:
             epe, bad3 = row[n]
-            if name in ("defaults", "band"):
+            if name in ("defaults", "refine off"):
                 cells.append(f"{epe:.3f} / {bad3:.2f}")
             else:
                 cells.append(f"{epe:.3f} / {bad3:.2f} ({epe / base[n][0] - 1:+.1%}, "

@@ -15,6 +15,7 @@ from edge_depth.guided_sgm import GuidedSgmConfig, aggregate, census_cost
 from edge_depth.runtime import band_sgm
 from edge_depth.runtime.band_sgm import BandSgmConfig, refine
 from edge_depth.runtime.engine import Engine
+from edge_depth.sim import RigConfig, make_sample
 
 from .test_guided_sgm import random_texture, shifted_pair
 
@@ -160,22 +161,41 @@ def test_the_engine_runs_the_band_refinement_in_place_of_the_matching():
     left, right = texture[:, :w].copy(), texture[:, 9:9 + w].copy()
     sparse = np.zeros((h, w), np.float32)
     sparse[::25, ::2] = 9.0
-    plain = Engine(precision="int8", threads=2, edge_match=0, edge_median="off")
-    band = Engine(precision="int8", threads=2, refine="band")
-    assert "band refinement" in band.describe() and band.edge_match is None
+    plain = Engine(precision="int8", threads=2, edge_match=0, refine="off", edge_median="off")
+    band = Engine(precision="int8", threads=2, refine="band", edge_median="off")
+    assert band.describe().endswith("band refinement") and band.edge_match is None
     before = plain.infer(left, right, sparse)
     after = band.infer(left, right, sparse)
-    assert "band_refine" in after.timings_ms
-    assert after.matched_px is not None and after.matched_px > 0
+    assert "band_refine" in after.timings_ms and "edge_median" not in after.timings_ms
+    assert after.refined_px is not None and after.refined_px > 0
     differs = int(np.sum(after.disparity != before.disparity))
-    assert 0 < differs <= after.matched_px
+    assert 0 < differs <= after.refined_px
+
+
+def test_by_default_the_weighted_median_follows_the_band_over_the_unsure_edges():
+    from edge_depth.runtime.edge_match import unsure_edges
+    from edge_depth.runtime.edge_median import EdgeMedian
+
+    sample = make_sample(11, RigConfig(width=640, height=400), "beams16")
+    sparse, valid = sample.sparse_disparity("left")
+    args = (sample.left, sample.right, (sparse * valid).astype(np.float32))
+    default = Engine(precision="int8", threads=2)  # refine "band", the bundle's median 9x9/2
+    assert default.describe().endswith("band refinement, weighted median 9x9/2 (the bundle's)")
+    bare = Engine(precision="int8", threads=2, edge_median="off").infer(*args)
+    got = default.infer(*args)
+    gate = unsure_edges(bare.disparity, bare.confidence)
+    assert gate.mean() > 0.01 and "edge_median" in got.timings_ms
+    expected = EdgeMedian("9x9/2").apply(bare.disparity, sample.left, gate)
+    np.testing.assert_array_equal(got.disparity, expected)
+    assert np.count_nonzero(got.disparity != bare.disparity) > 0
 
 
 def test_the_band_refinement_without_numba_is_one_clear_line(monkeypatch):
     monkeypatch.delitem(sys.modules, "edge_depth.runtime.band_sgm")  # imported again
     monkeypatch.setitem(sys.modules, "numba", None)  # import numba raises ImportError
-    with pytest.raises(ConfigError, match=r"edge-depth\[band\]"):
-        Engine(precision="int8", threads=1, refine="band")
+    with pytest.raises(ConfigError, match=r"refine: expected numba installed .*pip install "
+                       r"numba\), or refine = \"off\""):
+        Engine(precision="int8", threads=1)  # the default
 
 
 def test_only_the_pixels_the_network_is_unsure_of_and_their_neighbours_are_refined():

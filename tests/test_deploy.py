@@ -43,7 +43,8 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
     # the export's fidelity, on the runtime the export check uses (OpenVINO: test_backends)
-    got = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0).infer(
+    got = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+                 refine="off").infer(
         left, right, sparse, iters=4)
     assert got.iterations == 4
     assert float(np.abs(got.disparity - ref).max()) < 0.01
@@ -89,7 +90,7 @@ def test_shipped_int8_bundle_beats_sgbm_on_a_test_scene():
     sample, left, right, sparse = scene_inputs(1_000_003, (640, 400), "beams16")
     engine = Engine(precision="int8", threads=2)
     result = engine.infer(left, right, sparse, focal_px=450.0, baseline_m=0.075)
-    assert result.iterations == meta["default_iters"] == 4
+    assert result.iterations == meta["default_iters"] == 3
     assert {"encoder", "steps", "upsample", "engine"} <= set(result.timings_ms)
     net = disparity_metrics(result.disparity, sample.disp_left)
     sgbm = disparity_metrics(sgbm_disparity(left, right, make_sgbm()), sample.disp_left)
@@ -217,19 +218,22 @@ def test_confidence_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
     torch.save(dict(model=net.state_dict(), config=config.to_dict(), step=1), path)
     meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
     assert meta["export_check"]["max_abs_px"] < 0.01
-    declared = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime")
+    declared = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
+                      refine="off")  # the matching, as the engine before the band ran it
     assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
                               "edge_median": "9x9/2"}
     assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
     assert declared.describe().endswith("edge matching auto on every 2nd row, weighted "
                                         "median 9x9/2 (the bundle's)")
+    band = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime")
+    assert band.describe().endswith("band refinement, weighted median 9x9/2 (the bundle's)")
     _, left, right, sparse = scene_inputs(77)
     t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
     engine = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
-                    edge_match=0)
+                    edge_match=0, refine="off")
     assert engine.has_confidence and engine.describe().endswith("edge matching off")
     result = engine.infer(left, right, sparse, iters=2)
     np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)
@@ -306,8 +310,9 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
     plain = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", lidar_select=False,
-                   edge_match=0)  # the selection alone: the bundle's matching would follow it
-    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
+                   edge_match=0, refine="off")  # the selection alone: nothing after it
+    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+                    refine="off")
     assert plain.select is None and chosen.select is not None
     before = plain.infer(left, right, sparse, iters=2)
     after = chosen.infer(left, right, sparse, iters=2)
@@ -351,8 +356,9 @@ def test_engine_runs_the_edge_selection_only_on_frames_without_lidar(small_bundl
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
     plain = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_select=False,
-                   edge_match=0)  # the selection alone: the bundle's matching would follow it
-    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0)
+                   edge_match=0, refine="off")  # the selection alone: nothing after it
+    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+                    refine="off")
     assert plain.edge_select is None and chosen.edge_select is not None
     stereo = np.zeros_like(sparse)
     before, after = plain.infer(left, right, stereo, iters=2), chosen.infer(left, right, stereo,

@@ -187,20 +187,22 @@ def test_the_engine_refuses_a_count_as_wide_as_its_input():
     from edge_depth.runtime.engine import Engine
 
     with pytest.raises(ConfigError, match="below the bundle's input width"):
-        Engine(precision="int8", threads=1, edge_match=640)
+        Engine(refine="off", precision="int8", threads=1, edge_match=640)
 
 
-def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(engine):
+def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says():
     from edge_depth.runtime.engine import Engine
+
+    engine = Engine(refine="off", precision="int8", threads=2)  # the engine before the band
 
     left, right, gt, _, _ = thin_bar_pair()
     big = lambda im: cv2.resize(im, (640, 400), interpolation=cv2.INTER_NEAREST)  # noqa: E731
     sparse = np.zeros((400, 640), np.float32)
     sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0                     # disparities double too
-    plain = Engine(precision="int8", threads=2, edge_match=0).infer(big(left), big(right),
-                                                                    sparse)
+    plain = Engine(precision="int8", threads=2, edge_match=0,
+                   refine="off").infer(big(left), big(right), sparse)
     assert plain.matched_px is None and "edge_match" not in plain.timings_ms
-    # the shipped bundle (stage 17) declares "auto" on every other row: the default engine
+    # the shipped bundle (stage 17) declares "auto" on every other row
     shipped = engine.infer(big(left), big(right), sparse)
     assert engine.edge_match.num_disparities == 0 and engine.edge_match.row_step == 2
     assert engine.describe().endswith("edge matching auto on every 2nd row, weighted median "
@@ -212,7 +214,8 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     np.testing.assert_array_equal(shipped.disparity, expected)
     assert shipped.matched_px == replaced > 0 and shipped.timings_ms["edge_match"] > 0
     # each setting left out is the bundle's: every row asked for here
-    matched = Engine(precision="int8", threads=2, edge_match=128, edge_match_rows=1).infer(
+    matched = Engine(refine="off", precision="int8", threads=2, edge_match=128,
+                     edge_match_rows=1).infer(
         big(left), big(right), sparse)
     assert matched.matched_px is not None and matched.matched_px > 0
     assert matched.timings_ms["edge_match"] > 0
@@ -223,7 +226,8 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     assert matched.matched_px == count
     assert plain.match_beyond_px is None and matched.match_beyond_px == 0   # up to ~60 px
     # "auto": the count from the engine's own disparity (~60 px here: 80), after the graphs
-    auto = Engine(precision="int8", threads=2, edge_match="auto", edge_match_rows=1).infer(
+    auto = Engine(refine="off", precision="int8", threads=2, edge_match="auto",
+                  edge_match_rows=1).infer(
         big(left), big(right), sparse)
     count = disparities_for(plain.disparity, 640)
     assert count == 16 * int(np.ceil((plain.disparity.max() + 8) / 16))
@@ -232,7 +236,8 @@ def test_engine_runs_it_after_the_selections_as_the_bundle_or_the_caller_says(en
     np.testing.assert_array_equal(auto.disparity, expected)
     assert auto.matched_px == replaced and auto.match_beyond_px == 0
     # a count below the scene's disparities is counted, not silent
-    short = Engine(precision="int8", threads=2, edge_match=16, edge_match_rows=1).infer(
+    short = Engine(refine="off", precision="int8", threads=2, edge_match=16,
+                   edge_match_rows=1).infer(
         big(left), big(right), sparse)
     assert short.match_beyond_px == EdgeMatch(16).beyond_px(plain.disparity) > 0
 
@@ -248,7 +253,8 @@ def test_auto_started_before_the_last_step_gives_the_late_starts_output(monkeypa
     left, right = big(left), big(right)
     sparse = np.zeros((400, 640), np.float32)
     sparse[::50, ::2] = big(gt)[::50, ::2] * 2.0
-    late, early = (Engine(precision="int8", threads=1, edge_match_rows=1) for _ in range(2))
+    late, early = (Engine(refine="off", precision="int8", threads=1, edge_match_rows=1)
+                   for _ in range(2))
     late.match_schedule.early, early.match_schedule.early = False, True
     for iters in (1, 4):                     # one step: the guess from the encoder's seed
         for points in (sparse, np.zeros_like(sparse)):
@@ -278,9 +284,10 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
     older = {k: v for k, v in meta.items() if k != "engine"}     # stage 16 and before: off
     assert bundle_preset(older) == {"edge_match": 0, "edge_match_rows": 1,
                                              "edge_median": "off"}
-    off = Engine(precision="int8", threads=1, meta=older)
+    off = Engine(refine="off", precision="int8", threads=1, meta=older)
     assert off.edge_match is None and off.describe().endswith("edge matching off (the bundle's)")
-    given = Engine(precision="int8", threads=1, meta=older, edge_match=64)   # the caller's
+    given = Engine(refine="off", precision="int8", threads=1, meta=older,
+                   edge_match=64)   # the caller's
     assert given.edge_match.num_disparities == 64 and given.edge_match.row_step == 1
     assert given.describe().endswith("edge matching 64")
     for engine, text in (({"edge_match": 40}, "engine.edge_match"),
@@ -289,7 +296,7 @@ def test_a_bundle_declares_its_engine_settings_and_a_bad_one_is_one_clear_line()
                          ({"edge_median": "5x5"}, "engine.edge_median"),
                          ("auto", 'model.json\'s "engine" as a table')):
         with pytest.raises(ConfigError, match=text):
-            Engine(precision="int8", threads=1, meta={**meta, "engine": engine})
+            Engine(refine="off", precision="int8", threads=1, meta={**meta, "engine": engine})
 
 
 def test_config_and_evaluate_take_it(tmp_path):
@@ -355,7 +362,10 @@ def test_the_closing_summary_and_diagnostics_count_what_it_replaced():
         "map, or none) in 1 of 2 frames, a median 9.5 % of the frame")
 
 
-def test_a_sparse_map_reports_what_sgbm_matched_far_from_it(engine):
+def test_a_sparse_map_reports_what_sgbm_matched_far_from_it():
+    from edge_depth.runtime.engine import Engine
+
+    engine = Engine(refine="off", precision="int8", threads=2)  # the engine before the band
     left, right, gt, _, _ = thin_bar_pair()
     h, w = engine.size
     left, right, gt = (cv2.resize(a, (w, h), interpolation=cv2.INTER_NEAREST)
@@ -374,31 +384,32 @@ def test_replay_takes_it_so_a_recording_can_be_compared_with_and_without(recordi
     from edge_depth.compare import compare
 
     plain, matched = tmp_path / "plain.mcap", tmp_path / "matched.mcap"
-    assert main(["replay", str(recording), "--out", str(plain), "--iters", "1",
+    assert main(["replay", str(recording), "--out", str(plain), "--iters", "1", "--refine", "off",
                  "--edge-match", "0"]) == 0
     assert "Edge matching" not in capsys.readouterr().out
-    assert main(["replay", str(recording), "--out", str(matched), "--iters", "1",
+    assert main(["replay", str(recording), "--out", str(matched), "--iters", "1", "--refine", "off",
                  "--edge-match", "64"]) == 0
     text = capsys.readouterr().out
     assert "Edge matching: replaced a median" in text and "edge_match" in text
     result = compare(plain, matched)                 # what a user runs: edge-depth compare
     assert result["frames_compared"] == 3 and 0 < result["beyond_share"] < 0.2
     auto = tmp_path / "auto.mcap"                    # the count from each frame's own disparity
-    assert main(["replay", str(recording), "--out", str(auto), "--iters", "1",
+    assert main(["replay", str(recording), "--out", str(auto), "--iters", "1", "--refine", "off",
                  "--edge-match", "auto", "--edge-match-rows", "1"]) == 0
     assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert compare(matched, auto)["frames_compared"] == 3
     rows = tmp_path / "rows.mcap"                    # every other row: the flag reaches it
-    assert main(["replay", str(recording), "--out", str(rows), "--iters", "1",
+    assert main(["replay", str(recording), "--out", str(rows), "--iters", "1", "--refine", "off",
                  "--edge-match", "auto", "--edge-match-rows", "2"]) == 0
     assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert 0 < compare(auto, rows)["beyond_share"] < 0.2         # not the same frames
-    default = tmp_path / "default.mcap"              # no flag: the shipped bundle's, the same
-    assert main(["replay", str(recording), "--out", str(default), "--iters", "1"]) == 0
+    default = tmp_path / "default.mcap"              # no matching flag: the bundle's
+    assert main(["replay", str(recording), "--out", str(default), "--iters", "1",
+                 "--refine", "off"]) == 0
     assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert compare(rows, default)["beyond_share"] == 0
     sgbm = tmp_path / "sgbm.mcap"                    # the matcher flag reaches the engine
-    assert main(["replay", str(recording), "--out", str(sgbm), "--iters", "1",
+    assert main(["replay", str(recording), "--out", str(sgbm), "--iters", "1", "--refine", "off",
                  "--edge-matcher", "sgbm"]) == 0
     assert "Edge matching: replaced a median" in capsys.readouterr().out
     assert 0 < compare(default, sgbm)["beyond_share"] < 0.2     # only the matcher differs
@@ -436,7 +447,7 @@ def test_every_other_row_matches_half_the_rows_and_stands_for_the_next(tmp_path)
         with pytest.raises(ConfigError, match="edge_match_rows"):
             EdgeMatch(64, row_step=bad)
         with pytest.raises(ConfigError, match="edge_match_rows"):
-            Engine(precision="int8", threads=1, edge_match_rows=bad)
+            Engine(refine="off", precision="int8", threads=1, edge_match_rows=bad)
     path = tmp_path / "c.toml"
     path.write_text('[engine]\nedge_match = "auto"\nedge_match_rows = 2\n')
     assert load_robot_config(path).engine.edge_match_rows == 2
@@ -469,8 +480,9 @@ def test_sgbm_as_the_matcher_fills_what_stereobm_leaves_and_is_switched_on_every
     with pytest.raises(ConfigError, match="edge_matcher"):
         EdgeMatch(64, matcher="census")
     with pytest.raises(ConfigError, match="edge_matcher"):
-        Engine(precision="int8", threads=1, edge_matcher="census")
-    engine = Engine(precision="int8", threads=1, edge_matcher="sgbm")   # the bundle's count
+        Engine(refine="off", precision="int8", threads=1, edge_matcher="census")
+    engine = Engine(refine="off", precision="int8", threads=1,
+                    edge_matcher="sgbm")   # the bundle's count
     assert engine.edge_match.matcher == "sgbm" and engine.edge_match.row_step == 2
     assert engine.describe().endswith("edge matching auto with SGBM on every 2nd row, "
                                       "weighted median 9x9/2 (the bundle's)")

@@ -142,7 +142,7 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
     with pytest.raises(ConfigError, match="positive"):
         EdgeMedian(sigma_grey=0.0)
     with pytest.raises(ConfigError, match="edge_median"):
-        Engine(precision="int8", threads=1, edge_median="5x5")
+        Engine(refine="off", precision="int8", threads=1, edge_median="5x5")
     path = tmp_path / "c.toml"
     path.write_text('[engine]\nedge_median = "5x5"\n')
     with pytest.raises(ConfigError, match="edge_median"):
@@ -172,11 +172,11 @@ def test_the_command_line_and_the_config_offer_exactly_the_patterns():
 def test_the_engine_takes_it_from_the_bundle_or_the_caller():
     from edge_depth.runtime.engine import Engine
 
-    shipped = Engine(precision="int8", threads=1)
+    shipped = Engine(refine="off", precision="int8", threads=1)
     assert shipped.edge_match.median == "9x9/2"
-    off = Engine(precision="int8", threads=1, edge_median="off")
+    off = Engine(refine="off", precision="int8", threads=1, edge_median="off")
     assert off.edge_match.median == "off" and "median" not in off.describe()
-    other = Engine(precision="int8", threads=1, edge_median="9x9/4")
+    other = Engine(refine="off", precision="int8", threads=1, edge_median="9x9/4")
     assert other.describe().endswith("weighted median 9x9/4")
 
 

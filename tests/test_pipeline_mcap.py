@@ -156,7 +156,7 @@ def test_pipeline_logs_diagnostics_and_notifies_systemd(tmp_path, engine, notify
         diags = [json.loads(m.data) for _, c, m in make_reader(f).iter_messages(
             topics=[TOPICS["diagnostics"]])]
     assert [d["frames"] for d in diags] == [1, 2]
-    assert diags[-1]["drops"] == 0 and diags[-1]["iterations"] == [4]
+    assert diags[-1]["drops"] == 0 and diags[-1]["iterations"] == [3]
     assert diags[-1]["latency_ms"]["engine"]["median"] > 0
 
 
@@ -314,8 +314,8 @@ def test_demo_writes_mcap_and_picture_and_compares_with_sgbm(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path), "--frames", "2"]) == 0
     out = capsys.readouterr().out
     assert "network (int8) EPE" in out and "OpenCV SGBM" in out
-    # what runs, said first: the shipped bundle's own matching included
-    assert ("edge matching auto on every 2nd row, weighted median 9x9/2 (the bundle's)"
+    # what runs, said first: the band refinement and the shipped bundle's median included
+    assert ("band refinement, weighted median 9x9/2 (the bundle's), 3 iterations"
             in out.splitlines()[0])
     # and on which CPU, so its milliseconds can be compared with like
     from edge_depth.runtime.backends import cpu_description

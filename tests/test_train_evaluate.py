@@ -120,7 +120,7 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     out, md = tmp_path / "bench.json", tmp_path / "bench.md"
     before = cv2.getNumThreads()
     try:
-        # --iters without the bundle's own count (4): the ratio's column is timed anyway
+        # --iters without the bundle's own count (3): the ratio's column is timed anyway
         assert bench.main(["--scenes", "1", "--repeat", "2", "--iters", "1", "--rss-frames",
                            "1", "--runs", "2", "--runtime", "onnxruntime", "--threads", "1",
                            "--json", str(out), "--markdown", str(md)]) == 0
@@ -129,17 +129,17 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     result = json.loads(out.read_text())
     stages = result["stages"]
     for stage in ("rectify", "project_filter", "sgbm", "log", "frame", "encoder", "step",
-                  "upsample", "engine_int8_4", "edge_match"):
+                  "upsample", "engine_int8_3", "band_refine", "edge_median"):
         assert 0 < stages[stage]["median_ms"] <= stages[stage]["p95_ms"], stage
     assert stages["sgbm"]["runs"] == 2
     assert result["sgbm_ms"] == stages["sgbm"]["median_ms"]
     assert set(result["engine_ms"]) == {"fp32", "int8"}
-    assert set(result["engine_ms"]["int8"]) == {"1", "4"}
+    assert set(result["engine_ms"]["int8"]) == {"1", "3"}
     # each column timed its own precision and iterations: (1 untimed + 1 scene) x 2 blocks x
     # 2 runs (no "1 iteration is faster" here: a timing assertion fails on a busy machine);
     # the two daemon pipelines' warm-ups (the frame's, the calibration watch's) add two int8
-    # calls at 1 iteration per run, the paired ratio one int8 call at 4 per scene, block and run
-    assert calls["fp32", 1] == calls["fp32", 4] == 8 and calls["int8", 4] == 12, calls
+    # calls at 1 iteration per run, the paired ratio one int8 call at 3 per scene, block and run
+    assert calls["fp32", 1] == calls["fp32", 3] == 8 and calls["int8", 3] == 12, calls
     assert calls["int8", 1] == 12, calls
     from edge_depth.calibration_watch import EVERY
 
@@ -151,20 +151,15 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert outside["frames"] == 4 and 0 < outside["ms"] and 0 < outside["share_pct"] < 100
     assert "the daemon's frame outside the engine" in md.read_text()
     assert result["ratios"]["int8_vs_sgbm"] == pytest.approx(
-        result["engine_ms"]["int8"]["4"] / result["sgbm_ms"])
+        result["engine_ms"]["int8"]["3"] / result["sgbm_ms"])
     assert 50 < result["replay_peak_rss_mb"] < 4000
     assert "int8 engine / SGBM" in md.read_text()
-    assert result["ratios"]["edge_match_vs_sgbm"] == pytest.approx(
-        stages["edge_match"]["median_ms"] / result["sgbm_ms"])
-    assert "the engine's edge_match stage / SGBM" in md.read_text()
-    assert result["engine"].endswith("edge matching auto on every 2nd row, weighted median "
-                                     "9x9/2 (the bundle's)")
-    # one thread leaves a core idle (where there are two): "auto" matches before the last step
-    from edge_depth.runtime.engine import usable_cores
-
-    starts = result["match_starts"]
-    assert (starts["early"] > 0) == (usable_cores() > 1) and starts["again"] <= starts["early"]
-    assert ("matching started before its last step" in md.read_text()) == (starts["early"] > 0)
+    assert result["ratios"]["band_refine_vs_sgbm"] == pytest.approx(
+        stages["band_refine"]["median_ms"] / result["sgbm_ms"])
+    assert "edge_match_vs_sgbm" not in result["ratios"]
+    assert "the engine's band_refine stage / SGBM" in md.read_text()
+    assert result["engine"].endswith("band refinement, weighted median 9x9/2 (the bundle's)")
+    assert "match_starts" not in result  # the matching's early start: not run with the band
     # two runs: the median of the per-run ratios, and how busy the machine was in each
     assert len(result["runs"]) == 2 and result["runtime"] == "onnxruntime"
     assert result["threads"] == result["opencv_threads"] == 1   # SGBM with the engine's count
@@ -174,8 +169,8 @@ def test_bench_reports_medians_engine_table_and_ratios(tmp_path, monkeypatch):
     assert share is None or 0.0 <= share <= 1.0
     assert result["runs"][0]["busy"] == (share is not None and share > bench.BUSY_SHARE)
     assert "2 runs: int8 engine / SGBM per run" in md.read_text()
-    assert "the engine's edge_match stage / SGBM per run" in md.read_text()
-    assert all(r["edge_match_vs_sgbm"] > 0 for r in result["runs"])
+    assert "the engine's band_refine stage / SGBM per run" in md.read_text()
+    assert all(r["band_refine_vs_sgbm"] > 0 for r in result["runs"])
     lo, hi = result["ratios"]["int8_vs_sgbm_paired_p10_p90"]
     assert 0 < lo <= result["ratios"]["int8_vs_sgbm_paired"] <= hi
     assert all(r["int8_vs_sgbm_paired"] > 0 for r in result["runs"])

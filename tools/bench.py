@@ -179,17 +179,27 @@ def distorted_rig(rig: RigConfig) -> StereoCalibration:
                              np.eye(3), [-rig.baseline_m, 0, 0], (rig.width, rig.height))
 
 
+# the refinement stages after the network whose time is also given as a ratio to SGBM's
+REFINEMENTS = ("band_refine", "edge_match")
+
+
 class StageClock:
     """The engine's own per-stage timings of the int8 runs at the default iterations (a
     stage with nothing to do in a frame counts 0 ms): the encoder, a step, the upsampling
-    and, where the bundle runs them, the matching (StereoBM beside the choice's preparation,
-    its wall time) and its median."""
+    and the refinement after them: the band refinement and its median (the default) or, with
+    `refine = "off"`, the matching (StereoBM beside the choice's preparation, its wall time)
+    and its median."""
 
     def __init__(self, engines: dict, default_iters: int) -> None:
         self.engines, self.default_iters = engines, default_iters
         self.runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
-        match = engines["int8"].edge_match
-        if match is not None:
+        engine = engines["int8"]
+        match = engine.edge_match
+        if engine.band is not None:
+            self.runs["band_refine"] = []
+            if engine.band_median is not None:
+                self.runs["edge_median"] = []
+        elif match is not None:
             self.runs["edge_match"] = []
             if match.median != "off":
                 self.runs["edge_median"] = []
@@ -219,8 +229,8 @@ def ratios(out: dict, engine_ms: dict, key: str, paired: list[float]) -> dict:
         fp32_vs_sgbm=engine_ms["fp32"][key] / sgbm_ms,
         int8_speedup=engine_ms["fp32"][key] / engine_ms["int8"][key],
         frame_vs_engine=out["frame"]["median_ms"] / engine_ms["int8"][key],
-        **({"edge_match_vs_sgbm": out["edge_match"]["median_ms"] / sgbm_ms}
-           if "edge_match" in out else {}),
+        **{f"{stage}_vs_sgbm": out[stage]["median_ms"] / sgbm_ms for stage in REFINEMENTS
+           if stage in out},
         int8_vs_sgbm_paired=float(np.median(paired)),
         int8_vs_sgbm_paired_p10_p90=[float(np.percentile(paired, 10)),
                                      float(np.percentile(paired, 90))])
@@ -419,7 +429,7 @@ def run_line(summary: dict) -> dict:
     r = summary["ratios"]
     return dict(int8_vs_sgbm=r["int8_vs_sgbm"], sgbm_ms=summary["sgbm_ms"],
                 engine_int8_ms=r["int8_vs_sgbm"] * summary["sgbm_ms"],
-                **{k: r[k] for k in ("edge_match_vs_sgbm",) if k in r},
+                **{k: r[k] for k in (f"{s}_vs_sgbm" for s in REFINEMENTS) if k in r},
                 int8_vs_sgbm_paired=r["int8_vs_sgbm_paired"], **summary["machine"])
 
 

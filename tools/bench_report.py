@@ -65,9 +65,10 @@ def ratio_lines(r: dict) -> list[str]:
         lo, hi = r["int8_vs_sgbm_paired_p10_p90"]
         lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
                      f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
-    if "edge_match_vs_sgbm" in r:
-        lines.append(f"the engine's edge_match stage / SGBM: {r['edge_match_vs_sgbm']:.2f}x "
-                     "(inside the engine rows)")
+    for stage in ("band_refine", "edge_match"):
+        if f"{stage}_vs_sgbm" in r:
+            lines.append(f"the engine's {stage} stage / SGBM: {r[f'{stage}_vs_sgbm']:.2f}x "
+                         "(inside the engine rows)")
     return lines
 
 
@@ -81,6 +82,7 @@ def runs_lines(summary: dict) -> list[str]:
                  f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
                  f"{max(ratios):.2f}x)"]
     for key, label in (("int8_vs_sgbm_paired", "paired"),
+                       ("band_refine_vs_sgbm", "the engine's band_refine stage / SGBM"),
                        ("edge_match_vs_sgbm", "the engine's edge_match stage / SGBM")):
         values = [r[key] for r in runs if key in r]
         if values:

@@ -1,7 +1,7 @@
 """Evaluate disparity methods on scene folders against their ground truth, in one run.
 
     python tools/evaluate.py DATA_DIR [--model CHECKPOINT_OR_BUNDLE] [--precision int8]
-        [--methods net,sgbm,lidar-nearest,lidar-linear] [--no-lidar] [--iters 4] [--json OUT]
+        [--methods net,sgbm,lidar-nearest,lidar-linear] [--no-lidar] [--iters N] [--json OUT]
         [--plot OUT.png] [--picture OUT.jpg]
 
 Methods: net; net-nolidar (the net with its LiDAR input zeroed: stereo only; --no-lidar adds
@@ -105,6 +105,15 @@ class BundleNet:
     def __call__(self, left, right, sparse, iters: int):
         result = self.engine.infer(left, right, sparse, iters=iters)
         return result.disparity, result.confidence
+
+
+def bundle_iters(model: Path) -> int:
+    """The iterations a bundle runs at by default (its model.json's default_iters); 4 for a
+    training checkpoint or a folder without one."""
+    meta = model / "model.json"
+    if not meta.is_file():
+        return 4
+    return int(json.loads(meta.read_text()).get("default_iters", 4))
 
 
 def load_net(model: Path, options: EngineOptions | None = None):
@@ -239,7 +248,8 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--methods", default=",".join(METHODS))
     p.add_argument("--no-lidar", action="store_true",
                    help="also run the net stereo-only (LiDAR input zeroed): net-nolidar")
-    p.add_argument("--iters", default="4", help="GRU iterations, e.g. 4 or 1,2,4,8,16")
+    p.add_argument("--iters", default=None, help="GRU iterations, e.g. 4 or 1,2,4,8,16 "
+                   "(default: a bundle's own, model.json's default_iters; a checkpoint's 4)")
     p.add_argument("--no-select", action="store_true",
                    help="a bundle without its selections (LiDAR and edge), if it has them")
     add_engine_arguments(p, only=ENGINE_FLAGS)  # a bundle's
@@ -254,6 +264,8 @@ def main(argv: list[str] | None = None) -> int:
     unknown = sorted(set(methods) - set(ALL_METHODS))
     if unknown:
         p.error(f"unknown methods {unknown}; choose from {', '.join(ALL_METHODS)}")
+    if args.iters is None:
+        args.iters = str(bundle_iters(args.model))
     try:
         iters_list = [int(v) for v in args.iters.split(",")]
     except ValueError:

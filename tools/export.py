@@ -211,8 +211,9 @@ def check_export(net, bundle: Path, meta: dict, size: tuple[int, int]) -> dict:
     check = {}
     for at, scale in ((size, "fit"), (other, "native")):
         inputs = reference_inputs(at)
+        # the graphs against torch: the network alone
         engine = Engine(bundle, precision="fp32", threads=2, meta=meta, runtime="onnxruntime",
-                        edge_match=0, scale=scale)  # the graphs against torch: the network
+                        edge_match=0, refine="off", scale=scale)
         got = engine.infer(inputs["left"][0, 0], inputs["right"][0, 0],
                            inputs["sparse"][0, 0], iters=4).disparity
         diff = np.abs(got - torch_disparity(net, inputs))

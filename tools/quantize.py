@@ -53,7 +53,7 @@ def network_engine(bundle, precision: str, threads: int, meta: dict | None = Non
     encoder the bundle has from before, unless asked)."""
     kwargs.setdefault("int8_encoder", "off")
     return Engine(bundle, precision=precision, threads=threads, meta=meta, edge_match=0,
-                  **kwargs)
+                  refine="off", **kwargs)
 
 
 def calibration_frames(spec: str, size: tuple[int, int]):

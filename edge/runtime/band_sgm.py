@@ -54,7 +54,7 @@ class BandSgmConfig:
     """The refinement's constants."""
 
     min_band: int = 4  # half-width of the band (px) where the network is sure
-    max_band: int = 32  # half-width where it is not
+    max_band: int = 48  # half-width where it is not
     p1: int = 10
     p2: int = 120
     k: float = 10.0

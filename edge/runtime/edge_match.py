@@ -197,8 +197,8 @@ class EdgeMatch:
         is unsure at its edges (the gate), its own warp cost, and where the LiDAR's nearest
         point would do for a hole. None when nothing is gated. `terms`: `pair_terms(left,
         right, sparse)` if already computed (the engine's matching thread does)."""
-        gate = (confidence < self.max_confidence) & \
-            (local_range(disparity, self.window_px) > self.min_range_px)
+        gate = unsure_edges(disparity, confidence, self.max_confidence, self.min_range_px,
+                            self.window_px)
         if not gate.any():
             return None
         if terms is None:
@@ -310,6 +310,15 @@ class Prepared:
     point_ok: np.ndarray | None
     far: np.ndarray | None = None
     far_smooth_only: bool = False  # no points: SGBM's match only where it is smooth
+
+
+def unsure_edges(disparity: np.ndarray, confidence: np.ndarray,
+                 max_confidence: float = MAX_CONFIDENCE, min_range_px: float = MIN_RANGE_PX,
+                 window_px: int = WINDOW_PX) -> np.ndarray:
+    """The gate: where the network is unsure (`confidence` under `max_confidence`) at an edge
+    (the disparity's range over `window_px`² above `min_range_px`)."""
+    return (confidence < max_confidence) & \
+        (local_range(disparity, window_px) > min_range_px)
 
 
 def check_matcher(matcher: str) -> None:

@@ -32,8 +32,9 @@ from edge_depth.runtime.edge_match import (
     FAR_PX,
     EdgeMatch,
     Prepared,
+    unsure_edges,
 )
-from edge_depth.runtime.edge_median import OFF
+from edge_depth.runtime.edge_median import OFF, EdgeMedian
 from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
@@ -118,8 +119,11 @@ class Engine:
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
         self.band = load_band_refinement(options)
-        # the band refinement replaces the matching at the edges and its median
+        # the band refinement replaces the matching at the edges; the weighted median follows
+        # either over the network's unsure edges (`_refine`)
         self.edge_match = None if self.band else make_edge_match(resolved, self.width)
+        self.band_median = None if self.band is None or resolved.edge_median == OFF else \
+            EdgeMedian(str(resolved.edge_median))
         # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
         # "auto" starts early only where the graphs leave a core idle
         self.match_schedule = None if self.edge_match is None else MatchSchedule(
@@ -205,8 +209,8 @@ class Engine:
         return self.bf16 and bool(getattr(self.sessions["encoder"], "bf16", False))
 
     def describe(self) -> str:
-        """'int8 on openvino (bf16 encoder), edge matching auto on every 2nd row, weighted
-        median 9x9/2 (the bundle's)': what runs, for the first log line (defaults that go
+        """'int8 on openvino (bf16 encoder), band refinement, weighted median 9x9/2 (the
+        bundle's)': what runs, for the first log line (defaults that go
         without saying: the "budget" scale, SGBM FAR_PX from the LiDAR on sparse maps)."""
         text = f"{self.precision} on {self.runtime}" + \
             (" (bf16 encoder)" if self.bf16_encoder else "") + \
@@ -216,7 +220,9 @@ class Engine:
         m = self.edge_match
         source = " (the bundle's)" if self.edge_match_source == "bundle" else ""
         if self.band is not None:
-            return text + ", band refinement"
+            median = "" if self.band_median is None else \
+                f", weighted median {self.band_median.pattern}{source}"
+            return text + f", band refinement{median}"
         if m is None:
             return text + f", edge matching off{source}"
         count = m.num_disparities or AUTO
@@ -431,16 +437,22 @@ class Engine:
                 confidence: np.ndarray | None) -> np.ndarray:
         """The band refinement (`edge.runtime.band_sgm`), where asked for (without the
         bundle's confidence every band is its widest); its changed pixels are the frame's
-        matched ones. Its threads are set on every call: numba keeps them per calling thread
-        (the pipelined daemon and the ROS 2 node infer on threads of their own)."""
+        matched ones. Then the weighted median over the network's unsure edges, as after the
+        matching (the matching's gate on the refined disparity). The band's threads are set
+        on every call: numba keeps them per calling thread (the pipelined daemon and the ROS 2
+        node infer on threads of their own)."""
         if self.band is None:
             return disp
         left, right = self._stage_pair()
         t = time.perf_counter()
         self.band.use_threads(self.options.threads)
-        disp, frame.counts["matched_px"] = self.band.refine(
+        disp, frame.counts["refined_px"] = self.band.refine(
             left, right, disp, confidence, self._inputs["sparse"][0, 0])
         frame.stage("band_refine", t)
+        if self.band_median is not None and confidence is not None:
+            t = time.perf_counter()
+            disp = self.band_median.apply(disp, left, unsure_edges(disp, confidence))
+            frame.stage("edge_median", t)
         return disp
 
     def _median(self, frame: _Frame, prepared: Prepared | None,
@@ -463,7 +475,7 @@ class _Frame:
     record: dict[str, list] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
-        selected_px=None, edge_px=None, matched_px=None, match_beyond_px=None,
+        selected_px=None, edge_px=None, matched_px=None, refined_px=None, match_beyond_px=None,
         match_far_px=None, counted_px=None))
     steps: int = 0
     photometry_change: float | None = None  # grey levels the match moves the right image by
@@ -507,8 +519,8 @@ def load_band_refinement(options: EngineOptions):
     try:
         band_sgm = importlib.import_module("edge_depth.runtime.band_sgm")
     except ImportError as exc:
-        raise ConfigError("refine", "numba installed for \"band\" (pip install "
-                          "'edge-depth[band]')", f"band without it ({exc})") from None
+        raise ConfigError("refine", "numba installed for \"band\", the default (pip install "
+                          "numba), or refine = \"off\"", f"band without it ({exc})") from None
     return band_sgm
 
 

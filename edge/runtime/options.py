@@ -84,13 +84,12 @@ class EngineOptions:
                         "key frames (a fresh scan, or where the optical flow is lost) and, on "
                         "the frames between, the key frame's depth carried along the flow "
                         "(~5 ms a frame; edge.runtime.propagate)", choices=("lidar", "camera"))
-    refine: str = _option("off", "band (an experiment): the network's estimate refined by "
-                          "semi-global matching in a band around it as wide as its "
-                          "confidence says, the LiDAR and the network guiding the cost, in "
-                          "place of the edge matching and its median; more accurate on the "
-                          "real pairs with a sparse LiDAR, less with a dense one, worse on "
-                          "the synthetic rig, 1.2x the engine's time (docs/results.md); needs "
-                          "numba: pip install 'edge-depth[band]'", choices=("off", "band"))
+    refine: str = _option("band", "band: the network's estimate refined by semi-global "
+                          "matching in a band around it as wide as its confidence says, the "
+                          "LiDAR and the network guiding the cost, then the weighted median "
+                          "over its unsure edges (edge.runtime.band_sgm); off: the "
+                          "full-resolution edge matching and its median instead, the "
+                          "engine before the band (docs/results.md)", choices=("off", "band"))
     edge_match: int | str = _option(BUNDLE, 'the full-resolution matching at the network\'s '
                                     'uncertain edges: "auto" (StereoBM\'s disparity count per '
                                     'frame from the network\'s own), N (a multiple of 16), 0 = '
