@@ -44,7 +44,7 @@ bench: $(STAMP)
 
 # rebuild the shipped bundle from the shipped checkpoint (export, then int8 quantization
 # calibrated on 8 rig + 8 things frames from training seeds, evaluated on the test split,
-# then the LiDAR and edge selections fitted on 260 things pairs no shipped stage trained on,
+# then the LiDAR selection fitted on 260 things pairs no shipped stage trained on,
 # or with SELECTIONS=carry kept from the bundle it replaces)
 CHECKPOINT ?= edge/models/sparse_stereo.pt
 QUANTIZE_FLAGS ?=# e.g. --min-gain -1 on a host without VNNI, where int8 is never faster
@@ -68,8 +68,7 @@ bundle: $(STAMP)
 	else \
 	  (test -d data/things_select || $(BIN)/edge-depth synth --world things \
 	    --out data/things_select --count 260 --seed 400000 --workers 2) \
-	  && $(BIN)/python tools/fit_select.py edge/models/default --data data/things_select \
-	  && $(BIN)/python tools/fit_edge_select.py edge/models/default --data data/things_select; \
+	  && $(BIN)/python tools/fit_select.py edge/models/default --data data/things_select; \
 	fi
 
 clean:

@@ -62,7 +62,7 @@ from typing import Any
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.options import BUNDLE, ROW_STEPS, SCALE_WORDS, EngineOptions
+from edge_depth.runtime.options import BUNDLE, REMOVED, ROW_STEPS, SCALE_WORDS, EngineOptions
 from edge_depth.topics import RESULT_TOPICS
 
 _log = logging.getLogger(__name__)
@@ -319,6 +319,9 @@ def load_robot_config(path: str | Path) -> RobotConfig:
         defaults = cls()
         values = {}
         for key, value in table.items():
+            if name == "engine" and key in REMOVED:
+                raise ConfigError(f"{name}.{key}", f"an option the engine has ({REMOVED[key]})",
+                                  "one it no longer has", path)
             if key not in {f.name for f in fields(cls)}:
                 raise ConfigError(f"{name}.{key}", f"one of {[f.name for f in fields(cls)]}",
                                   "unknown key", path)

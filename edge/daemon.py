@@ -387,8 +387,6 @@ class Pipeline:
         timings["end_to_end"] = timings["frame"] + p.timings["sync_wait"] + \
             timings.get("capture_queue", 0.0)
         timings.update(_shares(result))
-        if result.photometry_change is not None:  # [engine] match_photometry
-            timings["photometry_change"] = result.photometry_change
         if result.lidar_noise_px is not None:  # [engine] align_lidar, denoise_lidar
             timings["lidar_noise_px"] = result.lidar_noise_px
             timings["lidar_smoothed"] = float(self.engine is not None and
@@ -465,7 +463,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 
 # the stages' pixel counts (DepthResult) -> the share of the frame each is, % (frame_summary)
-SHARES = {"selected_px": "replaced_pct", "edge_px": "edge_replaced_pct",
+SHARES = {"selected_px": "replaced_pct",
           "matched_px": "matched_pct", "refined_px": "refined_pct",
           "match_beyond_px": "match_beyond_pct",
           "match_far_px": "match_far_pct"}

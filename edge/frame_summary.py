@@ -11,23 +11,21 @@ import numpy as np
 from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
-from edge_depth.runtime.photometry import THRESHOLD as PHOTOMETRY_THRESHOLD
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "edge_replaced_pct", "matched_pct", "refined_pct",
-               "match_beyond_pct", "match_far_pct", "photometry_change", "lidar_put_back",
+NOT_LATENCY = ("iterations", "replaced_pct", "matched_pct", "refined_pct",
+               "match_beyond_pct", "match_far_pct", "lidar_put_back",
                "lidar_dx_px", "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
-SELECTIONS = {"replaced_pct": "LiDAR selection", "edge_replaced_pct": "Edge selection (no LiDAR)",
-              "matched_pct": "Edge matching", "refined_pct": "Band refinement"}
+SELECTIONS = {"replaced_pct": "LiDAR selection", "matched_pct": "Edge matching",
+              "refined_pct": "Band refinement"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
     the frame's pixels the stage replaced; default the LiDAR selection's) or
     "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
-    "photometry_change" (grey levels), "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was
-    put back)."""
+    "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was put back)."""
     return [t[key] for t in timings if key in t]
 
 
@@ -68,12 +66,6 @@ def selection_summary(timings: list[dict]) -> str | None:
                      f"(a sparse map, or none) in {len(sparse)} of {len(far)} frames, a median "
                      f"{np.median(sparse):.1f} % of the frame (it costs SGBM's time over their "
                      "rows; [engine] edge_match_far_px = 0 turns it off)")
-    changes = replaced_shares(timings, "photometry_change")
-    if matched := sum(1 for d in changes if d > PHOTOMETRY_THRESHOLD):  # none: nothing to say
-        lines.append(f"Photometry: the right image matched to the left's grey levels in "
-                     f"{matched} of {len(changes)} frames (the match would move them by a "
-                     f"median {np.median(changes):.1f} levels; made above "
-                     f"{PHOTOMETRY_THRESHOLD:g})")
     if line := noise_line(timings):
         lines.append(line)
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):

@@ -233,8 +233,6 @@ class Runner:
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window],
                 lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)],
-                edge_select_replaced_pct=[round(s, 2) for s in
-                                          replaced_shares(window, "edge_replaced_pct")],
                 edge_match_replaced_pct=[round(s, 2) for s in
                                          replaced_shares(window, "matched_pct")],
                 band_refined_pct=[round(s, 2) for s in
@@ -243,8 +241,6 @@ class Runner:
                                        replaced_shares(window, "match_beyond_pct")],
                 edge_match_far_pct=[round(s, 2) for s in
                                     replaced_shares(window, "match_far_pct")],
-                photometry_change=[round(s, 1) for s in
-                                   replaced_shares(window, "photometry_change")],
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
                 lidar_noise_px=[round(s, 2) for s in replaced_shares(window, "lidar_noise_px")],
                 output_health=pipeline.health.diagnostics(),

@@ -119,8 +119,7 @@ class DepthResult:
     timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
-    ran no selection). edge_px: pixels the edge selection (frames without LiDAR points)
-    replaced by a side's value (None when it did not run). matched_px: pixels the
+    ran no selection). matched_px: pixels the
     full-resolution block matching (`edge.runtime.edge_match`, `refine = "off"`) replaced
     (None when it did not run); refined_px: those the band refinement changed (its match or
     the LiDAR's nearest point; None when it did not run);
@@ -129,9 +128,6 @@ class DepthResult:
     dense enough that it did not run; None when off).
     counted_px: the pixels of the grid those counts were taken on (the engine's, scaled and
     padded; None: the disparity's own), so that a share is count / counted_px.
-    photometry_change: the grey levels the photometric match moves the right image by, on
-    average (`edge.runtime.photometry`; above its threshold the match was made), None when not
-    measured.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
     it (`edge.runtime.lidar_align.Offset`; put back where `.moves`), None when not looked for.
     lidar_noise_px: the LiDAR map's range noise, px (`edge.runtime.lidar_rows.noise_level`,
@@ -147,13 +143,11 @@ class DepthResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     confidence: np.ndarray | None = None
     selected_px: int | None = None
-    edge_px: int | None = None
     matched_px: int | None = None
     refined_px: int | None = None
     match_beyond_px: int | None = None
     match_far_px: int | None = None
     counted_px: int | None = None
-    photometry_change: float | None = None
     lidar_offset: Any = None
     lidar_noise_px: float | None = None
 

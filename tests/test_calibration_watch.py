@@ -218,11 +218,13 @@ def test_replay_says_it_in_one_line_and_on_diagnostics(small_recording, tmp_path
         diagnostics = [json.loads(m.data) for _, _, m in
                        make_reader(f).iter_messages(topics=["/diagnostics"])]
     assert diagnostics[-1]["calibration_watch"]["level"] == SETTLING
-    # the engine's two checks, per frame: how far the photometric match would move the right
-    # image (grey levels), whether the LiDAR map was put back (0: the sim's never is) and the
-    # map's range noise (the sim's points are exact: below the 0.3 px the summary speaks at)
+    # the engine's check of the LiDAR map, per frame: whether it was put back (0: the sim's
+    # never is) and its range noise (the sim's points are exact: below the 0.3 px the summary
+    # speaks at); and the band refinement's share of each frame
     frames = sum(len(d["iterations"]) for d in diagnostics)
-    assert sum(len(d["photometry_change"]) for d in diagnostics) == frames > 0
+    assert sum(len(d["band_refined_pct"]) for d in diagnostics) == frames > 0
+    assert all(0 < v < 100 for d in diagnostics for v in d["band_refined_pct"])
+    assert "photometry_change" not in diagnostics[-1]
     assert all(v == 0 for d in diagnostics for v in d["lidar_put_back"])
     noise = [v for d in diagnostics for v in d["lidar_noise_px"]]
     assert len(noise) == frames and all(0 <= v < 0.3 for v in noise), noise

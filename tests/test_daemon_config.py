@@ -153,6 +153,15 @@ def test_a_planar_sim_lidar_makes_a_sparse_map_the_matching_says_it_served(tmp_p
     assert far and int(far[1]) >= 1 and float(far[2]) >= 5.0
 
 
+@pytest.mark.parametrize("key", ["match_photometry", "edge_select"])
+def test_an_engine_option_the_band_made_redundant_is_refused_saying_why(tmp_path, key):
+    cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap") + f"[engine]\n{key} = true\n")
+    with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected an option the "
+                                          r"engine has \(.*band refinement.*delete the key\), "
+                                          r"got 'one it no longer has'"):
+        load_robot_config(cfg)
+
+
 def test_record_then_replay(tmp_path, capsys):
     rec = tmp_path / "rec.mcap"
     cfg = write(tmp_path, SIM.format(out=tmp_path / "unused.mcap"))
@@ -462,22 +471,22 @@ def test_the_transform_tree_hangs_under_the_configured_parent(tmp_path, profile)
 def test_the_two_selections_are_summed_up_each_over_its_own_frames():
     from edge_depth.frame_summary import replaced_shares, selection_summary, summarise
 
-    # frames with LiDAR run the LiDAR selection, frames without it the edge selection
-    timings = [dict(engine=50.0, select=10.0, replaced_pct=2.0),
-               dict(engine=40.0, edge_select=6.0, edge_replaced_pct=5.0),
-               dict(engine=60.0, select=12.0, replaced_pct=0.0),
-               dict(engine=45.0, edge_select=8.0, edge_replaced_pct=7.0)]
+    # frames with LiDAR run the LiDAR selection; the band refinement runs on every frame
+    timings = [dict(engine=50.0, select=10.0, replaced_pct=2.0, refined_pct=5.0),
+               dict(engine=40.0, band_refine=6.0, refined_pct=7.0),
+               dict(engine=60.0, select=12.0, replaced_pct=0.0, refined_pct=9.0),
+               dict(engine=45.0, band_refine=8.0)]
     lat = summarise(timings)
-    assert set(lat) == {"engine", "select", "edge_select"}  # the shares are not latencies
-    assert lat["select"]["median"] == 11.0 and lat["edge_select"]["median"] == 7.0
+    assert set(lat) == {"engine", "select", "band_refine"}  # the shares are not latencies
+    assert lat["select"]["median"] == 11.0 and lat["band_refine"]["median"] == 7.0
     assert lat["engine"]["median"] == 47.5
     assert replaced_shares(timings) == [2.0, 0.0]
-    assert replaced_shares(timings, "edge_replaced_pct") == [5.0, 7.0]
+    assert replaced_shares(timings, "refined_pct") == [5.0, 7.0, 9.0]
     assert selection_summary(timings).splitlines() == [
         "LiDAR selection: replaced a median 1.0 % of each frame's pixels (p95 1.9 %; none in 1 "
         "of 2 frames)",
-        "Edge selection (no LiDAR): replaced a median 6.0 % of each frame's pixels (p95 6.9 %; "
-        "none in 0 of 2 frames)"]
+        "Band refinement: replaced a median 7.0 % of each frame's pixels (p95 8.8 %; none in 0 "
+        "of 3 frames)"]
     assert selection_summary([dict(engine=1.0)]) is None
 
 

@@ -73,8 +73,8 @@ def test_a_stage_share_is_of_the_grid_it_was_counted_on_and_never_over_100_perce
                          counted_px=64 * 64)
     shares = _shares(result)
     assert shares == {"replaced_pct": pytest.approx(100 * 1000 / 4096), "matched_pct": 100.0}
-    assert _shares(DepthResult(1, small, small, small > 0, 4, edge_px=64)) == {
-        "edge_replaced_pct": 25.0}  # no grid given: the disparity's own
+    assert _shares(DepthResult(1, small, small, small > 0, 4, refined_px=64)) == {
+        "refined_pct": 25.0}  # no grid given: the disparity's own
 
 
 def test_the_runs_metrics_are_running_means_that_do_not_grow_with_the_frames():

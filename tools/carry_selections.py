@@ -1,4 +1,4 @@
-"""Carry the LiDAR and edge selections of one bundle's model.json into another bundle.
+"""Carry the LiDAR selection of one bundle's model.json into another bundle.
 
     python tools/carry_selections.py FROM_MODEL_JSON_OR_BUNDLE BUNDLE_DIR
 
@@ -18,7 +18,7 @@ from pathlib import Path
 
 from edge_depth.tools.fit_select import store
 
-KEYS = ("lidar_select", "edge_select")
+KEYS = ("lidar_select",)  # an older bundle's "edge_select": no stage of the engine now
 
 
 def carry(source: Path, bundle: Path) -> list[str]:

@@ -58,7 +58,6 @@ from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 # the engine settings a bundle is evaluated with (the others: EngineOptions' defaults)
 ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_match",
                 "edge_match_rows", "edge_matcher", "edge_match_far_px", "edge_median",
-                "match_photometry",
                 "align_lidar", "denoise_lidar", "refine")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
@@ -251,7 +250,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--iters", default=None, help="GRU iterations, e.g. 4 or 1,2,4,8,16 "
                    "(default: a bundle's own, model.json's default_iters; a checkpoint's 4)")
     p.add_argument("--no-select", action="store_true",
-                   help="a bundle without its selections (LiDAR and edge), if it has them")
+                   help="a bundle without its LiDAR selection, if it has one")
     add_engine_arguments(p, only=ENGINE_FLAGS)  # a bundle's
     p.add_argument("--json", type=Path, default=None)
     p.add_argument("--plot", type=Path, default=None, help="EPE-vs-iterations PNG")
@@ -279,8 +278,7 @@ def main(argv: list[str] | None = None) -> int:
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")
-    options = options_from_args(args, only=ENGINE_FLAGS, lidar_select=not args.no_select,
-                                edge_select=not args.no_select)
+    options = options_from_args(args, only=ENGINE_FLAGS, lidar_select=not args.no_select)
     first: dict | None = {} if args.picture else None
     summary = evaluate(folders, methods, iters_list, args.model, options, first)
     print(markdown_table(summary))

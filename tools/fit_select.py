@@ -42,7 +42,6 @@ import numpy as np
 
 from edge_depth.model.data import TRAIN_SEED_LIMIT, sample_to_arrays
 from edge_depth.runtime.cells import CELL_PX, cell_pixels
-from edge_depth.runtime.edge_select import SIDE_CELLS
 from edge_depth.runtime.engine import Engine
 from edge_depth.runtime.lidar_select import LidarSelect, available, selection_features
 from edge_depth.sim import RigConfig, make_sample
@@ -217,7 +216,7 @@ def fit(rows: list[dict], hidden: int, steps: int, seed: int,
 
 
 def replaced_cells(rows: list[dict], select) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Over the cells the choice replaces (`select.choose`: LidarSelect's or EdgeSelect's):
+    """Over the cells the choice replaces (`select.choose`: LidarSelect's):
     (margins: the chosen logit over the network's, known pixels, of those within 1 px)."""
     margins, pixels, within1 = [], [], []
     for r in rows:
@@ -250,7 +249,7 @@ def logistic_share(z: np.ndarray, n: np.ndarray, k: np.ndarray) -> tuple[float, 
 
 def score(rows: list[dict], select) -> tuple[float, float]:
     """Mean EPE and bad-3 % over the frames' known pixels, with or without the choice
-    (`select.choose`: LidarSelect's or EdgeSelect's; None: the network's values)."""
+    (`select.choose`: LidarSelect's; None: the network's values)."""
     epe, bad3 = [], []
     for r in rows:
         err_sum, bad = r["err_sum"], float(r["bad3_sum"])
@@ -290,8 +289,7 @@ def store(bundle: Path, key: str, entry: dict) -> None:
 
 
 def add_fit_arguments(p: argparse.ArgumentParser) -> None:
-    """The arguments this tool and `tools/fit_edge_select.py` share: the bundle, the frames,
-    the fit and the confidence gate."""
+    """The arguments of this tool: the bundle, the frames, the fit and the confidence gate."""
     p.add_argument("bundle", type=Path)
     p.add_argument("--data", type=Path, required=True,
                    help="things samples the network never trained on")
@@ -318,7 +316,7 @@ def fitting_engine(args: argparse.Namespace) -> Engine:
     if args.frames < 5 or not 0 < args.holdout < 1:
         raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
     engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
-                    lidar_select=False, edge_select=False, edge_match=0, refine="off")
+                    lidar_select=False, edge_match=0, refine="off")
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     return engine
@@ -354,8 +352,8 @@ def main(argv: list[str] | None = None) -> int:
                    help="px: the LiDAR point is a candidate where it differs from the "
                         "network's value by at most this (0 = any)")
     p.add_argument("--side-cells", type=int, default=0,
-                   help=f"the network's near / far sides (max / min over this many cells "
-                        f"square, odd; {SIDE_CELLS} when tried) are candidates too: more "
+                   help="the network's near / far sides (max / min over this many cells "
+                        "square, odd; 3 when tried) are candidates too: more "
                         "accurate, 1.65× the cost (not shipped); 0: the LiDAR point only")
     p.add_argument("--blend", type=float, default=1.0,
                    help="a pixel's error above 16 px counts at this share of its excess in "

@@ -2,7 +2,7 @@
 (cell means, the LiDAR per cell, a cell's pixels), the photometric error of a candidate map
 (whole or at given cells), the network's own two sides of an edge (packed max / min keys), the
 scorer's feature matrix, buffers reused from frame to frame and the two-layer scorer itself.
-`edge.runtime.lidar_select` and `edge.runtime.edge_select` are built from these.
+`edge.runtime.lidar_select` is built from these.
 
 Pure numpy + OpenCV (robot side, no torch).
 """

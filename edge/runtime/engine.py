@@ -35,7 +35,6 @@ from edge_depth.runtime.edge_match import (
     unsure_edges,
 )
 from edge_depth.runtime.edge_median import OFF, EdgeMedian
-from edge_depth.runtime.edge_select import EdgeSelect
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
 from edge_depth.runtime.lidar_align import LidarAlign, Offset
@@ -43,7 +42,6 @@ from edge_depth.runtime.lidar_denoise import LidarDenoise
 from edge_depth.runtime.lidar_select import LidarSelect
 from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
-from edge_depth.runtime.photometry import Levels, PhotometricMatch
 from edge_depth.types import DepthResult
 from edge_depth.workers import one_openblas_thread
 
@@ -106,14 +104,9 @@ class Engine:
         self.sessions = self.graphs.sessions
         self.has_confidence = self.graphs.has_confidence
         self._inputs: dict[str, np.ndarray] = {}
-        self._matched_right = np.zeros((0, 0), np.float32)
-        self._stage_right = self._matched_right  # what `_stage_pair` gives, set per frame
         self._buffers((self.width, self.height))
         self.select = LidarSelect.from_meta(self.meta["lidar_select"]) \
             if options.lidar_select and "lidar_select" in self.meta else None
-        self.edge_select = EdgeSelect.from_meta(self.meta["edge_select"]) \
-            if options.edge_select and "edge_select" in self.meta else None
-        self.photometry = PhotometricMatch() if options.match_photometry else None
         self.lidar_denoise = LidarDenoise() if options.denoise_lidar else None
         self.lidar_align = LidarAlign() if options.align_lidar else None
         self.edge_match_source = "bundle" if options.from_bundle() else "given"
@@ -171,27 +164,11 @@ class Engine:
             shape = (1, 1, size[1], size[0])
             self._inputs = {k: np.zeros(shape, np.float32)
                             for k in ("left", "right", "sparse", "valid")}
-            self._matched_right = np.zeros(shape[2:], np.float32)
         return self._inputs
 
     def _stage_pair(self) -> tuple[np.ndarray, np.ndarray]:
         """The (left, right) pair the stages after the network read, at the graphs' size."""
-        return self._inputs["left"][0, 0], self._stage_right
-
-    def _matched_for_stages(self, levels: Levels | None, plan: FitPlan) -> np.ndarray:
-        """The right image the stages after the network read: the graphs' (as given, or
-        matched above the photometric match's threshold), or — where the cameras disagree
-        beyond `stages_threshold` but not that far — matched for the stages alone (they
-        compare grey levels across the cameras directly: `edge.runtime.photometry`)."""
-        network_right = self._inputs["right"][0, 0]
-        match = self.photometry
-        if levels is None or match is None or levels.change > match.threshold or \
-                levels.change <= match.stages_threshold:
-            return network_right
-        if plan.identity:
-            return levels.mapped(out=self._matched_right)
-        np.copyto(self._matched_right, plan.image(levels.mapped()), casting="unsafe")
-        return self._matched_right
+        return self._inputs["left"][0, 0], self._inputs["right"][0, 0]
 
     def warm_up(self, iters: int = 1, camera: tuple[int, int] | None = None) -> None:
         """One untimed inference on a blank frame of the camera's (w, h) (default: the
@@ -257,14 +234,14 @@ class Engine:
         if iters < 1:
             raise ConfigError("iters", ">= 1", iters)
         frame = _Frame(t_engine if started is None else started, record)
-        plan, has_points = self._prepare(frame, left, right, sparse)
+        plan = self._prepare(frame, left, right, sparse)
         matching = self._start_matching(iters)
         enc = self._encode(frame)
         self._last = (enc, plan)
         disparity, hidden = self._iterate(frame, enc, iters, deadline_ms, matching)
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
         frame.counts["counted_px"] = disp.size  # the grid the stages count on
-        disp, confidence = self._select(frame, disp, confidence, has_points)
+        disp, confidence = self._select(frame, disp, confidence)
         disp, prepared = self._match(frame, matching, disp, confidence)
         disp = self._median(frame, prepared, disp)
         disp = self._refine(frame, disp, confidence)
@@ -280,7 +257,6 @@ class Engine:
         return DepthResult(stamp_ns=int(stamp_ns), disparity=disp, depth=depth, valid=valid,
                            iterations=frame.steps, timings_ms=frame.timings,
                            confidence=confidence,
-                           photometry_change=frame.photometry_change,
                            lidar_offset=frame.lidar_offset,
                            lidar_noise_px=frame.lidar_noise_px, **frame.counts)
 
@@ -302,26 +278,17 @@ class Engine:
         return disp if plan.identity else plan.restore(disp, disparity=True)
 
     def _prepare(self, frame: _Frame, left: np.ndarray, right: np.ndarray,
-                 sparse: np.ndarray) -> tuple[FitPlan, bool]:
-        """Checks, the cameras' grey levels matched where they disagree
-        (`edge.runtime.photometry`), a noisy LiDAR map smoothed (`edge.runtime.lidar_denoise`)
-        and moved back onto the image's edges where it sits off them
-        (`edge.runtime.lidar_align`), then the frame scaled and padded to the
-        bundle into the graphs' input buffers; (the plan to restore it, whether it has LiDAR
-        points)."""
+                 sparse: np.ndarray) -> FitPlan:
+        """Checks, a noisy LiDAR map smoothed (`edge.runtime.lidar_denoise`) and moved back
+        onto the image's edges where it sits off them (`edge.runtime.lidar_align`), then the
+        frame scaled and padded to the bundle into the graphs' input buffers; the plan to
+        restore it."""
         for name, image in (("right", right), ("sparse", sparse)):
             if image.shape != left.shape:
                 raise InvalidDataError(f"{name} image", f"the left image's shape {left.shape}",
                                        image.shape)
         if left.ndim != 2 or min(left.shape) < 8:
             raise InvalidDataError("left image", "(H, W) grey, at least 8x8", left.shape)
-        levels = None
-        if self.photometry is not None:  # the right camera's grey levels onto the left's: for
-            # the network beyond its threshold, for the stages after it beyond theirs
-            levels = self.photometry.measure(left, right)
-            frame.photometry_change = levels.change
-            if levels.change > self.photometry.threshold:
-                right = levels.mapped()
         if self.lidar_denoise is not None:  # a noisy LiDAR map smoothed along its rows
             sparse, frame.lidar_noise_px = self.lidar_denoise.apply(sparse)
         if self.lidar_align is not None:  # the LiDAR map back onto the image's edges
@@ -335,11 +302,10 @@ class Engine:
         buf = self._buffers(plan.bundle)
         np.copyto(buf["left"][0, 0], left, casting="unsafe")
         np.copyto(buf["right"][0, 0], right, casting="unsafe")
-        self._stage_right = self._matched_for_stages(levels, plan)
         finite = np.isfinite(sparse) & (sparse > 0)
         np.copyto(buf["valid"][0, 0], finite, casting="unsafe")
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
-        return plan, bool(finite.any())
+        return plan
 
     def _start_matching(self, iters: int) -> FrameMatch | None:
         """The frame's matching, started beside the graphs where it can (it gates on the
@@ -403,19 +369,15 @@ class Engine:
                                     interpolation=cv2.INTER_LINEAR)
         return disp, confidence
 
-    def _select(self, frame: _Frame, disp: np.ndarray, confidence: np.ndarray | None,
-                has_points: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        """Without LiDAR points the edge selection, with them the LiDAR selection (never
-        both, so the slowest frame's time does not grow); each where the bundle has it."""
+    def _select(self, frame: _Frame, disp: np.ndarray,
+                confidence: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """The LiDAR selection, where the bundle has it (on a frame without points it
+        replaces nothing)."""
         if confidence is None:
             return disp, confidence
         left, right = self._stage_pair()
         t = time.perf_counter()
-        if self.edge_select is not None and not has_points:
-            disp, confidence, frame.counts["edge_px"] = self.edge_select.apply(
-                left, right, disp, confidence)
-            frame.stage("edge_select", t)
-        elif self.select is not None:
+        if self.select is not None:
             disp, confidence, frame.counts["selected_px"] = self.select.apply(
                 left, right, disp, confidence, self._inputs["sparse"][0, 0])
             frame.stage("select", t)
@@ -475,10 +437,9 @@ class _Frame:
     record: dict[str, list] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
-        selected_px=None, edge_px=None, matched_px=None, refined_px=None, match_beyond_px=None,
+        selected_px=None, matched_px=None, refined_px=None, match_beyond_px=None,
         match_far_px=None, counted_px=None))
     steps: int = 0
-    photometry_change: float | None = None  # grey levels the match moves the right image by
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
     lidar_noise_px: float | None = None  # the LiDAR map's noise level, where measured
     after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction

@@ -23,6 +23,13 @@ FIT, NATIVE, BUDGET = "fit", "native", "budget"
 SCALE_WORDS = (FIT, BUDGET, NATIVE)
 # where a bundle declares nothing
 UNDECLARED = {"edge_match": 0, "edge_match_rows": 1, "edge_median": "off"}
+# options the engine had and no longer has -> why (a config naming one is refused with this)
+REMOVED = {
+    "match_photometry": "the band refinement's census cost is blind to the grey-level "
+                        "differences it matched (docs/results.md); delete the key",
+    "edge_select": "on frames without LiDAR points the band refinement does better without "
+                   "it (docs/results.md); delete the key",
+}
 
 
 def _option(default: Any, doc: str, choices: tuple | None = None,
@@ -55,17 +62,11 @@ class EngineOptions:
                                  "bundle's width and height), \"native\" (the camera's own "
                                  "size, a bundle with any-size graphs), or a factor in (0, 1] "
                                  "within the bundle's size")
-    iters: int = _option(0, "GRU iterations per frame; 0 = the bundle's (the shipped one: 4)",
+    iters: int = _option(0, "GRU iterations per frame; 0 = the bundle's (the shipped one: 3)",
                          bounds=(0, 64))
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
                                  "this (ms from the frame's start); 0 = no deadline",
                                  bounds=(0.0, 60_000.0))
-    match_photometry: bool = _option(True, "the right image's grey levels mapped onto the "
-                                     "left's: for the network where the match would move "
-                                     "them by more than 20 levels on average (cameras further "
-                                     "apart in exposure, gain or response than the rig trains "
-                                     "for), for the stages after it from 8 (the real pairs "
-                                     "read 3)")
     denoise_lidar: bool = _option(False, "a noisy LiDAR map (its points off the line through "
                                   "their row neighbours by more than 0.3 px, robustly) "
                                   "smoothed along its rows, depth edges kept (docs/results.md: "
@@ -77,8 +78,6 @@ class EngineOptions:
                               "threads (more frames/s at a higher latency)")
     lidar_select: bool = _option(True, "the bundle's per-cell choice between the network and "
                                  "the nearest LiDAR point, if it has one")
-    edge_select: bool = _option(True, "on frames without LiDAR points, the bundle's per-cell "
-                                "choice of an edge's near or far side, if it has one")
     rate: str = _option("lidar", "lidar: the engine on every frame it is given; camera (an "
                         "experiment, a spinning LiDAR paired by \"nearest\"): the engine on "
                         "key frames (a fresh scan, or where the optical flow is lost) and, on "
@@ -107,8 +106,9 @@ class EngineOptions:
                                        "the network has only its stereo; on a frame without "
                                        "points, where SGBM's match is also smooth; 0 = off",
                                        bounds=(0.0, 10_000.0))
-    edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the matching's "
-                               'gate (window/step), or off; "bundle" (the shipped one: 9x9/2)',
+    edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the network's "
+                               "unsure edges after the band refinement (or the matching) "
+                               '(window/step), or off; "bundle" (the shipped one: 9x9/2)',
                                choices=(BUNDLE, "off", *MEDIAN_PATTERNS))
 
     def __post_init__(self) -> None:
