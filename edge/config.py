@@ -62,7 +62,7 @@ from typing import Any
 from edge_depth.calibration.tomlfile import TomlReadError, read_toml
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.options import BUNDLE, REMOVED, ROW_STEPS, SCALE_WORDS, EngineOptions
+from edge_depth.runtime.options import REMOVED, SCALE_WORDS, EngineOptions
 from edge_depth.topics import RESULT_TOPICS
 
 _log = logging.getLogger(__name__)
@@ -170,7 +170,6 @@ CHOICES.update({("engine", f.name): f.metadata["choices"] for f in fields(Engine
                 if f.metadata["choices"]})
 RANGES.update({("engine", f.name): f.metadata["bounds"] for f in fields(EngineOptions)
                if f.metadata["bounds"]})
-RANGES[("engine", "edge_match_rows")] = ROW_STEPS
 OFF_OR = {("log", "rotate_mb"), ("log", "rotate_s"), ("calibration", "watch_every")}
 
 
@@ -186,9 +185,7 @@ def _check_range(path: str, name: str, key: str, value) -> None:
 
 
 # a number of the given type, or one of these strings
-STRING_OR_NUMBER = {"engine.edge_match": (("auto", BUNDLE), 0),
-                    "engine.edge_match_rows": ((BUNDLE,), 0),
-                    "engine.scale": (SCALE_WORDS, 0.0)}
+STRING_OR_NUMBER = {"engine.scale": (SCALE_WORDS, 0.0)}
 
 
 def _convert(path: str, key: str, value, default):

@@ -463,10 +463,7 @@ def lidar_summary(pipeline: Pipeline) -> str:
 
 
 # the stages' pixel counts (DepthResult) -> the share of the frame each is, % (frame_summary)
-SHARES = {"selected_px": "replaced_pct",
-          "matched_px": "matched_pct", "refined_px": "refined_pct",
-          "match_beyond_px": "match_beyond_pct",
-          "match_far_px": "match_far_pct"}
+SHARES = {"selected_px": "replaced_pct", "refined_px": "refined_pct"}
 
 
 def _shares(result: DepthResult) -> dict[str, float]:

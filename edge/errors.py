@@ -30,7 +30,7 @@ class ConfigError(EdgeError, ValueError):
 
     def naming(self, source: str, section: str) -> ConfigError:
         """This error as raised from the config file `source`: a bare key (an engine or
-        source option) gains its section, `engine.edge_match`; one that names a file already
+        source option) gains its section, `engine.refine`; one that names a file already
         is returned as it is."""
         if self.source is not None:
             return self

@@ -8,23 +8,19 @@ from __future__ import annotations
 
 import numpy as np
 
-from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "matched_pct", "refined_pct",
-               "match_beyond_pct", "match_far_pct", "lidar_put_back",
+NOT_LATENCY = ("iterations", "replaced_pct", "refined_pct", "lidar_put_back",
                "lidar_dx_px", "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
-SELECTIONS = {"replaced_pct": "LiDAR selection", "matched_pct": "Edge matching",
-              "refined_pct": "Band refinement"}
+SELECTIONS = {"replaced_pct": "LiDAR selection", "refined_pct": "Band refinement"}
 
 
 def replaced_shares(timings: list[dict], key: str = "replaced_pct") -> list[float]:
     """Per frame that ran the stage, its share (%) under `key`: one of SELECTIONS' (the % of
-    the frame's pixels the stage replaced; default the LiDAR selection's) or
-    "match_beyond_pct" (the % beyond the edge matching's disparity count); or the pair's
+    the frame's pixels the stage replaced; default the LiDAR selection's), or the pair's
     "lidar_noise_px", or "lidar_put_back" (1: the LiDAR map was put back)."""
     return [t[key] for t in timings if key in t]
 
@@ -53,19 +49,6 @@ def selection_summary(timings: list[dict]) -> str | None:
             lines.append(f"{name}: replaced a median {np.median(shares):.1f} % of each "
                          f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
                          f"{none} of {len(shares)} frames)")
-    beyond = replaced_shares(timings, "match_beyond_pct")
-    if over := [b for b in beyond if b > BEYOND_PCT]:
-        lines.append(f"Edge matching: the scene was nearer than its disparity count "
-                     f"reaches in {len(over)} of {len(beyond)} frames (up to {max(over):.1f} % "
-                     "of a frame's pixels; StereoBM cannot match there): raise [engine] "
-                     "edge_match to a multiple of 16 above the scene's largest disparity, or "
-                     "set it to \"auto\" (each frame's count from the network's own)")
-    far = replaced_shares(timings, "match_far_pct")
-    if sparse := [f for f in far if f > 0]:
-        lines.append(f"Edge matching: SGBM matched the unsure pixels far from every LiDAR point "
-                     f"(a sparse map, or none) in {len(sparse)} of {len(far)} frames, a median "
-                     f"{np.median(sparse):.1f} % of the frame (it costs SGBM's time over their "
-                     "rows; [engine] edge_match_far_px = 0 turns it off)")
     if line := noise_line(timings):
         lines.append(line)
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):

@@ -65,12 +65,7 @@ JSON_SCHEMAS = {
                                                          "items": {"type": "integer"}},
         # per frame that ran it, the % of pixels each selection replaced
         "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
-        "edge_match_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "band_refined_pct": {"type": "array", "items": {"type": "number"}},
-        # per frame with the edge matching, the % of pixels beyond its disparity count
-        "edge_match_beyond_pct": {"type": "array", "items": {"type": "number"}},
-        # ... and of its unsure pixels far from every LiDAR point that SGBM matched (0: none)
-        "edge_match_far_pct": {"type": "array", "items": {"type": "number"}},
         # the depth map's health (edge.health): level OK / WARN / ERROR and its cause
         "output_health": {"type": "object", "properties": {
             "level": {"type": "string"}, "invalid_pct": {"type": "number"},

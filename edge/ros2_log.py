@@ -15,7 +15,7 @@ Topics (`ROS2_TOPICS`, under a configurable prefix):
                             after the stamp, where the LiDAR gives one), as received
     /tf_static              tf2_msgs/TFMessage: parent → camera_left → camera_right, lidar
     /diagnostics            diagnostic_msgs/DiagnosticArray (the foxglove profile's counters;
-                            WARN on errors or an edge_match count short of the scene)
+                            WARN on errors, the output's health)
     edge/calibration        std_msgs/String: the calibration file's TOML (first in each file)
     sim/gt_disparity        sensor_msgs/Image 32FC1 (synthetic recordings only)
 Rotation, the free-space check and never-overwrite naming are McapLogger's.
@@ -32,7 +32,6 @@ import numpy as np
 from edge_depth.foxglove_msgs import CAMERA_FRAME, RIGHT_FRAME, packed_points
 from edge_depth.mcap_log import McapLogger
 from edge_depth.ros2_msgs import MSGDEFS, header, transform
-from edge_depth.runtime.edge_match import BEYOND_PCT
 from edge_depth.topics import ros2_topic
 from edge_depth.types import DepthResult, StereoFrame
 
@@ -179,12 +178,7 @@ class Ros2Logger(McapLogger):
         flat = {k: json.dumps(v, default=float) for k, v in values.items()}
         errors = sum((values.get("errors") or {}).values())
         message = f"{values.get('frames', 0)} frames, {errors} errors"
-        # the edge matching's count too small for the scene: a warning, not a number
-        beyond = [b for b in values.get("edge_match_beyond_pct") or [] if b > BEYOND_PCT]
-        if beyond:
-            message += (f", {len(beyond)} frames nearer than [engine] edge_match reaches "
-                        "(raise it)")
-        level = 1 if errors or beyond else 0  # WARN / OK
+        level = 1 if errors else 0  # WARN / OK
         health = values.get("output_health") or {}
         if health.get("level", "OK") != "OK":  # diagnostic_msgs: 1 WARN, 2 ERROR
             level = max(level, {"WARN": 1, "ERROR": 2}[health["level"]])

@@ -233,14 +233,8 @@ class Runner:
                 latency_ms=summarise(window) if window else {},
                 iterations=[t["iterations"] for t in window],
                 lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)],
-                edge_match_replaced_pct=[round(s, 2) for s in
-                                         replaced_shares(window, "matched_pct")],
                 band_refined_pct=[round(s, 2) for s in
                                   replaced_shares(window, "refined_pct")],
-                edge_match_beyond_pct=[round(s, 2) for s in
-                                       replaced_shares(window, "match_beyond_pct")],
-                edge_match_far_pct=[round(s, 2) for s in
-                                    replaced_shares(window, "match_far_pct")],
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
                 lidar_noise_px=[round(s, 2) for s in replaced_shares(window, "lidar_noise_px")],
                 output_health=pipeline.health.diagnostics(),

@@ -119,13 +119,8 @@ class DepthResult:
     timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
-    ran no selection). matched_px: pixels the
-    full-resolution block matching (`edge.runtime.edge_match`, `refine = "off"`) replaced
-    (None when it did not run); refined_px: those the band refinement changed (its match or
-    the LiDAR's nearest point; None when it did not run);
-    match_beyond_px: pixels whose disparity that matching's count cannot reach (None when off);
-    match_far_px: its gated pixels far from every LiDAR point that SGBM matched (0: a map
-    dense enough that it did not run; None when off).
+    ran no selection). refined_px: pixels the band refinement changed (its match or the
+    LiDAR's nearest point; None when it did not run).
     counted_px: the pixels of the grid those counts were taken on (the engine's, scaled and
     padded; None: the disparity's own), so that a share is count / counted_px.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show
@@ -143,10 +138,7 @@ class DepthResult:
     timings_ms: dict[str, float] = field(default_factory=dict)
     confidence: np.ndarray | None = None
     selected_px: int | None = None
-    matched_px: int | None = None
     refined_px: int | None = None
-    match_beyond_px: int | None = None
-    match_far_px: int | None = None
     counted_px: int | None = None
     lidar_offset: Any = None
     lidar_noise_px: float | None = None

@@ -108,7 +108,9 @@ def band_engine(config: BandSgmConfig | None, **options) -> Engine:
 
 def run(folders: list[Path], seed: int, kinds: dict, config: BandSgmConfig | None = None,
         iters: int | None = None, unaligned: bool = False) -> list[dict]:
-    # the engine before the band became the default: the edge matching, 4 GRU steps
+    # "shipped": `refine = "off"` at 4 GRU steps — up to the tag stages-before-band the engine
+    # before the band (the edge matching; the notes' column), after it the network and the
+    # median alone
     shipped = Engine(options=EngineOptions(runtime="onnxruntime", refine="off"))
     band = band_engine(config)
     band_unaligned = band_engine(config, align_lidar=False) if unaligned else None

@@ -6,11 +6,12 @@ earn its keep after the band?
         [--variants DIR/aloe_r14 ... --round 2] [--json OUT]
 
 For each scene folder (and, with --variants, each of a band_judge round's four kinds on each
-variant folder): the engine before the band ("shipped": `refine = "off"`, the edge matching
-and its median, 4 GRU steps), the engine with `refine = "band"` and its median off ("band"),
-and the band's output through the 9x9/2 weighted median over a gate — "band+median": the
-defaults' matching gate (confidence under edge_match.MAX_CONFIDENCE where the disparity's
-5×5 range exceeds MIN_RANGE_PX), "band+median(conf)": every pixel under that confidence.
+variant folder): the engine before the band ("shipped": `refine = "off"`, 4 GRU steps — the
+edge matching and its median up to the tag stages-before-band, the median alone after it),
+the engine with `refine = "band"` and its median off ("band"), and the band's output through
+the 9x9/2 weighted median over a gate — "band+median": the unsure edges
+(`edge_median.unsure_edges`: confidence under MAX_CONFIDENCE where the disparity's 5×5 range
+exceeds MIN_RANGE_PX), "band+median(conf)": every pixel under that confidence.
 Prints mean EPE px / bad-3 % per group (a real pair, the rig's split, each variant kind) and
 the median's median time. `--iters N`: the band engine's GRU steps (the shipped engine keeps
 the bundle's); `--stereo`: the folders' LiDAR zeroed (stereo only); `--band max_band:48`: the band's
@@ -36,8 +37,11 @@ from lidar_align_gate import variant  # noqa: E402
 
 from edge_depth.metrics import disparity_metrics  # noqa: E402
 from edge_depth.runtime import band_sgm  # noqa: E402
-from edge_depth.runtime.edge_match import MAX_CONFIDENCE, unsure_edges  # noqa: E402
-from edge_depth.runtime.edge_median import EdgeMedian  # noqa: E402
+from edge_depth.runtime.edge_median import (  # noqa: E402
+    MAX_CONFIDENCE,
+    EdgeMedian,  # noqa: E402
+    unsure_edges,
+)
 from edge_depth.runtime.engine import Engine  # noqa: E402
 from edge_depth.runtime.options import EngineOptions  # noqa: E402
 from edge_depth.sim.folder import read_scene_folder  # noqa: E402

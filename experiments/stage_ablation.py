@@ -1,5 +1,6 @@
 """Each stage after the network switched off alone, at the defaults (the band refinement and
-its median) and with `--refine off` (the edge matching in the band's place): what it earns on
+its median) and, up to the tag stages-before-band, with `--refine off` (the edge matching in
+the band's place; those stages are gone after it: run this there for them): what it earns on
 the published pairs, the rig's test split and a round's variants of the pairs
 (`band_judge.py`).
 
@@ -34,25 +35,17 @@ from edge_depth.sim.folder import read_scene_folder  # noqa: E402
 
 # name -> the EngineOptions fields that switch the stage off
 STAGES = {
-    "photometric match": dict(match_photometry=False),
     "LiDAR alignment": dict(align_lidar=False),
     "LiDAR selection": dict(lidar_select=False),
-    "edge selection": dict(edge_select=False),
-    "band refinement": dict(refine="off", edge_match=0, edge_median="off"),
+    "band refinement": dict(refine="off", edge_median="off"),
     "weighted median": dict(edge_median="off"),
-}
-MATCHING_STAGES = {  # with refine = "off": the engine before the band
-    "edge matching (and its median, SGBM cases)": dict(edge_match=0),
-    "SGBM far from the LiDAR / without points": dict(edge_match_far_px=0.0),
 }
 
 
 def configurations() -> dict[str, dict]:
     configs = {"defaults": {}}
     configs.update({f"defaults − {k}": v for k, v in STAGES.items()})
-    configs["refine off"] = dict(refine="off")
-    configs.update({f"refine off − {k}": dict(v, refine="off")
-                    for k, v in MATCHING_STAGES.items()})
+    configs["refine off"] = dict(refine="off")  # the median alone after the network
     return configs
 
 

@@ -190,21 +190,21 @@ def test_openvino_runs_the_same_bundle_as_onnxruntime():
     args = (sample.left, sample.right, sparse)
     # the graphs' outputs (the refinement after them off)
     ort32 = Engine(precision="fp32", threads=2, runtime="onnxruntime",
-                   edge_match=0, refine="off").infer(*args).disparity
-    ov32 = Engine(precision="fp32", threads=2, runtime="openvino", bf16=False, edge_match=0,
+                   refine="off", edge_median="off").infer(*args).disparity
+    ov32 = Engine(precision="fp32", threads=2, runtime="openvino", bf16=False, edge_median="off",
                   refine="off")
-    assert ov32.describe() == "fp32 on openvino, edge matching off"
+    assert ov32.describe() == "fp32 on openvino, no refinement"
     assert float(np.abs(ov32.infer(*args).disparity - ort32).max()) < 0.05
     ort8 = Engine(precision="int8", threads=2, runtime="onnxruntime",
-                  edge_match=0, refine="off").infer(*args).disparity
+                  refine="off", edge_median="off").infer(*args).disparity
     ov8 = Engine(precision="int8", threads=2, runtime="openvino", bf16=False,
-                 edge_match=0, refine="off").infer(*args)
+                 refine="off", edge_median="off").infer(*args)
     assert float(np.abs(ov8.disparity - ort8).mean()) < 0.1
     gt = sample.disp_left
     base = disparity_metrics(ort8, gt)["epe"]
-    bf16 = Engine(precision="int8", threads=2, runtime="openvino", bf16=True, edge_match=0,
+    bf16 = Engine(precision="int8", threads=2, runtime="openvino", bf16=True, edge_median="off",
                   refine="off")
-    assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder), edge matching off"
+    assert bf16.bf16 and bf16.describe() == "int8 on openvino (bf16 encoder), no refinement"
     epe = disparity_metrics(bf16.infer(*args).disparity, gt)["epe"]
     assert epe < 1.05 * base + 0.02
 
@@ -216,9 +216,10 @@ def test_openvino_computes_only_the_encoder_outputs_the_other_graphs_read():
     a session asked for a subset has it."""
     from edge_depth.runtime.engine import DEFAULT_BUNDLE
 
-    ov = Engine(precision="fp32", threads=1, runtime="openvino", bf16=False, edge_match=0,
+    ov = Engine(precision="fp32", threads=1, runtime="openvino", bf16=False, edge_median="off",
                 refine="off")
-    ort = Engine(precision="fp32", threads=1, runtime="onnxruntime", edge_match=0, refine="off")
+    ort = Engine(precision="fp32", threads=1, runtime="onnxruntime", refine="off",
+                 edge_median="off")
     read = {"disparity", "hidden"}.union(ov.sessions["step"].input_names,
                                          ov.sessions["upsample"].input_names)
     assert set(ov.graphs.enc_outputs) == set(ort.graphs.enc_outputs) & read == set(
@@ -336,11 +337,12 @@ def test_the_engine_opens_the_bundles_int8_encoder_and_says_so(monkeypatch):
     monkeypatch.setattr(backends, "cpu_description",
                         lambda: dict(model="x", int8_dot_product=False, isa=["AVX2"]))
     monkeypatch.setattr(engine_module, "cpu_has_bf16", lambda: False)
-    engine = Engine(runtime="openvino", threads=1, edge_match=0, refine="off")
+    engine = Engine(runtime="openvino", threads=1, refine="off", edge_median="off")
     assert engine.precision == "int8" and engine.int8_encoder and not engine.bf16
     assert engine.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.int8.onnx"
     assert engine.describe().startswith("int8 on openvino (int8 encoder)")
-    floating = Engine(runtime="openvino", threads=1, edge_match=0, refine="off", int8_encoder="off")
+    floating = Engine(runtime="openvino", threads=1, refine="off", edge_median="off",
+                      int8_encoder="off")
     assert floating.sessions["encoder"].path == DEFAULT_BUNDLE / "encoder.onnx"
     assert "encoder)" not in floating.describe()
     sample = make_sample(3, RigConfig(), "beams16")
@@ -351,9 +353,9 @@ def test_the_engine_opens_the_bundles_int8_encoder_and_says_so(monkeypatch):
     assert 0.0 < float(np.abs(a.disparity - b.disparity).mean()) < 0.3
     # ONNX Runtime only as asked: its int8 encoder was not judged by `auto`'s rule
     assert not Engine(runtime="onnxruntime", precision="int8", threads=1,
-                      edge_match=0, refine="off").int8_encoder
-    assert Engine(runtime="onnxruntime", precision="int8", threads=1, edge_match=0, refine="off",
-                  int8_encoder="on").int8_encoder
+                      refine="off", edge_median="off").int8_encoder
+    assert Engine(runtime="onnxruntime", precision="int8", threads=1, refine="off",
+                  edge_median="off", int8_encoder="on").int8_encoder
 
 
 def test_openvino_compiles_a_graph_once_per_process_and_a_changed_file_again(tmp_path,

@@ -161,9 +161,9 @@ def test_the_engine_runs_the_band_refinement_in_place_of_the_matching():
     left, right = texture[:, :w].copy(), texture[:, 9:9 + w].copy()
     sparse = np.zeros((h, w), np.float32)
     sparse[::25, ::2] = 9.0
-    plain = Engine(precision="int8", threads=2, edge_match=0, refine="off", edge_median="off")
+    plain = Engine(precision="int8", threads=2, refine="off", edge_median="off")
     band = Engine(precision="int8", threads=2, refine="band", edge_median="off")
-    assert band.describe().endswith("band refinement") and band.edge_match is None
+    assert band.describe().endswith("band refinement")
     before = plain.infer(left, right, sparse)
     after = band.infer(left, right, sparse)
     assert "band_refine" in after.timings_ms and "edge_median" not in after.timings_ms
@@ -173,8 +173,7 @@ def test_the_engine_runs_the_band_refinement_in_place_of_the_matching():
 
 
 def test_by_default_the_weighted_median_follows_the_band_over_the_unsure_edges():
-    from edge_depth.runtime.edge_match import unsure_edges
-    from edge_depth.runtime.edge_median import EdgeMedian
+    from edge_depth.runtime.edge_median import EdgeMedian, unsure_edges
 
     sample = make_sample(11, RigConfig(width=640, height=400), "beams16")
     sparse, valid = sample.sparse_disparity("left")

@@ -76,4 +76,4 @@ def test_every_subcommands_help_renders(capsys):
             continue  # the tools parse their own arguments (the test above)
         text = command.format_help()
         assert text.startswith(f"usage: edge-depth {name}"), name
-    assert "5 % of the frame" in sub.choices["replay"].format_help()
+    assert "1-21 % at 0.75-1.5 px" in sub.choices["replay"].format_help()  # a % escaped

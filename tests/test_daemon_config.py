@@ -135,25 +135,24 @@ def test_the_log_writes_only_the_result_topics_asked_for(tmp_path, capsys, monke
         load_robot_config(bad)
 
 
-def test_a_planar_sim_lidar_makes_a_sparse_map_the_matching_says_it_served(tmp_path, capsys):
+def test_a_planar_sim_lidar_makes_a_sparse_map_the_band_refines_around(tmp_path, capsys):
     from edge_depth.sim.lidar import PATTERNS
 
     assert set(load_robot_config.__globals__["CHOICES"][("lidar", "sim_pattern")]) == \
         set(PATTERNS)
     cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap").replace(
         'model = "sim"', 'model = "sim"\nsim_pattern = "planar"'))
-    cfg.write_text(cfg.read_text() + '[engine]\nrefine = "off"\n')  # the engine before the band
     assert main(["run", "--config", str(cfg), "--max-frames", "3"]) == 0
     text = capsys.readouterr().out
-    # one scan line leaves most of the frame far from every point: SGBM matched there (the
-    # engine before the band)
-    far = re.search(r"Edge matching: SGBM matched the unsure pixels far from every LiDAR point "
-                    r"\(a sparse map, or none\) in ([0-9]) of 3 frames, a median ([0-9.]+) % "
-                    r"of the frame", text)
-    assert far and int(far[1]) >= 1 and float(far[2]) >= 5.0
+    # one scan line leaves most of the frame far from every point: the network is unsure
+    # there, and the band refines it
+    refined = re.search(r"Band refinement: replaced a median ([0-9.]+) % of each frame's "
+                        r"pixels \(p95 [0-9.]+ %; none in 0 of ([0-9]) frames\)", text)
+    assert refined and float(refined[1]) > 0.5 and int(refined[2]) >= 1
 
 
-@pytest.mark.parametrize("key", ["match_photometry", "edge_select"])
+@pytest.mark.parametrize("key", ["match_photometry", "edge_select", "edge_match",
+                                 "edge_match_rows", "edge_matcher", "edge_match_far_px"])
 def test_an_engine_option_the_band_made_redundant_is_refused_saying_why(tmp_path, key):
     cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap") + f"[engine]\n{key} = true\n")
     with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected an option the "

@@ -43,7 +43,7 @@ def test_onnx_runtime_matches_pytorch_at_four_iterations(small_bundle):
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
     # the export's fidelity, on the runtime the export check uses (OpenVINO: test_backends)
-    got = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+    got = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_median="off",
                  refine="off").infer(
         left, right, sparse, iters=4)
     assert got.iterations == 4
@@ -218,23 +218,23 @@ def test_confidence_bundle_returns_confidence_through_engine_and_mcap(tmp_path):
     torch.save(dict(model=net.state_dict(), config=config.to_dict(), step=1), path)
     meta = export(path, tmp_path / "bundle", SMALL, default_iters=2)
     assert meta["export_check"]["max_abs_px"] < 0.01
-    declared = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
-                      refine="off")  # the matching, as the engine before the band ran it
-    assert meta["engine"] == {"edge_match": "auto", "edge_match_rows": 2,
-                              "edge_median": "9x9/2"}
-    assert declared.edge_match.num_disparities == 0 and declared.edge_match.row_step == 2
-    assert declared.describe().endswith("edge matching auto on every 2nd row, weighted "
-                                        "median 9x9/2 (the bundle's)")
+    assert meta["engine"] == {"edge_median": "9x9/2"}  # the median the bundle declares
     band = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime")
     assert band.describe().endswith("band refinement, weighted median 9x9/2 (the bundle's)")
+    # a bundle exported before the band declared the edge matching too: read, the matching's
+    # keys ignored (no such stage now), its median taken
+    older = dict(meta, engine={"edge_match": "auto", "edge_match_rows": 2,
+                               "edge_median": "9x9/4"})
+    assert Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
+                  meta=older).describe().endswith("weighted median 9x9/4 (the bundle's)")
     _, left, right, sparse = scene_inputs(77)
     t = [torch.from_numpy(a.astype(np.float32))[None, None] for a in
          (left, right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         outs, logit = net.eval()(*t, iters=2, with_confidence=True)
     engine = Engine(tmp_path / "bundle", precision="fp32", threads=1, runtime="onnxruntime",
-                    edge_match=0, refine="off")
-    assert engine.has_confidence and engine.describe().endswith("edge matching off")
+                    refine="off", edge_median="off")
+    assert engine.has_confidence and engine.describe().endswith("no refinement")
     result = engine.infer(left, right, sparse, iters=2)
     np.testing.assert_allclose(result.disparity, outs[-1][0, 0].numpy(), atol=0.01)
     np.testing.assert_allclose(result.confidence, torch.sigmoid(logit)[0, 0].numpy(),
@@ -310,8 +310,8 @@ def test_engine_runs_the_bundles_lidar_selection_and_can_leave_it_out(small_bund
     (bundle / "model.json").write_text(json.dumps(meta))
     _, left, right, sparse = scene_inputs(5)
     plain = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", lidar_select=False,
-                   edge_match=0, refine="off")  # the selection alone: nothing after it
-    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+                   refine="off", edge_median="off")  # the selection alone: nothing after it
+    chosen = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_median="off",
                     refine="off")
     assert plain.select is None and chosen.select is not None
     before = plain.infer(left, right, sparse, iters=2)

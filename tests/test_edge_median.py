@@ -1,16 +1,9 @@
-"""The grey-guided weighted median over the matching's gate (edge.runtime.edge_median)."""
+"""The grey-guided weighted median over the network's unsure edges (edge.runtime.edge_median)."""
 
 import numpy as np
 import pytest
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.edge_match import (
-    MEDIAN_MIN_TEXTURE,
-    MEDIAN_POINT_MARGIN,
-    MIN_TEXTURE,
-    POINT_MARGIN,
-    EdgeMatch,
-)
 from edge_depth.runtime.edge_median import (
     MAX_DISPARITY_PX,
     PATTERNS,
@@ -137,8 +130,6 @@ def test_a_bad_pattern_or_width_is_one_clear_line(tmp_path):
     for bad in ("5x5", "9x9"):
         with pytest.raises(ConfigError, match="edge_median.*9x9/2"):
             EdgeMedian(bad)
-        with pytest.raises(ConfigError, match="edge_median"):
-            EdgeMatch(64, median=bad)
     with pytest.raises(ConfigError, match="positive"):
         EdgeMedian(sigma_grey=0.0)
     with pytest.raises(ConfigError, match="edge_median"):
@@ -173,20 +164,24 @@ def test_the_engine_takes_it_from_the_bundle_or_the_caller():
     from edge_depth.runtime.engine import Engine
 
     shipped = Engine(refine="off", precision="int8", threads=1)
-    assert shipped.edge_match.median == "9x9/2"
+    assert shipped.median is not None and shipped.median.pattern == "9x9/2"
+    assert shipped.describe().endswith("no refinement, weighted median 9x9/2 (the bundle's)")
     off = Engine(refine="off", precision="int8", threads=1, edge_median="off")
-    assert off.edge_match.median == "off" and "median" not in off.describe()
+    assert off.median is None and "median" not in off.describe()
     other = Engine(refine="off", precision="int8", threads=1, edge_median="9x9/4")
     assert other.describe().endswith("weighted median 9x9/4")
 
 
-def test_with_the_median_the_point_gate_is_the_looser_one():
-    assert (EdgeMatch(64).point_margin, EdgeMatch(64).min_texture) == (POINT_MARGIN, MIN_TEXTURE)
-    with_median = EdgeMatch(64, median="9x9/2")
-    assert (with_median.point_margin, with_median.min_texture) == \
-        (MEDIAN_POINT_MARGIN, MEDIAN_MIN_TEXTURE) == (1.0, 2.0)
-    given = EdgeMatch(64, median="9x9/2", point_margin=0.5, min_texture=8.0)   # the caller's
-    assert (given.point_margin, given.min_texture) == (0.5, 8.0)
+def test_the_gate_is_the_unsure_pixels_at_a_depth_edge():
+    from edge_depth.runtime.edge_median import unsure_edges
+
+    disparity = np.full((20, 30), 10.0, np.float32)
+    disparity[:, 15:] = 20.0                                         # an edge at column 15
+    confidence = np.full((20, 30), 0.5, np.float32)
+    confidence[:10] = 0.95                                           # sure in the top half
+    gate = unsure_edges(disparity, confidence)
+    assert not gate[:10].any()                                       # sure: never gated
+    assert gate[10:, 13:17].all() and not gate[10:, :12].any() and not gate[10:, 18:].any()
 
 
 @pytest.mark.parametrize("odd", [None, np.nan, np.inf, -np.inf, MAX_DISPARITY_PX, 1e30])

@@ -98,7 +98,7 @@ def test_a_regression_exits_1_and_is_named(recordings, tmp_path, capsys):
     one = recordings / "rec1.mcap"
     assert main(["fleet", "replay", str(one), "--out", str(golden), *THREADS]) == 0
     assert main(["fleet", "compare", str(one), "--base", str(golden), "--out", str(new),
-                 "--iters", "1", "--edge-match", "0", "--tolerance-px", "0.01",
+                 "--iters", "1", "--refine", "off", "--tolerance-px", "0.01",
                  "--max-share", "0.001", *THREADS]) == 1
     summary = _summary(new)
     assert summary["regressions"] == ["rec1"] and summary["failed"] == []

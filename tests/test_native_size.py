@@ -42,7 +42,7 @@ def test_the_exported_graphs_give_torchs_disparity_at_a_size_they_were_not_trace
          (sample.left, sample.right, sparse, (sparse > 0).astype(np.float32))]
     with torch.no_grad():
         ref = net(*t, iters=4)[-1][0, 0].numpy()
-    engine = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_match=0,
+    engine = Engine(bundle, precision="fp32", threads=1, runtime="onnxruntime", edge_median="off",
                     refine="off", scale="native")
     got = engine.infer(sample.left, sample.right, sparse, iters=4).disparity
     assert got.shape == (200, 136)
@@ -108,13 +108,13 @@ def test_openvino_compiles_an_any_size_graph_for_each_size_it_gets():
     for size in ((488, 136), (320, 240)):  # a wide one and a 4:3 one, neither the bundle's
         sample, sparse = scene(size, lidar="beams32")
         got = {runtime: Engine(scale="native", runtime=runtime, precision="fp32", threads=1,
-                               edge_match=0, refine="off", bf16=False).infer(
+                               refine="off", edge_median="off", bf16=False).infer(
                                    sample.left, sample.right, sparse, iters=4).disparity
                for runtime in ("onnxruntime", "openvino")}
         assert got["openvino"].shape == (size[1], size[0])
         assert float(np.abs(got["openvino"] - got["onnxruntime"]).mean()) < 0.01
     # one session, two sizes in turn: compiled again for the second, and back
-    engine = Engine(scale="native", runtime="openvino", threads=1, edge_match=0, refine="off")
+    engine = Engine(scale="native", runtime="openvino", threads=1, refine="off", edge_median="off")
     for size in ((320, 240), (256, 192), (320, 240)):
         sample, sparse = scene(size, lidar="beams16")
         assert engine.infer(sample.left, sample.right, sparse, iters=1).disparity.shape == \

@@ -51,21 +51,23 @@ def test_flags_not_given_leave_the_defaults_and_given_ones_win():
     parser = argparse.ArgumentParser()
     add_engine_arguments(parser)
     assert options_from_args(parser.parse_args([])) == EngineOptions()
-    args = parser.parse_args(["--threads", "1", "--edge-match", "64", "--no-lidar-select",
-                              "--bf16", "off", "--edge-match-rows", "bundle"])
+    args = parser.parse_args(["--threads", "1", "--refine", "off", "--no-lidar-select",
+                              "--bf16", "off", "--edge-median", "bundle"])
     options = options_from_args(args, threads=3)
-    assert (options.threads, options.edge_match, options.lidar_select, options.bf16_choice,
-            options.edge_match_rows) == (1, 64, False, False, "bundle")
+    assert (options.threads, options.refine, options.lidar_select, options.bf16_choice,
+            options.edge_median) == (1, "off", False, False, "bundle")
     assert options_from_args(parser.parse_args([]), threads=3).threads == 3
     with pytest.raises(SystemExit):
-        parser.parse_args(["--edge-match", "40"])
+        parser.parse_args(["--refine", "sgbm"])
+    with pytest.raises(SystemExit):  # a removed option is no flag
+        parser.parse_args(["--edge-match", "64"])
 
 
 def test_a_bad_value_is_refused_naming_the_option():
     with pytest.raises(ConfigError, match="threads: expected 1–256"):
         EngineOptions(threads=0)
-    with pytest.raises(ConfigError, match="edge_matcher"):
-        EngineOptions(edge_matcher="census")
+    with pytest.raises(ConfigError, match="edge_median"):
+        EngineOptions(edge_median="5x5")
 
 
 def test_the_configuration_reference_holds_the_table_the_options_make():

@@ -156,17 +156,16 @@ def test_the_live_view_with_the_ros2_profile_is_one_clear_line(tmp_path, capsys)
     assert "--live: expected the foxglove profile" in err and len(err.splitlines()) == 1
 
 
-def test_diagnostics_warn_when_the_opt_in_matching_cannot_reach_the_scene(tmp_path):
+def test_diagnostics_warn_on_errors_and_keep_every_value(tmp_path):
     from edge_depth.loggers import open_logger
 
     path = tmp_path / "diag.mcap"
     with open_logger(path, "ros2") as logger:
-        logger.log_diagnostics(1_000, dict(frames=2, errors={}, edge_match_beyond_pct=[0.2]))
-        logger.log_diagnostics(2_000, dict(frames=4, errors={},
-                                           edge_match_beyond_pct=[0.2, 12.0, 3.5]))
+        logger.log_diagnostics(1_000, dict(frames=2, errors={}, band_refined_pct=[4.5]))
+        logger.log_diagnostics(2_000, dict(frames=4, errors={"frame size": 1},
+                                           band_refined_pct=[4.5, 6.25, 3.5]))
     first, second = (m.status[0] for m in ros2_messages(path)["/diagnostics"])
-    assert (first.level, first.message) == (0, "2 frames, 0 errors")   # OK: under 1 %
-    assert second.level == 1 and second.message == (
-        "4 frames, 0 errors, 2 frames nearer than [engine] edge_match reaches (raise it)")
+    assert (first.level, first.message) == (0, "2 frames, 0 errors")
+    assert (second.level, second.message) == (1, "4 frames, 1 errors")   # WARN
     values = {kv.key: json.loads(kv.value) for kv in second.values}
-    assert values["edge_match_beyond_pct"] == [0.2, 12.0, 3.5]
+    assert values["band_refined_pct"] == [4.5, 6.25, 3.5]

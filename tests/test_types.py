@@ -69,10 +69,10 @@ def test_a_stage_share_is_of_the_grid_it_was_counted_on_and_never_over_100_perce
     from edge_depth.daemon import _shares
 
     small = np.zeros((16, 16), np.float32)  # a camera image smaller than the engine's grid
-    result = DepthResult(1, small, small, small > 0, 4, selected_px=1000, matched_px=4096,
+    result = DepthResult(1, small, small, small > 0, 4, selected_px=1000, refined_px=4096,
                          counted_px=64 * 64)
     shares = _shares(result)
-    assert shares == {"replaced_pct": pytest.approx(100 * 1000 / 4096), "matched_pct": 100.0}
+    assert shares == {"replaced_pct": pytest.approx(100 * 1000 / 4096), "refined_pct": 100.0}
     assert _shares(DepthResult(1, small, small, small > 0, 4, refined_px=64)) == {
         "refined_pct": 25.0}  # no grid given: the disparity's own
 

@@ -180,29 +180,22 @@ def distorted_rig(rig: RigConfig) -> StereoCalibration:
 
 
 # the refinement stages after the network whose time is also given as a ratio to SGBM's
-REFINEMENTS = ("band_refine", "edge_match")
+REFINEMENTS = ("band_refine",)
 
 
 class StageClock:
     """The engine's own per-stage timings of the int8 runs at the default iterations (a
     stage with nothing to do in a frame counts 0 ms): the encoder, a step, the upsampling
-    and the refinement after them: the band refinement and its median (the default) or, with
-    `refine = "off"`, the matching (StereoBM beside the choice's preparation, its wall time)
-    and its median."""
+    and the refinement after them: the band refinement and the median, where they run."""
 
     def __init__(self, engines: dict, default_iters: int) -> None:
         self.engines, self.default_iters = engines, default_iters
         self.runs: dict[str, list[float]] = {"encoder": [], "step": [], "upsample": []}
         engine = engines["int8"]
-        match = engine.edge_match
         if engine.band is not None:
             self.runs["band_refine"] = []
-            if engine.band_median is not None:
-                self.runs["edge_median"] = []
-        elif match is not None:
-            self.runs["edge_match"] = []
-            if match.median != "off":
-                self.runs["edge_median"] = []
+        if engine.median is not None:
+            self.runs["edge_median"] = []
 
     def run(self, precision: str, iters: int):
         """The timed call for `engine_{precision}_{iters}`."""
@@ -290,8 +283,6 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     summary["ratios"] = ratios(out, engine_ms, str(default_iters), paired)
     summary["outside_engine"] = outside_engine(pipeline.stats.timings)
     summary["calibration_watch"] = watch_summary(watch)
-    if engine.match_schedule is not None:
-        summary["match_starts"] = dict(engine.match_schedule.starts)
     if rss_frames:
         summary["replay_peak_rss_mb"] = replay_peak_rss_mb(rss_frames, (w, h), bundle)
     summary["bench_peak_rss_mb"] = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

@@ -22,19 +22,13 @@ def markdown(summary: dict) -> str:
              f"{', int8 encoder' if summary.get('int8_encoder') else ''}) | median ms | p95 ms |",
              "|---|---|---|"]
     names = ["rectify", "project_filter", "encoder", "step", "upsample", "log", "frame", "sgbm",
-             "edge_match", "edge_median"]
+             "band_refine", "edge_median"]
     names += sorted(k for k in st if k.startswith("engine_"))
     for name in names:
         if name in st:
             lines.append(f"| {name} | {st[name]['median_ms']:.1f} | {st[name]['p95_ms']:.1f} |")
     if "ratios" in summary:
         lines += ratio_lines(summary["ratios"])
-    if "match_starts" in summary:
-        early, again = summary["match_starts"]["early"], summary["match_starts"]["again"]
-        lines.append(f"the int8 engine's matching started before its last step in {early} "
-                     f"frames, {again} of them matched again with the final count"
-                     if early else "the int8 engine's matching started after its graphs "
-                     "(they use every core)")
     if "outside_engine" in summary:
         o = summary["outside_engine"]
         lines.append(f"the daemon's frame outside the engine (rectify, projection, logging; the "
@@ -65,10 +59,9 @@ def ratio_lines(r: dict) -> list[str]:
         lo, hi = r["int8_vs_sgbm_paired_p10_p90"]
         lines.append(f"paired, frame by frame (engine and SGBM back to back): median "
                      f"{r['int8_vs_sgbm_paired']:.2f}x (p10-p90 {lo:.2f}-{hi:.2f}x)")
-    for stage in ("band_refine", "edge_match"):
-        if f"{stage}_vs_sgbm" in r:
-            lines.append(f"the engine's {stage} stage / SGBM: {r[f'{stage}_vs_sgbm']:.2f}x "
-                         "(inside the engine rows)")
+    if "band_refine_vs_sgbm" in r:
+        lines.append(f"the engine's band_refine stage / SGBM: {r['band_refine_vs_sgbm']:.2f}x "
+                     "(inside the engine rows)")
     return lines
 
 
@@ -82,8 +75,7 @@ def runs_lines(summary: dict) -> list[str]:
                  f"**{summary['ratio_median']:.2f}x** (range {min(ratios):.2f}-"
                  f"{max(ratios):.2f}x)"]
     for key, label in (("int8_vs_sgbm_paired", "paired"),
-                       ("band_refine_vs_sgbm", "the engine's band_refine stage / SGBM"),
-                       ("edge_match_vs_sgbm", "the engine's edge_match stage / SGBM")):
+                       ("band_refine_vs_sgbm", "the engine's band_refine stage / SGBM")):
         values = [r[key] for r in runs if key in r]
         if values:
             lines.append(f"{label} per run {', '.join(f'{v:.2f}x' for v in values)}; median "

@@ -15,10 +15,9 @@ range (rounded up to 16, at least 64).
 
 The network is a training checkpoint (.pt, run with PyTorch, any input size: padded to the
 downsample factor) or an exported bundle directory (run by the robot-side engine with its
-flags: --runtime, --precision, --scale budget|fit|native, the matching's; the settings left
-unsaid are the engine's defaults and those its model.json declares: the shipped one's edge
-matching "auto" on every other row; --edge-match 0 turns it off); the default is the shipped
-bundle.
+flags: --runtime, --precision, --scale budget|fit|native, --refine band|off, --edge-median;
+the settings left unsaid are the engine's defaults and those its model.json declares: the
+shipped one's weighted median 9x9/2); the default is the shipped bundle.
 
 Metrics over all GT-valid pixels, holes counting as errors: EPE, bad-1/2/3, density, and with
 focal/baseline from meta.json the KITTI depth metrics (RMSE, MAE in mm; iRMSE, iMAE in 1/km);
@@ -56,8 +55,7 @@ from edge_depth.runtime.options import EngineOptions, add_engine_arguments, opti
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
 # the engine settings a bundle is evaluated with (the others: EngineOptions' defaults)
-ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_match",
-                "edge_match_rows", "edge_matcher", "edge_match_far_px", "edge_median",
+ENGINE_FLAGS = ("precision", "runtime", "bf16", "int8_encoder", "scale", "edge_median",
                 "align_lidar", "denoise_lidar", "refine")
 
 METHODS = ("net", "sgbm", "lidar-nearest", "lidar-linear")
@@ -131,7 +129,7 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
         net = load_net(model, options)
         if isinstance(net, BundleNet):
             print(f"{model}: {net.engine.describe()}", file=sys.stderr)
-    matched = isinstance(net, BundleNet) and net.engine.edge_match is not None
+    refined = isinstance(net, BundleNet) and net.engine.band is not None
     per_method: dict[str, list[dict]] = {}
     for folder in folders:
         scene = read_scene_folder(folder)
@@ -161,8 +159,8 @@ def evaluate(folders: list[Path], methods: list[str], iters_list: list[int],
             per_method.setdefault(name, []).append(m)
             if first is not None and folder == folders[0]:
                 first["scene"] = scene
-                staged = matched and method in ("net", "net-nolidar")
-                label = f"{name} + edge_match" if staged else name
+                staged = refined and method in ("net", "net-nolidar")
+                label = f"{name} + band" if staged else name
                 first.setdefault("predictions", {})[label] = (pred, m["bad3"])
     summary = {}
     for name, rows in per_method.items():
@@ -273,8 +271,8 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--model {args.model}: no such checkpoint or bundle")
     if args.picture and args.picture.suffix.lower() not in (".jpg", ".jpeg", ".png"):
         p.error(f"--picture {args.picture}: name a .jpg or .png file")
-    if args.edge_match and not args.model.is_dir():
-        p.error("--edge-match is a stage of the engine: give a bundle (--model DIR)")
+    if args.refine is not None and not args.model.is_dir():
+        p.error("--refine is a stage of the engine: give a bundle (--model DIR)")
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")

@@ -43,11 +43,10 @@ DYNAMIC = {name: LOW for name in ["disparity", "hidden", *STATE]} | {
     "disparity_out": LOW, "hidden_out": LOW, "disparity_full": FULL,
     "confidence": {2: "confidence_height", 3: "confidence_width"}}
 # the confidence head (convex upsampling, a 1/8 confidence) is trained to hand its unsure
-# edges to the full-resolution matching, so its bundles declare the matching as the engine's
-# default in model.json's "engine" (config and command line still override it; without it
-# stage 17's bad-3 on motorcycle is 9.3 %, with it 7.8 %, with the weighted median over its
-# gate as well 7.0 %: docs/experiments.md)
-MATCHED_ENGINE = {"edge_match": "auto", "edge_match_rows": 2, "edge_median": "9x9/2"}
+# edges to the refinement after it, so its bundles declare the weighted median over them as
+# the engine's default in model.json's "engine" (config and command line still override it;
+# docs/results.md)
+MATCHED_ENGINE = {"edge_median": "9x9/2"}
 
 
 def build_graphs(net):
@@ -213,7 +212,7 @@ def check_export(net, bundle: Path, meta: dict, size: tuple[int, int]) -> dict:
         inputs = reference_inputs(at)
         # the graphs against torch: the network alone
         engine = Engine(bundle, precision="fp32", threads=2, meta=meta, runtime="onnxruntime",
-                        edge_match=0, refine="off", scale=scale)
+                        refine="off", edge_median="off", scale=scale)
         got = engine.infer(inputs["left"][0, 0], inputs["right"][0, 0],
                            inputs["sparse"][0, 0], iters=4).disparity
         diff = np.abs(got - torch_disparity(net, inputs))

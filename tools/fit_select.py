@@ -316,7 +316,7 @@ def fitting_engine(args: argparse.Namespace) -> Engine:
     if args.frames < 5 or not 0 < args.holdout < 1:
         raise SystemExit("--frames ≥ 5 and 0 < --holdout < 1")
     engine = Engine(args.bundle, precision="int8", threads=args.threads, runtime=args.runtime,
-                    lidar_select=False, edge_match=0, refine="off")
+                    lidar_select=False, refine="off", edge_median="off")
     if not engine.has_confidence:
         raise SystemExit(f"{args.bundle}: the selection needs a bundle with a confidence output")
     return engine

@@ -52,8 +52,8 @@ def network_engine(bundle, precision: str, threads: int, meta: dict | None = Non
     output, never the matching a bundle may declare as its engine's default (nor an int8
     encoder the bundle has from before, unless asked)."""
     kwargs.setdefault("int8_encoder", "off")
-    return Engine(bundle, precision=precision, threads=threads, meta=meta, edge_match=0,
-                  refine="off", **kwargs)
+    return Engine(bundle, precision=precision, threads=threads, meta=meta, refine="off",
+                  edge_median="off", **kwargs)
 
 
 def calibration_frames(spec: str, size: tuple[int, int]):

@@ -1,10 +1,10 @@
 """The confidence head (`ModelConfig.refine` 10): the probability that the disparity is
-within 1 px of the truth, for the engine's selections and its full-resolution matching.
+within 1 px of the truth, for the engine's LiDAR selection and its band refinement.
 
 At 1/8 the convex upsampling has to invent every edge; rather than a learned image-guided
 stage at 1/2 (the earlier versions 1-9, removed; the tag model-versions-archive holds them),
-the network says where it is unsure and the engine's full-resolution matching
-(`edge.runtime.edge_match`) does the edges' work there.
+the network says where it is unsure and the engine's band refinement
+(`edge.runtime.band_sgm`) does the edges' work there.
 """
 
 from __future__ import annotations

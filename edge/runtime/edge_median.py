@@ -1,15 +1,17 @@
-"""A grey-guided weighted median over the matching's gate: the matching's last step.
+"""A grey-guided weighted median over the network's unsure edges: the refinement's last step.
 
-Why: after the matching's choice (`edge.runtime.edge_match`) the gate — the network's unsure
-edges — mixes three sources pixel by pixel: the network's value, StereoBM's and the LiDAR's
-nearest point. Each pixel is chosen alone, so the mix is salt and pepper, and its edges follow
-whichever source won rather than the image. A weighted median over a few neighbours, each
-weighted by how alike its grey level is to the pixel's own, gives each pixel the value that
-most of its own surface holds: on motorcycle bad-3 with LiDAR 7.82 → 7.21 % (6.98 with the
-looser LiDAR-point gate it allows), and every world gains on both EPE and bad-3
-(docs/experiments.md). A plain median does nothing:
-the grey guidance is what aligns the edges. Averaging instead (edge-aware smoothing) is worse
-than nothing: a blend across an edge is the error bad-3 counts.
+Where: the gate (`unsure_edges`) is where the network is unsure (confidence under 0.9) at a
+depth edge (the disparity's 5×5 range above 1 px), taken on the refined disparity. Why: after
+a per-pixel refinement (the band refinement, `edge.runtime.band_sgm`; before it, a block
+matching's choice among the network's value, StereoBM's and the LiDAR's nearest point) the
+gate mixes sources pixel by pixel. Each pixel is chosen alone, so the mix is salt and
+pepper, and its edges follow whichever source won rather than the image. A weighted median
+over a few neighbours, each weighted by how alike its grey level is to the pixel's own, gives
+each pixel the value that most of its own surface holds: after the matching, motorcycle bad-3
+with LiDAR 7.82 → 7.21 %; after the band, 3–16 % EPE on every set (docs/results.md). A
+plain median does nothing: the grey guidance is what aligns the edges. Averaging instead
+(edge-aware smoothing) is worse than nothing: a blend across an edge is the error bad-3
+counts.
 
 How, in numpy at a few ms a frame: only the gated pixels (a quarter to a third of the frame),
 `radius`/`stride` sampling (9×9 every 2nd pixel: 25 samples), each sample packed into one
@@ -30,8 +32,13 @@ import cv2
 import numpy as np
 
 from edge_depth.errors import ConfigError
-from edge_depth.runtime.cells import Scratch
+from edge_depth.runtime.cells import Scratch, local_range
 
+# the gate: the network's confidence below this, where its disparity's range over WINDOW_PX²
+# exceeds MIN_RANGE_PX (an edge)
+MAX_CONFIDENCE = 0.9
+MIN_RANGE_PX = 1.0
+WINDOW_PX = 5
 SIGMA_GREY = 8.0   # the weights' width in grey levels
 SUBPIXEL = 16      # disparity steps per pixel in a key
 WEIGHT_BITS = 8     # a key = disparity step × 2^WEIGHT_BITS + weight (0 … 255)
@@ -174,6 +181,22 @@ class EdgeMedian:
     @cached_property
     def _scratch(self) -> Scratch:
         return Scratch()
+
+
+def unsure_edges(disparity: np.ndarray, confidence: np.ndarray,
+                 max_confidence: float = MAX_CONFIDENCE, min_range_px: float = MIN_RANGE_PX,
+                 window_px: int = WINDOW_PX) -> np.ndarray:
+    """The gate: where the network is unsure (`confidence` under `max_confidence`) at an edge
+    (the disparity's range over `window_px`² above `min_range_px`)."""
+    return (confidence < max_confidence) & \
+        (local_range(disparity, window_px) > min_range_px)
+
+
+def as_grey8(image: np.ndarray) -> np.ndarray:
+    """8-bit grey: float images (the engine's buffers) are rounded and clipped."""
+    if image.dtype == np.uint8:
+        return image
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
 def disparity_steps(disparity: np.ndarray) -> np.ndarray:

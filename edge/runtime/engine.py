@@ -27,20 +27,12 @@ from edge_depth.runtime.backends import (
     resolve_precision,
     resolve_runtime,
 )
-from edge_depth.runtime.edge_match import (
-    AUTO,
-    FAR_PX,
-    EdgeMatch,
-    Prepared,
-    unsure_edges,
-)
-from edge_depth.runtime.edge_median import OFF, EdgeMedian
+from edge_depth.runtime.edge_median import OFF, EdgeMedian, unsure_edges
 from edge_depth.runtime.fit import FitPlan
 from edge_depth.runtime.graphs import BundleGraphs, load_bundle_meta
 from edge_depth.runtime.lidar_align import LidarAlign, Offset
 from edge_depth.runtime.lidar_denoise import LidarDenoise
 from edge_depth.runtime.lidar_select import LidarSelect
-from edge_depth.runtime.match_schedule import FrameMatch, MatchSchedule
 from edge_depth.runtime.options import BUDGET, FIT, NATIVE, EngineOptions, bundle_preset
 from edge_depth.types import DepthResult
 from edge_depth.workers import one_openblas_thread
@@ -64,8 +56,8 @@ class Engine:
     are not the bundle's size are scaled into it and padded; on a bundle whose graphs take any
     size (model.json's "any_size"), "budget" scales them to the bundle's pixel count at their
     own aspect and "native" runs them at their own size, padded to the network's stride; the
-    outputs come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s;
-    when the matching's block matching runs is `edge.runtime.match_schedule`'s. Every
+    outputs come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s.
+    Every
     OpenBLAS in the process runs one thread from the first engine on
     (`edge.workers.one_openblas_thread`: their spinning threads took a core from it)."""
 
@@ -109,18 +101,13 @@ class Engine:
             if options.lidar_select and "lidar_select" in self.meta else None
         self.lidar_denoise = LidarDenoise() if options.denoise_lidar else None
         self.lidar_align = LidarAlign() if options.align_lidar else None
-        self.edge_match_source = "bundle" if options.from_bundle() else "given"
+        self.median_source = "bundle" if options.from_bundle() else "given"
         resolved = options.resolved(bundle_preset(self.meta, str(self.bundle)))
         self.band = load_band_refinement(options)
-        # the band refinement replaces the matching at the edges; the weighted median follows
-        # either over the network's unsure edges (`_refine`)
-        self.edge_match = None if self.band else make_edge_match(resolved, self.width)
-        self.band_median = None if self.band is None or resolved.edge_median == OFF else \
+        # the weighted median over the network's unsure edges follows the band (or, with
+        # refine "off", the network's estimate after the selection): `_refine`
+        self.median = None if resolved.edge_median == OFF else \
             EdgeMedian(str(resolved.edge_median))
-        # its block matching runs beside the network's graphs (`edge.runtime.match_schedule`);
-        # "auto" starts early only where the graphs leave a core idle
-        self.match_schedule = None if self.edge_match is None else MatchSchedule(
-            self.edge_match, self.downsample, options.threads < usable_cores())
         self._upsample_ms = 0.0  # running estimate for the deadline
         self._last: tuple[dict, FitPlan] | None = None  # the last frame's encoding
         self._plans: dict[tuple[int, int], FitPlan] = {}
@@ -187,29 +174,18 @@ class Engine:
 
     def describe(self) -> str:
         """'int8 on openvino (bf16 encoder), band refinement, weighted median 9x9/2 (the
-        bundle's)': what runs, for the first log line (defaults that go
-        without saying: the "budget" scale, SGBM FAR_PX from the LiDAR on sparse maps)."""
+        bundle's)': what runs, for the first log line (the default "budget" scale goes without
+        saying)."""
         text = f"{self.precision} on {self.runtime}" + \
             (" (bf16 encoder)" if self.bf16_encoder else "") + \
             (" (int8 encoder)" if self.int8_encoder else "")
         if self.scale == NATIVE:  # the default ("budget") goes without saying
             text += ", at the camera's own size"
-        m = self.edge_match
-        source = " (the bundle's)" if self.edge_match_source == "bundle" else ""
-        if self.band is not None:
-            median = "" if self.band_median is None else \
-                f", weighted median {self.band_median.pattern}{source}"
-            return text + f", band refinement{median}"
-        if m is None:
-            return text + f", edge matching off{source}"
-        count = m.num_disparities or AUTO
-        rows = " on every 2nd row" if m.row_step == 2 else ""
-        sgbm = " with SGBM" if m.matcher == "sgbm" else ""
-        median = f", weighted median {m.median}" if m.median != OFF else ""
-        far = f", SGBM beyond {m.far_px:g} px of the LiDAR" if m.far_px else \
-            ", SGBM far from the LiDAR off"
-        far = "" if m.far_px == FAR_PX or sgbm else far
-        return text + f", edge matching {count}{sgbm}{rows}{median}{source}{far}"
+        source = " (the bundle's)" if self.median_source == "bundle" else ""
+        median = "" if self.median is None else \
+            f", weighted median {self.median.pattern}{source}"
+        refined = ", band refinement" if self.band is not None else ", no refinement"
+        return text + refined + median
 
     @property
     def size(self) -> tuple[int, int]:
@@ -222,11 +198,11 @@ class Engine:
               record: dict[str, list] | None = None) -> DepthResult:
         """Rectified grey pair (H, W) and sparse disparity (H, W, px, 0 = none) -> DepthResult.
 
-        The stages in order: prepare (scale and pad to the bundle) → encode → iterate (the
-        GRU steps under the deadline) → upsample (and the confidence) → select (the LiDAR or
-        the edge selection) → match (the full-resolution matching at the unsure edges) →
-        median, or with `refine = "band"` the band refinement in their place
-        (`edge.runtime.band_sgm`) → restore (to the camera's size) → depth. `started`
+        The stages in order: prepare (the LiDAR map's checks, scale and pad to the bundle) →
+        encode → iterate (the GRU steps under the deadline) → upsample (and the confidence)
+        → select (the LiDAR selection) → refine (the band refinement, `edge.runtime.band_sgm`,
+        unless `refine = "off"`) → median (over the network's unsure edges) → restore (to the
+        camera's size) → depth. `started`
         (time.perf_counter()) is when the deadline's clock began; default now. `record`, if
         given, collects each graph's input feeds (quantization calibration)."""
         t_engine = time.perf_counter()
@@ -235,16 +211,14 @@ class Engine:
             raise ConfigError("iters", ">= 1", iters)
         frame = _Frame(t_engine if started is None else started, record)
         plan = self._prepare(frame, left, right, sparse)
-        matching = self._start_matching(iters)
         enc = self._encode(frame)
         self._last = (enc, plan)
-        disparity, hidden = self._iterate(frame, enc, iters, deadline_ms, matching)
+        disparity, hidden = self._iterate(frame, enc, iters, deadline_ms)
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
         frame.counts["counted_px"] = disp.size  # the grid the stages count on
         disp, confidence = self._select(frame, disp, confidence)
-        disp, prepared = self._match(frame, matching, disp, confidence)
-        disp = self._median(frame, prepared, disp)
         disp = self._refine(frame, disp, confidence)
+        disp = self._median(frame, disp, confidence)
         self._upsample_ms = frame.after_steps_ms if self._upsample_ms == 0 else \
             0.8 * self._upsample_ms + 0.2 * frame.after_steps_ms  # for the deadline
         if not plan.identity:
@@ -264,14 +238,14 @@ class Engine:
         """The last frame's network disparity without the LiDAR, (H, W) float32 at the
         camera's size: its encoder's image features again (they do not depend on the LiDAR),
         the seed and the anchors zeroed (`LIDAR_OUTPUTS`), `iters` steps, upsampled; no
-        selection, matching or median. A reference that never saw the LiDAR, for
+        selection, refinement or median. A reference that never saw the LiDAR, for
         `edge.calibration_watch`; call it after `infer`, on the same thread."""
         if self._last is None:
             raise RuntimeError("stereo_only follows an infer of the frame")
         enc, plan = self._last
         enc = dict(enc, **{k: np.zeros_like(enc[k]) for k in LIDAR_OUTPUTS if k in enc})
         frame = _Frame(time.perf_counter())
-        disparity, hidden = self._iterate(frame, enc, max(1, int(iters)), None, None)
+        disparity, hidden = self._iterate(frame, enc, max(1, int(iters)), None)
         full = self.graphs.disparity_upsample().run(
             self._upsample_feeds(enc, disparity, hidden))[0]
         disp = np.ascontiguousarray(full[0, 0], dtype=np.float32)
@@ -307,28 +281,18 @@ class Engine:
         np.copyto(buf["sparse"][0, 0], np.where(finite, sparse, 0.0), casting="unsafe")
         return plan
 
-    def _start_matching(self, iters: int) -> FrameMatch | None:
-        """The frame's matching, started beside the graphs where it can (it gates on the
-        confidence: none without it)."""
-        if self.match_schedule is None or not self.has_confidence:
-            return None
-        return self.match_schedule.frame(*self._stage_pair(), self._inputs["sparse"][0, 0],
-                                         iters)
-
     def _encode(self, frame: _Frame) -> dict[str, np.ndarray]:
         t = time.perf_counter()
         outputs = self.sessions["encoder"].run(frame.feed("encoder", self._inputs))
         frame.timings["encoder"] = (time.perf_counter() - t) * 1000
         return dict(zip(self.graphs.enc_outputs, outputs, strict=True))
 
-    def _iterate(self, frame: _Frame, enc: dict, iters: int, deadline_ms: float | None,
-                 matching: FrameMatch | None) -> tuple[np.ndarray, np.ndarray]:
+    def _iterate(self, frame: _Frame, enc: dict, iters: int,
+                 deadline_ms: float | None) -> tuple[np.ndarray, np.ndarray]:
         """Up to `iters` GRU steps; with a deadline, none that the prediction (this frame's
         slowest step plus what follows the steps) says would end after it; at least one."""
         state = {k: enc[k] for k in self.graphs.step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
-        if matching is not None:
-            matching.after_step(-1, disparity)
         step_ms: list[float] = []
         for i in range(iters):
             if deadline_ms is not None and i > 0:
@@ -339,8 +303,6 @@ class Engine:
             feeds = dict(state, disparity=disparity, hidden=hidden)
             disparity, hidden = self.sessions["step"].run(frame.feed("step", feeds))
             step_ms.append((time.perf_counter() - t) * 1000)
-            if matching is not None:
-                matching.after_step(i, disparity)
         frame.steps = len(step_ms)
         frame.timings["steps"] = float(sum(step_ms))
         frame.timings["step_mean"] = float(np.mean(step_ms))
@@ -383,26 +345,12 @@ class Engine:
             frame.stage("select", t)
         return disp, confidence
 
-    def _match(self, frame: _Frame, matching: FrameMatch | None, disp: np.ndarray,
-               confidence: np.ndarray | None) -> tuple[np.ndarray, Prepared | None]:
-        """The full-resolution matching at the network's unsure edges (waiting for its block
-        matching where that started early)."""
-        if matching is None or confidence is None:
-            return disp, None
-        t = time.perf_counter()
-        disp, taken, beyond, far, prepared = matching.finish(disp, confidence)
-        frame.counts.update(matched_px=taken, match_beyond_px=beyond, match_far_px=far)
-        frame.stage("edge_match", t)
-        return disp, prepared
-
     def _refine(self, frame: _Frame, disp: np.ndarray,
                 confidence: np.ndarray | None) -> np.ndarray:
-        """The band refinement (`edge.runtime.band_sgm`), where asked for (without the
-        bundle's confidence every band is its widest); its changed pixels are the frame's
-        matched ones. Then the weighted median over the network's unsure edges, as after the
-        matching (the matching's gate on the refined disparity). The band's threads are set
-        on every call: numba keeps them per calling thread (the pipelined daemon and the ROS 2
-        node infer on threads of their own)."""
+        """The band refinement (`edge.runtime.band_sgm`), unless `refine` is "off" (without
+        the bundle's confidence every band is its widest); its changed pixels are the frame's
+        refined ones. Its threads are set on every call: numba keeps them per calling thread
+        (the pipelined daemon and the ROS 2 node infer on threads of their own)."""
         if self.band is None:
             return disp
         left, right = self._stage_pair()
@@ -411,19 +359,17 @@ class Engine:
         disp, frame.counts["refined_px"] = self.band.refine(
             left, right, disp, confidence, self._inputs["sparse"][0, 0])
         frame.stage("band_refine", t)
-        if self.band_median is not None and confidence is not None:
-            t = time.perf_counter()
-            disp = self.band_median.apply(disp, left, unsure_edges(disp, confidence))
-            frame.stage("edge_median", t)
         return disp
 
-    def _median(self, frame: _Frame, prepared: Prepared | None,
-                disp: np.ndarray) -> np.ndarray:
-        """The matching's grey-guided weighted median over its gate (where it ran)."""
-        if prepared is None or self.edge_match is None or self.edge_match.median == OFF:
+    def _median(self, frame: _Frame, disp: np.ndarray,
+                confidence: np.ndarray | None) -> np.ndarray:
+        """The grey-guided weighted median over the network's unsure edges of the (refined)
+        disparity (`edge.runtime.edge_median`), where the bundle or the caller asks for it
+        and the bundle has a confidence."""
+        if self.median is None or confidence is None:
             return disp
         t = time.perf_counter()
-        disp = self.edge_match.smooth(disp, prepared)
+        disp = self.median.apply(disp, self._stage_pair()[0], unsure_edges(disp, confidence))
         frame.stage("edge_median", t)
         return disp
 
@@ -437,8 +383,7 @@ class _Frame:
     record: dict[str, list] | None = None
     timings: dict[str, float] = field(default_factory=dict)
     counts: dict[str, int | None] = field(default_factory=lambda: dict(
-        selected_px=None, matched_px=None, refined_px=None, match_beyond_px=None,
-        match_far_px=None, counted_px=None))
+        selected_px=None, refined_px=None, counted_px=None))
     steps: int = 0
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
     lidar_noise_px: float | None = None  # the LiDAR map's noise level, where measured
@@ -453,22 +398,6 @@ class _Frame:
         """A stage after the steps took from `started` (perf_counter) to now."""
         self.timings[name] = (time.perf_counter() - started) * 1000
         self.after_steps_ms += self.timings[name]
-
-
-def make_edge_match(options: EngineOptions, width: int) -> EdgeMatch | None:
-    """The matching stage the resolved options ask for (None: off; EngineOptions has checked
-    every value, off or not); ConfigError for a count as wide as the bundle's input."""
-    settings = dict(row_step=options.edge_match_rows, matcher=options.edge_matcher,
-                    median=options.edge_median, far_px=options.edge_match_far_px)
-    count = options.edge_match
-    if count == AUTO:  # the count per frame, from the network's own disparity
-        return EdgeMatch(0, **settings)
-    if not count:
-        return None
-    assert isinstance(count, int), "EngineOptions admits a count, \"auto\" or \"bundle\""
-    if count >= width:  # StereoBM would silently find nothing
-        raise ConfigError("edge_match", f"below the bundle's input width ({width} px)", count)
-    return EdgeMatch(count, **settings)
 
 
 def load_band_refinement(options: EngineOptions):

@@ -31,7 +31,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.runtime.edge_match import as_grey8
+from edge_depth.runtime.edge_median import as_grey8
 from edge_depth.runtime.lidar_rows import map_points, measured, row_noise, row_runs
 
 REACH_PX = 4  # the largest offset searched, each way

@@ -16,19 +16,20 @@ from typing import Any
 from edge_depth.errors import ConfigError
 
 BUNDLE = "bundle"  # a setting taken from the bundle's model.json
-MATCH_AUTO = "auto"
 MEDIAN_PATTERNS = ("9x9/2", "13x13/3", "9x9/4")
-ROW_STEPS = (1, 2)
 FIT, NATIVE, BUDGET = "fit", "native", "budget"
 SCALE_WORDS = (FIT, BUDGET, NATIVE)
 # where a bundle declares nothing
-UNDECLARED = {"edge_match": 0, "edge_match_rows": 1, "edge_median": "off"}
+UNDECLARED = {"edge_median": "off"}
 # options the engine had and no longer has -> why (a config naming one is refused with this)
 REMOVED = {
     "match_photometry": "the band refinement's census cost is blind to the grey-level "
                         "differences it matched (docs/results.md); delete the key",
     "edge_select": "on frames without LiDAR points the band refinement does better without "
                    "it (docs/results.md); delete the key",
+    **{key: "the band refinement took the edge matching's place (docs/results.md); delete "
+            "the key" for key in ("edge_match", "edge_match_rows", "edge_matcher",
+                                  "edge_match_far_px")},
 }
 
 
@@ -86,28 +87,11 @@ class EngineOptions:
     refine: str = _option("band", "band: the network's estimate refined by semi-global "
                           "matching in a band around it as wide as its confidence says, the "
                           "LiDAR and the network guiding the cost, then the weighted median "
-                          "over its unsure edges (edge.runtime.band_sgm); off: the "
-                          "full-resolution edge matching and its median instead, the "
-                          "engine before the band (docs/results.md)", choices=("off", "band"))
-    edge_match: int | str = _option(BUNDLE, 'the full-resolution matching at the network\'s '
-                                    'uncertain edges: "auto" (StereoBM\'s disparity count per '
-                                    'frame from the network\'s own), N (a multiple of 16), 0 = '
-                                    'off, "bundle" = as the bundle declares (the shipped one: '
-                                    'auto)')
-    edge_match_rows: int | str = _option(BUNDLE, '1: the matching on every row; 2: every other '
-                                         'row, half its time; "bundle" (the shipped one: 2)')
-    edge_matcher: str = _option("bm", "the matching's block matcher: bm (StereoBM) or sgbm "
-                                "(fewer holes, about SGBM's time more a frame)",
-                                choices=("bm", "sgbm"))
-    edge_match_far_px: float = _option(12.0, "on a sparse LiDAR map (its gated pixels this "
-                                       "far, in px, from every point are 5 % of the frame or "
-                                       "more), those take SGBM's checked match instead of "
-                                       "StereoBM's where it explains the pair better: there "
-                                       "the network has only its stereo; on a frame without "
-                                       "points, where SGBM's match is also smooth; 0 = off",
-                                       bounds=(0.0, 10_000.0))
+                          "over its unsure edges (edge.runtime.band_sgm); off: the median "
+                          "alone on the network's estimate (faster, less accurate: "
+                          "docs/results.md)", choices=("off", "band"))
     edge_median: str = _option(BUNDLE, "the grey-guided weighted median over the network's "
-                               "unsure edges after the band refinement (or the matching) "
+                               "unsure edges after the band refinement "
                                '(window/step), or off; "bundle" (the shipped one: 9x9/2)',
                                choices=(BUNDLE, "off", *MEDIAN_PATTERNS))
 
@@ -120,21 +104,11 @@ class EngineOptions:
             if bounds and not (isinstance(value, (int, float)) and not isinstance(value, bool)
                                and bounds[0] <= value <= bounds[1]):
                 raise ConfigError(f.name, f"{bounds[0]}–{bounds[1]}", value)
-        match = self.edge_match
-        if match not in (BUNDLE, MATCH_AUTO) and not (
-                isinstance(match, int) and not isinstance(match, bool) and match >= 0
-                and match % 16 == 0):
-            raise ConfigError("edge_match", '"bundle", "auto", 0 (off) or a multiple of 16',
-                              match)
         scale = self.scale
         if scale not in SCALE_WORDS and not (
                 isinstance(scale, (int, float)) and not isinstance(scale, bool)
                 and 0 <= scale <= 1):
             raise ConfigError("scale", '"fit", "budget", "native" or a factor in (0, 1]', scale)
-        rows = self.edge_match_rows
-        if isinstance(rows, bool) or rows not in (BUNDLE, *ROW_STEPS):
-            raise ConfigError("edge_match_rows", '"bundle", 1 (every row) or 2 (every other '
-                              "row)", rows)
 
     @property
     def bf16_choice(self) -> bool | None:
@@ -148,8 +122,8 @@ class EngineOptions:
                                 if getattr(self, k) == BUNDLE})
 
     def from_bundle(self) -> bool:
-        """Whether the matching's settings are the bundle's own (for the engine's log line)."""
-        return self.edge_match == BUNDLE and self.edge_median == BUNDLE
+        """Whether the median's setting is the bundle's own (for the engine's log line)."""
+        return self.edge_median == BUNDLE
 
     @classmethod
     def with_overrides(cls, base: EngineOptions | None = None, **given: Any) -> EngineOptions:
@@ -188,30 +162,9 @@ def bundle_preset(meta: dict, bundle: str = "") -> dict:
 
 def _flag_type(f) -> Any:
     default = f.default
-    if f.name == "edge_match":
-        return _edge_match_value
-    if f.name == "edge_match_rows":
-        return _rows_value
     if f.name == "scale":
         return _scale_value
     return type(default)
-
-
-def _edge_match_value(text: str) -> int | str:
-    """--edge-match: "bundle", or what `edge.runtime.edge_match.count_argument` takes."""
-    if text == BUNDLE:
-        return text
-    from edge_depth.runtime.edge_match import count_argument  # OpenCV: only when given
-
-    return count_argument(text)
-
-
-def _rows_value(text: str) -> int | str:
-    if text == BUNDLE:
-        return text
-    if text not in ("1", "2"):
-        raise argparse.ArgumentTypeError(f'expected 1, 2 or "bundle", got {text!r}')
-    return int(text)
 
 
 def _scale_value(text: str) -> float | str:
