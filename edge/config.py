@@ -317,8 +317,8 @@ def load_robot_config(path: str | Path) -> RobotConfig:
         values = {}
         for key, value in table.items():
             if name == "engine" and key in REMOVED:
-                raise ConfigError(f"{name}.{key}", f"an option the engine has ({REMOVED[key]})",
-                                  "one it no longer has", path)
+                raise ConfigError(f"{name}.{key}", "a current key (this one was removed: "
+                                  f"{REMOVED[key]})", key, path)
             if key not in {f.name for f in fields(cls)}:
                 raise ConfigError(f"{name}.{key}", f"one of {[f.name for f in fields(cls)]}",
                                   "unknown key", path)

@@ -1,6 +1,6 @@
 """What a run's frames say, from their per-frame timings (`Pipeline.finish`'s dicts): the
-stages' median / p95 latency (`summarise`) and the closing lines about the selections, the
-matching, the photometric match and the LiDAR map's checks (`selection_summary`); the daemon,
+stages' median / p95 latency (`summarise`) and the closing lines about the LiDAR selection,
+the band refinement and the LiDAR map's checks (`selection_summary`); the daemon,
 `replay` and the demo print them, `/diagnostics` carries the per-frame values
 (`replaced_shares`)."""
 

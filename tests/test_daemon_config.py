@@ -155,9 +155,9 @@ def test_a_planar_sim_lidar_makes_a_sparse_map_the_band_refines_around(tmp_path,
                                  "edge_match_rows", "edge_matcher", "edge_match_far_px"])
 def test_an_engine_option_the_band_made_redundant_is_refused_saying_why(tmp_path, key):
     cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap") + f"[engine]\n{key} = true\n")
-    with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected an option the "
-                                          r"engine has \(.*band refinement.*delete the key\), "
-                                          r"got 'one it no longer has'"):
+    with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected a current key "
+                                          r"\(this one was removed: .*band refinement.*delete "
+                                          rf"the key\), got '{key}'"):
         load_robot_config(cfg)
 
 

@@ -6,8 +6,8 @@
 
 At the bundle's input size (640x400 for the shipped one), on test-split scenes of the rig:
 rectify (two remaps, maps computed once), project + occlusion filter (64-beam scans), the
-engine's encoder / one update step / upsampling / edge matching (the engine as the bundle
-declares it: the shipped one matches, "auto" on every other row), the engine at each
+engine's encoder / one update step / upsampling / band refinement / median (the engine at its
+defaults and the median its bundle declares), the engine at each
 iteration count in fp32 and int8, SGBM (3-way, 64 disparities, grey), logging one frame's
 results to MCAP, the whole daemon frame (rectify -> log, int8 at the bundle's default
 iterations), and the peak RSS of an `edge-depth replay` subprocess. Methods alternate in
@@ -243,8 +243,8 @@ def bench(scenes: int, repeat: int, iters_list: list[int], threads: int, bundle:
     w, h = meta["size"]
     rig, samples, dense, inputs = bench_frames(w, h, scenes)
     matcher = make_sgbm()
-    # as the daemon runs them: with the engine settings the bundle declares (the shipped one:
-    # the edge matching "auto" on every other row, inside every engine row)
+    # as the daemon runs them: the engine's defaults (the band refinement) with the settings
+    # the bundle declares (the shipped one's median), inside every engine row
     engines = {p: Engine(bundle, precision=p, threads=threads, meta=meta, runtime=runtime,
                          bf16=bf16)
                for p in ("fp32", "int8")}

@@ -271,8 +271,9 @@ def main(argv: list[str] | None = None) -> int:
         p.error(f"--model {args.model}: no such checkpoint or bundle")
     if args.picture and args.picture.suffix.lower() not in (".jpg", ".jpeg", ".png"):
         p.error(f"--picture {args.picture}: name a .jpg or .png file")
-    if args.refine is not None and not args.model.is_dir():
-        p.error("--refine is a stage of the engine: give a bundle (--model DIR)")
+    if (args.refine is not None or args.edge_median is not None) and not args.model.is_dir():
+        p.error("--refine and --edge-median are stages of the engine: give a bundle "
+                "(--model DIR)")
     folders = list_scene_folders(args.data)
     if not folders:
         p.error(f"no scene folders under {args.data}")

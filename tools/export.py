@@ -9,7 +9,7 @@ step.onnx (lookup, GRU step, Δd, CSPN with re-injection; run K times) and upsam
 (the upsampling-mask head and convex upsampling, run once on the last step's output; with
 the confidence head it returns the confidence 0-1 as well),
 plus model.json (input size, downsample factor, FLOPs per graph, the checkpoint's training
-summary, and with the confidence head the engine's default matching, "engine"). The export
+summary, and with the confidence head the engine's default median, "engine"). The export
 is checked: ONNX Runtime against PyTorch on a synthetic scene at 4 iterations, at `--size`
 and at a second size of another aspect (whose 1/8 width is odd).
 """
@@ -47,6 +47,9 @@ DYNAMIC = {name: LOW for name in ["disparity", "hidden", *STATE]} | {
 # the engine's default in model.json's "engine" (config and command line still override it;
 # docs/results.md)
 MATCHED_ENGINE = {"edge_median": "9x9/2"}
+# the GRU steps a bundle runs at by default (model.json's default_iters): the shipped one's,
+# with the band refinement after them (docs/results.md)
+DEFAULT_ITERS = 3
 
 
 def build_graphs(net):
@@ -142,8 +145,8 @@ def reference_inputs(size: tuple[int, int], seed: int = 1_000_000) -> dict[str, 
                  valid=valid.astype(np.float32)).items()}
 
 
-def export(checkpoint: Path, out: Path, size: tuple[int, int], default_iters: int = 4,
-           check: bool = True) -> dict:
+def export(checkpoint: Path, out: Path, size: tuple[int, int],
+           default_iters: int = DEFAULT_ITERS, check: bool = True) -> dict:
     import torch
 
     net, ckpt = load_checkpoint(checkpoint)
@@ -236,8 +239,9 @@ def main(argv: list[str] | None = None) -> int:
                    help="the bundle's size, WIDTHxHEIGHT: its pixel budget (\"budget\", "
                    "the engine's default, and \"fit\" scale a camera to it; \"native\" runs "
                    "any size), default 640x400")
-    p.add_argument("--iters", type=int, default=4,
-                   help="the engine's default GRU iterations (a runtime choice), default 4")
+    p.add_argument("--iters", type=int, default=DEFAULT_ITERS,
+                   help="the engine's default GRU iterations (a runtime choice), default "
+                        f"{DEFAULT_ITERS}")
     p.add_argument("--no-check", action="store_true", help="skip the ONNX Runtime check")
     args = p.parse_args(argv)
     if not args.checkpoint.is_file():

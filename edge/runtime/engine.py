@@ -182,8 +182,8 @@ class Engine:
         if self.scale == NATIVE:  # the default ("budget") goes without saying
             text += ", at the camera's own size"
         source = " (the bundle's)" if self.median_source == "bundle" else ""
-        median = "" if self.median is None else \
-            f", weighted median {self.median.pattern}{source}"
+        median = "" if self.median is None or not self.has_confidence else \
+            f", weighted median {self.median.pattern}{source}"  # it gates on the confidence
         refined = ", band refinement" if self.band is not None else ", no refinement"
         return text + refined + median
 
