@@ -1,7 +1,8 @@
 """edge.runtime.band_sgm: its aggregation is Hirschmüller's (equal to edge.guided_sgm's on a band
 that covers the whole range), it recovers a plane from an estimate a few px off where the
 network is unsure, it never moves an estimate beyond the band the network's confidence
-allows, and `[engine] refine = "band"` runs it in the engine in place of the matching."""
+allows, and the engine runs it by default (`[engine] refine = "band"`), the weighted median
+after it."""
 
 from __future__ import annotations
 
@@ -154,7 +155,7 @@ def test_a_lidar_point_decides_between_equal_matches():
     assert right_share(guided) > 0.75 and right_share(alone) < 0.3
 
 
-def test_the_engine_runs_the_band_refinement_in_place_of_the_matching():
+def test_the_engine_runs_the_band_refinement_after_the_network_and_counts_what_it_changed():
     rng = np.random.default_rng(4)
     h, w = 400, 640
     texture = (rng.uniform(0, 255, (h, w + 16))).astype(np.uint8)

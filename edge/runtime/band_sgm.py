@@ -1,5 +1,6 @@
 """Semi-global matching in a disparity band around the network's estimate: the engine's
-`[engine] refine = "band"` (an experiment, off by default; docs/results.md).
+`[engine] refine = "band"`, the default (docs/results.md); the weighted median
+(`edge.runtime.edge_median`) follows it in the engine.
 
 The network's upsampled disparity is close almost everywhere and off by a few to tens of
 pixels at depth edges and thin structures, finer than its 1/8 grid; full-resolution matching
