@@ -51,6 +51,7 @@ from edge_depth.baselines import (
 from edge_depth.guided_sgm import GuidedSgmConfig, guided_sgm_filled, guided_sgm_lidar
 from edge_depth.metrics import confidence_calibration, depth_metrics, disparity_metrics
 from edge_depth.runtime.engine import DEFAULT_BUNDLE
+from edge_depth.runtime.graphs import load_bundle_meta
 from edge_depth.runtime.options import EngineOptions, add_engine_arguments, options_from_args
 from edge_depth.sim.folder import list_scene_folders, read_scene_folder
 
@@ -107,10 +108,9 @@ class BundleNet:
 def bundle_iters(model: Path) -> int:
     """The iterations a bundle runs at by default (its model.json's default_iters); 4 for a
     training checkpoint or a folder without one."""
-    meta = model / "model.json"
-    if not meta.is_file():
+    if not (model / "model.json").is_file():
         return 4
-    return int(json.loads(meta.read_text()).get("default_iters", 4))
+    return int(load_bundle_meta(model).get("default_iters", 4))
 
 
 def load_net(model: Path, options: EngineOptions | None = None):

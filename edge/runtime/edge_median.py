@@ -183,20 +183,11 @@ class EdgeMedian:
         return Scratch()
 
 
-def unsure_edges(disparity: np.ndarray, confidence: np.ndarray,
-                 max_confidence: float = MAX_CONFIDENCE, min_range_px: float = MIN_RANGE_PX,
-                 window_px: int = WINDOW_PX) -> np.ndarray:
-    """The gate: where the network is unsure (`confidence` under `max_confidence`) at an edge
-    (the disparity's range over `window_px`² above `min_range_px`)."""
-    return (confidence < max_confidence) & \
-        (local_range(disparity, window_px) > min_range_px)
-
-
-def as_grey8(image: np.ndarray) -> np.ndarray:
-    """8-bit grey: float images (the engine's buffers) are rounded and clipped."""
-    if image.dtype == np.uint8:
-        return image
-    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
+def unsure_edges(disparity: np.ndarray, confidence: np.ndarray) -> np.ndarray:
+    """The gate: where the network is unsure (`confidence` under MAX_CONFIDENCE) at an edge
+    (the disparity's range over WINDOW_PX² above MIN_RANGE_PX)."""
+    return (confidence < MAX_CONFIDENCE) & \
+        (local_range(disparity, WINDOW_PX) > MIN_RANGE_PX)
 
 
 def disparity_steps(disparity: np.ndarray) -> np.ndarray:

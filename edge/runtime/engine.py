@@ -57,8 +57,7 @@ class Engine:
     size (model.json's "any_size"), "budget" scales them to the bundle's pixel count at their
     own aspect and "native" runs them at their own size, padded to the network's stride; the
     outputs come back at the camera's size (`edge.runtime.fit`). The stages are `infer`'s.
-    Every
-    OpenBLAS in the process runs one thread from the first engine on
+    Every OpenBLAS in the process runs one thread from the first engine on
     (`edge.workers.one_openblas_thread`: their spinning threads took a core from it)."""
 
     def __init__(self, bundle: Path | str | None = None, options: EngineOptions | None = None,
@@ -202,9 +201,9 @@ class Engine:
         encode → iterate (the GRU steps under the deadline) → upsample (and the confidence)
         → select (the LiDAR selection) → refine (the band refinement, `edge.runtime.band_sgm`,
         unless `refine = "off"`) → median (over the network's unsure edges) → restore (to the
-        camera's size) → depth. `started`
-        (time.perf_counter()) is when the deadline's clock began; default now. `record`, if
-        given, collects each graph's input feeds (quantization calibration)."""
+        camera's size) → depth. `started` (time.perf_counter()) is when the deadline's clock
+        began; default now. `record`, if given, collects each graph's input feeds
+        (quantization calibration)."""
         t_engine = time.perf_counter()
         iters = self.default_iters if iters is None else int(iters)
         if iters < 1:

@@ -31,7 +31,6 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from edge_depth.runtime.edge_median import as_grey8
 from edge_depth.runtime.lidar_rows import map_points, measured, row_noise, row_runs
 
 REACH_PX = 4  # the largest offset searched, each way
@@ -79,6 +78,13 @@ def jump_px(level: float | None) -> float:
     if level is None:
         return JUMP_PX
     return max(JUMP_PX, JUMP_SIGMAS * float(np.sqrt(2.0)) * level)
+
+
+def as_grey8(image: np.ndarray) -> np.ndarray:
+    """8-bit grey: float images (the engine's buffers) are rounded and clipped."""
+    if image.dtype == np.uint8:
+        return image
+    return np.clip(np.rint(image), 0, 255).astype(np.uint8)
 
 
 def edge_strength(left: np.ndarray) -> np.ndarray:
