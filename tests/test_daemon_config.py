@@ -151,16 +151,6 @@ def test_a_planar_sim_lidar_makes_a_sparse_map_the_band_refines_around(tmp_path,
     assert refined and float(refined[1]) > 0.5 and int(refined[2]) >= 1
 
 
-@pytest.mark.parametrize("key", ["match_photometry", "edge_select", "edge_match",
-                                 "edge_match_rows", "edge_matcher", "edge_match_far_px"])
-def test_an_engine_option_the_band_made_redundant_is_refused_saying_why(tmp_path, key):
-    cfg = write(tmp_path, SIM.format(out=tmp_path / "depth.mcap") + f"[engine]\n{key} = true\n")
-    with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected a current key "
-                                          r"\(this one was removed: .*band refinement.*delete "
-                                          rf"the key\), got '{key}'"):
-        load_robot_config(cfg)
-
-
 def test_record_then_replay(tmp_path, capsys):
     rec = tmp_path / "rec.mcap"
     cfg = write(tmp_path, SIM.format(out=tmp_path / "unused.mcap"))

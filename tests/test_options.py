@@ -74,3 +74,14 @@ def test_the_configuration_reference_holds_the_table_the_options_make():
     text = (ROOT / "docs" / "configuration.md").read_text()
     assert reference_table() in text
     assert all(f"| `{name}` |" in reference_table() for name in NAMES)
+
+
+@pytest.mark.parametrize("key", ["match_photometry", "edge_select", "edge_match",
+                                 "edge_match_rows", "edge_matcher", "edge_match_far_px"])
+def test_an_engine_option_the_band_made_redundant_is_refused_saying_why(tmp_path, key):
+    cfg = tmp_path / "robot.toml"
+    cfg.write_text(f"[engine]\n{key} = true\n")
+    with pytest.raises(ConfigError, match=rf"robot.toml: engine.{key}: expected a current key "
+                                          r"\(this one was removed: .*band refinement.*delete "
+                                          rf"the key\), got '{key}'"):
+        load_robot_config(cfg)
