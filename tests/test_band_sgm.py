@@ -30,11 +30,13 @@ def test_the_aggregation_is_guided_sgms_on_a_band_over_the_whole_range():
     start = np.zeros(count.size + 1, np.int64)
     np.cumsum(count, out=start[1:])
     zero = np.zeros(shape, np.float32)
-    cost = band_sgm.band_cost(band_sgm.census(left), band_sgm.census(right), lo, count, start,
-                              zero, zero, zero, 10.0, 1.0, 1.0)
+    cost = np.empty(start[-1], np.float32)
+    band_sgm.band_cost(band_sgm.census(left), band_sgm.census(right), lo, count, start,
+                       zero, zero, zero, 10.0, 1.0, 1.0, cost)
     penalties = np.maximum(10, 120 // np.maximum(np.arange(256), 1)).astype(np.float32)
-    totals = band_sgm.aggregate(cost, lo, count, start, left.astype(np.int32),
-                                np.float32(10), penalties)
+    totals = np.empty((2, start[-1]), np.float32)
+    band_sgm.aggregate(cost, lo, count, start, left.astype(np.int32), np.float32(10),
+                       penalties, True, totals)
     summed = (totals[0] + totals[1]).reshape(shape + (17,))
     np.testing.assert_array_equal(summed, expected.astype(np.float32))
 
@@ -86,8 +88,9 @@ def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
     flat = rng.integers(0, 62, start[-1]).astype(np.float32)
     grey = rng.integers(0, 256, (h, w)).astype(np.int32)
     penalties = np.maximum(10, 120 // np.maximum(np.arange(256), 1)).astype(np.float32)
-    totals = band_sgm.aggregate(flat, lo, count, start, grey, np.float32(10), penalties,
-                                diagonals)
+    totals = np.empty((2, start[-1]), np.float32)
+    band_sgm.aggregate(flat, lo, count, start, grey, np.float32(10), penalties, diagonals,
+                       totals)
     got = totals[0] + totals[1]
     cost = [[flat[start[y * w + x]:start[y * w + x + 1]].astype(np.float64) for x in range(w)]
             for y in range(h)]
@@ -96,6 +99,40 @@ def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
         for x in range(w):
             np.testing.assert_allclose(got[start[y * w + x]:start[y * w + x + 1]],
                                        expected[y][x], rtol=0, atol=1e-3)
+
+
+@pytest.mark.parametrize("rows", [2, 40])
+def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows):
+    rng = np.random.default_rng(rows)
+    h, w = 40, 50
+    points = np.zeros((h, w), np.float32)
+    ys = rng.choice(h, rows, replace=False)
+    for y in ys:  # scan lines, and points anywhere
+        xs = rng.choice(w, 12, replace=False)
+        points[y, xs] = rng.uniform(1, 60, len(xs)).astype(np.float32)
+    nearby = np.zeros((h, w), np.float32)
+    band_sgm._nearest_within(points, np.float32(8.0), nearby)
+    py, px = np.nonzero(points)  # row-major: a tie goes to the upper row, then the left
+    for y in range(h):
+        for x in range(w):
+            d2 = (py - y) ** 2 + (px - x) ** 2
+            best = int(np.argmin(d2))
+            expected = points[py[best], px[best]] if d2[best] <= 64 else 0.0
+            assert nearby[y, x] == expected, (y, x)
+
+
+def test_the_volumes_are_reused_and_a_refinement_repeats_exactly():
+    left, right = shifted_pair(random_texture(), disparity=7)
+    prior = np.full(left.shape, 10.0, np.float32)
+    unsure = np.full(left.shape, 0.3, np.float32)
+    sparse = np.zeros_like(prior)
+    sparse[10, 20:40] = 7.0
+    first, _ = refine(left, right, prior, unsure, sparse)
+    bigger, _ = refine(np.tile(left, (2, 2)), np.tile(right, (2, 2)), np.tile(prior, (2, 2)),
+                       np.tile(unsure, (2, 2)), np.tile(sparse, (2, 2)))
+    again, _ = refine(left, right, prior, unsure, sparse)  # in buffers a larger frame grew
+    np.testing.assert_array_equal(first, again)
+    assert not np.array_equal(bigger[:left.shape[0], :left.shape[1]], prior)
 
 
 def test_an_unsure_estimate_a_few_px_off_is_refined_onto_the_plane():

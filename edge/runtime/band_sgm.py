@@ -30,24 +30,30 @@ Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, ch
 the band's widths, the Laplace weight, the reach and the rest are this stage's own, chosen on
 the published pairs and the rig's test split and judged on variants of the pairs it was not
 chosen on (docs/experiments.md, 2026-12-07). Compiled with numba: the downward and the upward
-paths on two threads, float32 costs, loops written to run in SIMD lanes (`_step`).
+paths on two threads, float32 costs, loops written to run in SIMD lanes (`_step`), the
+volumes in buffers kept from frame to frame, every pass over the image a kernel of its own
+(numpy's passes with their fresh arrays took a third of the time).
 """
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import cv2
 import numba
 import numpy as np
 
-from edge_depth.baselines import nearest_point
+from edge_depth.runtime.cells import Scratch
 
 CENSUS_W, CENSUS_H = 9, 7
 WORST = CENSUS_W * CENSUS_H - 1  # the census cost where the right pixel leaves the image
 BIG = 1e6  # beyond any path cost: the labels a neighbour does not have
 BIG32 = np.float32(BIG)
 MAX_LABELS = 257  # a band's labels at most (the network's and the LiDAR's values far apart)
+# the volumes (cost, the paths' sums: tens of MB) kept from frame to frame, one set per thread:
+# fresh pages for them took more time than the aggregation (docs/experiments.md)
+_SCRATCH = Scratch()
 
 
 @dataclass(frozen=True)
@@ -80,25 +86,29 @@ class BandSgmConfig:
             raise ValueError(f"paths: 4 or 8, got {self.paths}")
 
 
-def census(grey: np.ndarray) -> np.ndarray:
+def census(grey: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
     """The 9×7 census of an (H, W) uint8 image: bit set where the neighbour is darker than
-    the centre, border replicated; (H, W) uint64."""
+    the centre, border replicated; (H, W) uint64, into `out` where given."""
     ry, rx = CENSUS_H // 2, CENSUS_W // 2
-    return _census(np.pad(np.ascontiguousarray(grey, np.uint8), ((ry, ry), (rx, rx)),
-                          mode="edge"))
+    if out is None:
+        out = np.empty(grey.shape, np.uint64)
+    _census(np.pad(np.ascontiguousarray(grey, np.uint8), ((ry, ry), (rx, rx)), mode="edge"),
+            out)
+    return out
 
 
 @numba.njit(cache=True, parallel=True)
-def _census(padded: np.ndarray) -> np.ndarray:
+def _census(padded: np.ndarray, out: np.ndarray) -> None:
     """`census` of the image inside `padded` (its border CENSUS_H // 2 rows and
-    CENSUS_W // 2 columns wide): one pass over a row per neighbour, in SIMD lanes."""
+    CENSUS_W // 2 columns wide) into `out`: one pass over a row per neighbour, in SIMD
+    lanes."""
     ry, rx = CENSUS_H // 2, CENSUS_W // 2
     h, w = padded.shape[0] - 2 * ry, padded.shape[1] - 2 * rx
-    out = np.zeros((h, w), np.uint64)
     one = np.uint64(1)
     for y in numba.prange(h):
         centre = padded[y + ry, rx:rx + w]
         bits = out[y]
+        bits[:] = 0
         for dy in range(-ry, ry + 1):
             row = padded[y + ry + dy]
             for dx in range(-rx, rx + 1):
@@ -107,7 +117,6 @@ def _census(padded: np.ndarray) -> np.ndarray:
                 neighbour = row[rx + dx:rx + dx + w]
                 for x in range(w):
                     bits[x] = (bits[x] << one) | np.uint64(neighbour[x] < centre[x])
-    return out
 
 
 @numba.njit(cache=True, inline="always")
@@ -121,13 +130,14 @@ def _popcount(v: np.uint64) -> int:
 @numba.njit(cache=True, parallel=True)
 def band_cost(cl: np.ndarray, cr: np.ndarray, lo: np.ndarray, count: np.ndarray,
               start: np.ndarray, sparse: np.ndarray, prior: np.ndarray,
-              confidence: np.ndarray, k: float, c: float, net_weight: float) -> np.ndarray:
+              confidence: np.ndarray, k: float, c: float, net_weight: float,
+              cost: np.ndarray) -> None:
     """The ragged cost volume, flat float32: pixel p's labels d = lo(p) … lo(p) + count(p) − 1
     at start(p) …: the census Hamming distance (WORST where x − d leaves the image), plus
     `net_weight` × the network's −log p(d) under its Laplace error model (`band_half_widths`),
-    multiplied at LiDAR pixels (sparse > 0) by Poggi's inverted Gaussian."""
+    multiplied at LiDAR pixels (sparse > 0) by Poggi's inverted Gaussian; into `cost` (at
+    least start[-1] long)."""
     h, w = cl.shape
-    cost = np.empty(start[-1], np.float32)
     for y in numba.prange(h):
         for x in range(w):
             p = y * w + x
@@ -140,40 +150,85 @@ def band_cost(cl: np.ndarray, cr: np.ndarray, lo: np.ndarray, count: np.ndarray,
                 if g > 0:
                     value *= k * (1.0 - np.exp(-(d - g) ** 2 / (2.0 * c * c)))
                 cost[start[p] + i] = value
-    return cost
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
-def _step(before: np.ndarray, q: np.uint64, lo_q: np.uint64, n_q: np.uint64,
-          floor: np.float32, jump: np.float32, p1: np.float32, cost: np.ndarray, c: np.uint64,
-          lo_p: np.uint64, n_p: np.uint64, scratch: np.ndarray, out: np.ndarray,
-          out_bits: np.ndarray, o: np.uint64, sums: np.ndarray, least: np.ndarray) -> None:
-    """One pixel of one path: L(p, ·) from the previous pixel's L (`before[q:q + n_q]`, its
-    labels from disparity lo_q, its minimum `floor`) and p's costs `cost[c:c + n_p]` (from
-    disparity lo_p) into `out[o:o + n_p]`, added to `sums`; L(p)'s minimum into `least[0]`.
+def _make_step(summed: bool):
+    """`_step` (summed: each label's path cost also added to the running sum of the pixel's
+    paths) or `_step_alone` (the first path: only its own costs)."""
 
-    Written so that each loop runs in SIMD lanes: the previous costs are laid into `scratch`
-    by absolute disparity (BIG elsewhere: labels the previous pixel does not have), read there
-    without a branch, and cleared again; every index is unsigned (numba tests signed ones for
-    wrap-around); and the minimum is taken over the costs' bits as int32 (`out_bits`, the same
-    memory: non-negative floats order as their bits), since numba's float minimum over a loop
-    stays scalar."""
-    pad = np.uint64(2)
-    for j in range(n_q):
-        scratch[lo_q + pad + j] = before[q + j]
-    a = lo_p + pad
-    one = np.uint64(1)
+    @numba.njit(fastmath=True, inline="always")
+    def step(before: np.ndarray, q: np.uint64, lo_q: np.uint64, n_q: np.uint64,
+             floor: np.float32, jump: np.float32, p1: np.float32, cost: np.ndarray,
+             c: np.uint64, lo_p: np.uint64, n_p: np.uint64, out: np.ndarray, o: np.uint64,
+             total: np.ndarray, partner: np.ndarray, po: np.uint64) -> np.float32:
+        """One pixel of one path: L(p, ·) from the previous pixel's L (`before[q:q + n_q]`,
+        its labels from disparity lo_q, its minimum `floor`) and p's costs `cost[c:c + n_p]`
+        (from disparity lo_p) into `out[o:o + n_p]` and, summed, `total[c + i]` = L(p, i) +
+        `partner[po + i]` (the pixel's paths before this one); returns L(p)'s minimum.
+
+        p's label i is the previous pixel's label j = i + lo_p − lo_q. Where j − 1 … j + 1
+        are all the previous pixel's, the loop reads them at a fixed offset and runs in SIMD
+        lanes; the few labels beyond (a band's ends, or bands apart) are read one by one, a
+        label the previous pixel does not have counting as BIG. Every index in the SIMD loop
+        is unsigned (numba tests signed ones for wrap-around; the offset's wrap-around
+        cancels in the sum). One loop a path and pixel: at ~30 labels a pixel, each loop's
+        set-up costs as much as its labels."""
+        # signed (numba's int() of an unsigned stays unsigned)
+        shift = int(np.int64(lo_p) - np.int64(lo_q))  # j = i + shift
+        labels_q, labels_p = int(np.int64(n_q)), int(np.int64(n_p))
+        first = min(max(1 - shift, 0), labels_p)  # the labels whose j ± 1 are all inside
+        last = max(min(labels_q - 1 - shift, labels_p), first)
+        base = q + np.uint64(shift)  # before[base + i] is label j's (mod 2^64)
+        one = np.uint64(1)
+        for i in range(np.uint64(first), np.uint64(last)):
+            near = min(before[base + i - one], before[base + i + one]) + p1
+            value = cost[c + i] + min(min(before[base + i], near), jump) - floor
+            out[o + i] = value
+            if summed:
+                total[c + i] = value + partner[po + i]
+        for k in range(first + labels_p - last):  # the labels at and beyond the bands' ends
+            i = k if k < first else last + k - first
+            j = i + shift
+            near = BIG32
+            here = BIG32
+            if 0 <= j < labels_q:
+                here = before[q + np.uint64(j)]
+            if 1 <= j <= labels_q:
+                near = before[q + np.uint64(j - 1)]
+            if -1 <= j < labels_q - 1:
+                near = min(near, before[q + np.uint64(j + 1)])
+            u = np.uint64(i)
+            value = cost[c + u] + min(min(here, near + p1), jump) - floor
+            out[o + u] = value
+            if summed:
+                total[c + u] = value + partner[po + u]
+        # the minimum over the costs' bits as int32 (non-negative floats order as their
+        # bits): numba's float minimum over a loop stays scalar
+        bits = out.view(np.int32)
+        lowest = bits[o]
+        for i in range(n_p):
+            lowest = min(lowest, bits[o + i])
+        return np.int32(lowest).view(np.float32)
+
+    return step
+
+
+_step = _make_step(True)
+_step_alone = _make_step(False)
+
+
+@numba.njit(fastmath=True, inline="always")
+def _fresh(cost: np.ndarray, c: np.uint64, n_p: np.uint64, out: np.ndarray, o: np.uint64,
+           total: np.ndarray, partner: np.ndarray, po: np.uint64, summed: bool) -> np.float32:
+    """A path that starts at this pixel: L(p, ·) = its costs; returns their minimum."""
+    lowest = BIG32
     for i in range(n_p):
-        near = min(scratch[a + i - one], scratch[a + i + one]) + p1
-        value = cost[c + i] + min(min(scratch[a + i], near), jump) - floor
-        out[o + i] = value
-        sums[i] += value
-    for j in range(n_q):
-        scratch[lo_q + pad + j] = BIG
-    bits = out_bits[o]
-    for i in range(n_p):
-        bits = min(bits, out_bits[o + i])
-    least.view(np.int32)[0] = bits
+        out[o + i] = cost[c + i]
+        lowest = min(lowest, cost[c + i])
+    if summed:
+        for i in range(n_p):
+            total[c + i] = cost[c + i] + partner[po + i]
+    return lowest
 
 
 @numba.njit(cache=True, fastmath=True)
@@ -182,9 +237,10 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
            diagonals: bool, total: np.ndarray) -> None:
     """Four of the eight paths (two without the diagonals), row by row: down (top to bottom:
     the three arriving from the row above, and left to right along the row) or up (the
-    mirror four); their sum written to `total` (ragged, as `cost`) once per pixel. Only the
-    last row's path costs are kept, each pixel's at its offset within its row.
-    `penalties[g]`: P2 at a grey-level step g."""
+    mirror four); their sum written to `total` (ragged, as `cost`): the path along the row
+    first, then each from the row above adding its own. Only the last row's path costs are
+    kept, each pixel's at its offset within its row. `penalties[g]`: P2 at a grey-level
+    step g."""
     h, w = lo.shape
     dy, dx_row = (1, 1) if down else (-1, -1)
     widest = 0
@@ -192,14 +248,10 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
         widest = max(widest, start[(y + 1) * w] - start[y * w])
     before = np.empty(3 * widest, np.float32)
     now = np.empty(3 * widest, np.float32)
-    before_bits, now_bits = before.view(np.int32), now.view(np.int32)
     floor_before = np.zeros((3, w), np.float32)
     floor_now = np.zeros((3, w), np.float32)
-    along = np.empty(count.max(), np.float32)
-    along_bits = along.view(np.int32)
-    sums = np.empty(count.max(), np.float32)
-    scratch = np.full(lo.max() + count.max() + 4, BIG, np.float32)
-    least = np.empty(1, np.float32)
+    along = np.empty(count.max(), np.float32)  # the previous pixel's along the row
+    along_next = np.empty(count.max(), np.float32)
     zero = np.uint64(0)
     for step in range(h):
         y = step if down else h - 1 - step
@@ -213,57 +265,62 @@ def _paths(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarra
                 continue
             n_p, lo_p, c = np.uint64(count[y, x]), np.uint64(lo[y, x]), np.uint64(start[p])
             o = np.uint64(start[p] - row)
-            for i in range(n_p):
-                sums[i] = 0.0
             px = x - dx_row
             if visit == 0 or count[y, px] == 0:
-                along_floor = BIG32
-                for i in range(n_p):
-                    along[i] = cost[c + i]
-                    sums[i] += cost[c + i]
-                    along_floor = min(along_floor, cost[c + i])
+                along_floor = _fresh(cost, c, n_p, along_next, zero, total, along, zero,
+                                     False)
             else:
                 jump = along_floor + penalties[abs(grey[y, x] - grey[y, px])]
-                _step(along, zero, np.uint64(lo[y, px]), np.uint64(count[y, px]), along_floor,
-                      jump, p1, cost, c, lo_p, n_p, scratch, along, along_bits, zero, sums,
-                      least)
-                along_floor = least[0]
+                along_floor = _step_alone(along, zero, np.uint64(lo[y, px]),
+                                          np.uint64(count[y, px]), along_floor, jump, p1,
+                                          cost, c, lo_p, n_p, along_next, zero, total, along,
+                                          zero)
+            along, along_next = along_next, along  # `along`: this pixel's, the sum's start
+            partner, po = along, zero
             for k in range(0 if diagonals else 1, 3 if diagonals else 2):
                 px, py = x - (k - 1), y - dy
                 ko = np.uint64(k * widest) + o
                 if step == 0 or px < 0 or px >= w or count[py, px] == 0:
-                    lowest = BIG32
-                    for i in range(n_p):
-                        now[ko + i] = cost[c + i]
-                        sums[i] += cost[c + i]
-                        lowest = min(lowest, cost[c + i])
-                    floor_now[k, x] = lowest
+                    floor_now[k, x] = _fresh(cost, c, n_p, now, ko, total, partner, po, True)
                 else:
                     q = np.uint64(k * widest + start[py * w + px] - row_before)
                     floor = floor_before[k, px]
                     jump = floor + penalties[abs(grey[y, x] - grey[py, px])]
-                    _step(before, q, np.uint64(lo[py, px]), np.uint64(count[py, px]), floor,
-                          jump, p1, cost, c, lo_p, n_p, scratch, now, now_bits, ko, sums,
-                          least)
-                    floor_now[k, x] = least[0]
-            for i in range(n_p):
-                total[c + i] = sums[i]
+                    floor_now[k, x] = _step(before, q, np.uint64(lo[py, px]),
+                                            np.uint64(count[py, px]), floor, jump, p1, cost,
+                                            c, lo_p, n_p, now, ko, total, partner, po)
+                partner, po = total, c
         before, now = now, before
-        before_bits, now_bits = now_bits, before_bits
         floor_before, floor_now = floor_now, floor_before
 
 
 @numba.njit(cache=True, parallel=True)
 def aggregate(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.ndarray,
               grey: np.ndarray, p1: np.float32, penalties: np.ndarray,
-              diagonals: bool = True) -> np.ndarray:
-    """S over the 8 paths as two partial sums (2, labels) float32, ragged as `cost`: the four
-    down paths and the four up paths, each on its own thread."""
-    totals = np.empty((2, cost.shape[0]), np.float32)
+              diagonals: bool, totals: np.ndarray) -> None:
+    """S over the 8 paths as two partial sums into `totals` (2, ≥ labels) float32, ragged as
+    `cost`: the four down paths and the four up paths, each on its own thread."""
     for half in numba.prange(2):
         _paths(cost, lo, count, start, grey, p1, penalties, half == 0, diagonals,
                totals[half])
-    return totals
+
+
+@numba.njit(cache=True, fastmath=True, inline="always")
+def _right_view(total: np.ndarray, s: int, m: int, x: int, r_first: int,
+                right_cost: np.ndarray, right: np.ndarray) -> None:
+    """Left pixel x's part in the right view's winners: its labels i < m (from `total[s]`)
+    meet right pixels r = r_first − i at disparity x − r; each keeps the lowest S that met it
+    (a tie: the leftmost left pixel's). Walked with r rising, unsigned, without a branch: a
+    loop in SIMD lanes (`_step`)."""
+    if m <= 0:
+        return
+    r0 = np.uint64(r_first - m + 1)
+    last = np.uint64(s + m - 1)
+    for k in range(np.uint64(m)):
+        value, r = total[last - k], r0 + k
+        better = value < right_cost[r]
+        right_cost[r] = value if better else right_cost[r]
+        right[r] = np.float32(x) - np.float32(r) if better else right[r]
 
 
 @numba.njit(cache=True, parallel=True)
@@ -271,7 +328,7 @@ def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
             uniqueness: int, prior: np.ndarray, near: np.ndarray, left: np.ndarray,
             right: np.ndarray, fallback: np.ndarray) -> None:
     """The left view's winner of S (the two partial sums, added into `totals[0]`) with the
-    parabola's sub-pixel step (`left`, NaN where it sits on the band's edge — the match lies
+    parabola's sub-pixel step (`left`, −1 where it sits on the band's edge — the match lies
     beyond the band — or is not unique by `uniqueness` %) and the right view's integer winner
     (`right`, -1 where no left pixel reaches it): the minimum of S over the left pixels that
     meet that right pixel (Hirschmüller's check without a second matching)."""
@@ -288,16 +345,13 @@ def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
             s, n, first = start[y * w + x], count[y, x], lo[y, x]
             fallback[y, x] = prior[y, x]  # the network's, or the nearest point where S says so
             if n == 0:  # not refined
-                left[y, x] = np.nan
+                left[y, x] = -1.0
                 continue
             i_prior, i_near = int(np.rint(prior[y, x])) - first, int(np.rint(near[y, x])) - first
             if near[y, x] > 0 and 0 <= i_near < n and 0 <= i_prior < n and \
                     total[s + i_near] < total[s + i_prior]:
                 fallback[y, x] = near[y, x]
-            for i in range(min(n, x - first + 1)):  # the labels whose right pixel is inside
-                if total[s + i] < right_cost[x - first - i]:
-                    right_cost[x - first - i] = total[s + i]
-                    right[y, x - first - i] = first + i
+            _right_view(total, s, min(n, x - first + 1), x, x - first, right_cost, right[y])
             lowest = order[s]  # the minimum over the bits: a loop in SIMD lanes (`_step`)
             for i in range(1, n):
                 lowest = min(lowest, order[s + i])
@@ -306,7 +360,7 @@ def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
                 best += 1
             low = total[s + best]
             if best == 0 or best == n - 1:
-                left[y, x] = np.nan
+                left[y, x] = -1.0
                 continue
             if uniqueness > 0:
                 second = np.inf
@@ -314,22 +368,12 @@ def winners(totals: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
                     if abs(i - best) > 1:
                         second = min(second, total[s + i])
                 if low * (100 + uniqueness) >= second * 100:
-                    left[y, x] = np.nan
+                    left[y, x] = -1.0
                     continue
             before, after = total[s + best - 1], total[s + best + 1]
             curvature = before - 2 * low + after
             offset = 0.0 if curvature <= 0 else (before - after) / (2.0 * curvature)
             left[y, x] = first + best + offset
-
-
-def checked(left: np.ndarray, right: np.ndarray, lr_max: float) -> np.ndarray:
-    """Where the left winner agrees with the right view's at x − round(d) within `lr_max`."""
-    h, w = left.shape
-    finite = np.isfinite(left)
-    xs = np.arange(w)[None, :] - np.rint(np.where(finite, left, 0)).astype(np.int64)
-    inside = finite & (xs >= 0) & (xs < w)
-    seen = np.take_along_axis(right, np.clip(xs, 0, w - 1), axis=1)
-    return inside & (np.abs(left - seen) <= lr_max)
 
 
 def use_threads(threads: int) -> None:
@@ -346,22 +390,40 @@ def band_half_widths(confidence: np.ndarray | None, shape: tuple[int, int],
     at c = 1, max_band at 0."""
     if confidence is None:
         return np.full(shape, config.max_band, np.int32)
-    c = np.clip(confidence, 0.0, 1.0 - 1e-6)
-    if config.quantile > 0:
-        width = np.log(1.0 / (1.0 - config.quantile)) / -np.log1p(-c)
-        return np.clip(np.ceil(width), config.min_band, config.max_band).astype(np.int32)
-    spread = config.max_band - config.min_band
-    return (config.min_band + np.rint(spread * (1.0 - c))).astype(np.int32)
+    half = np.empty(confidence.shape, np.int32)
+    interval = np.log(1.0 / (1.0 - config.quantile)) if config.quantile > 0 else 0.0
+    _half_widths(np.ascontiguousarray(confidence, np.float32), config.min_band,
+                 config.max_band, np.float32(interval), half)
+    return half
+
+
+@numba.njit(cache=True, parallel=True)
+def _half_widths(confidence: np.ndarray, min_band: int, max_band: int, interval: np.float32,
+                 half: np.ndarray) -> None:
+    """`band_half_widths` into `half`, in float32 (`interval` 0: linear)."""
+    h, w = confidence.shape
+    spread = np.float32(max_band - min_band)
+    for y in numba.prange(h):
+        for x in range(w):
+            c = min(max(confidence[y, x], np.float32(0.0)), np.float32(1.0 - 1e-6))
+            if interval > 0:
+                width = np.ceil(interval / -np.log1p(-c))
+                half[y, x] = int(min(max(width, np.float32(min_band)), np.float32(max_band)))
+            else:
+                half[y, x] = min_band + int(np.rint(spread * (np.float32(1.0) - c)))
 
 
 def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
            confidence: np.ndarray | None, sparse: np.ndarray,
-           config: BandSgmConfig | None = None) -> tuple[np.ndarray, int]:
+           config: BandSgmConfig | None = None,
+           parts_ms: dict[str, float] | None = None) -> tuple[np.ndarray, int]:
     """The prior (H, W) float32 px refined by SGM in its band: (disparity, pixels changed).
     `left`, `right` rectified grey (uint8 or float 0-255); `confidence` 0-1 (NaN read as 0;
     None: every band its widest, no error model); `sparse` LiDAR disparity, 0 = none. Pixels
-    whose prior is not finite keep it; a negative prior is searched from 0."""
+    whose prior is not finite keep it; a negative prior is searched from 0. `parts_ms`, if
+    given, gets each part's time (ms) added (`experiments/band_parts.py`)."""
     config = config or BandSgmConfig()
+    lap = _Laps(parts_ms)
     h, w = prior.shape
     grey_l = np.ascontiguousarray(np.clip(left, 0, 255).astype(np.uint8))
     grey_r = np.ascontiguousarray(np.clip(right, 0, 255).astype(np.uint8))
@@ -371,30 +433,53 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
         np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0), np.float32)
     points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
                                   np.float32)  # LiDAR disparity, 0 where none
+    lap("inputs")
     lo, count, start, nearby = _bands(finite, certain, points, config)
-    cost = band_cost(census(grey_l), census(grey_r), lo, count, start, points, finite,
-                     np.zeros((h, w), np.float32) if certain is None else certain,
-                     config.k, config.c, config.net_weight)
+    labels = int(start[-1])
+    lap("bands")
+    scratch = _SCRATCH
+    census_l = census(grey_l, scratch.take("census_l", h, w, np.uint64))
+    census_r = census(grey_r, scratch.take("census_r", h, w, np.uint64))
+    lap("census")
+    cost = scratch.take("cost", labels, 1).reshape(labels)
+    band_cost(census_l, census_r, lo, count, start, points, finite,
+              np.zeros((h, w), np.float32) if certain is None else certain,
+              config.k, config.c, config.net_weight, cost)
+    lap("cost")
     steps = np.maximum(np.arange(256), 1)
     penalties = np.maximum(config.p1, config.p2 // steps).astype(np.float32)
-    totals = aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
-                       penalties, config.paths == 8)
+    totals = scratch.take("totals", 2 * labels, 1).reshape(2, labels)
+    aggregate(cost, lo, count, start, grey_l.astype(np.int32), np.float32(config.p1),
+              penalties, config.paths == 8, totals)
+    lap("aggregate")
     left_d = np.empty((h, w), np.float32)
     right_d = np.empty((h, w), np.float32)
     fallback = np.empty((h, w), np.float32)
     winners(totals, lo, count, start, config.uniqueness, finite, nearby, left_d, right_d,
             fallback)
-    if not config.choose_fallback:
-        fallback = finite
-    if config.median:  # OpenCV's median has no notion of NaN: the rejected as -1, then again
-        left_d = cv2.medianBlur(np.nan_to_num(left_d, nan=-1.0), 3)
-        left_d[left_d < 0] = np.nan
-        right_d = cv2.medianBlur(right_d, 3)
-    keep = checked(left_d, right_d, config.lr_max)
-    keep &= np.abs(left_d - finite) > config.min_change
-    out = np.where(keep, left_d, fallback).astype(np.float32)
+    lap("winners")
+    if config.median:  # a 3×3 median of both views' winners (the rejected: −1)
+        left_d, right_d = cv2.medianBlur(left_d, 3), cv2.medianBlur(right_d, 3)
+    out = np.empty((h, w), np.float32)
+    _checked_choice(left_d, right_d, fallback if config.choose_fallback else finite, finite,
+                    config.lr_max, config.min_change, out)
     out[~known] = prior[~known]
+    lap("check")
     return out, int(np.count_nonzero(out[known] != finite[known]))
+
+
+class _Laps:
+    """`lap(name)`: the time since the last lap added to `parts_ms[name]` (if kept)."""
+
+    def __init__(self, parts_ms: dict[str, float] | None) -> None:
+        self.parts_ms = parts_ms
+        self.t = time.perf_counter()
+
+    def __call__(self, name: str) -> None:
+        if self.parts_ms is not None:
+            now = time.perf_counter()
+            self.parts_ms[name] = self.parts_ms.get(name, 0.0) + (now - self.t) * 1000
+            self.t = now
 
 
 def _bands(prior: np.ndarray, confidence: np.ndarray | None, points: np.ndarray,
@@ -404,24 +489,101 @@ def _bands(prior: np.ndarray, confidence: np.ndarray | None, points: np.ndarray,
     (H·W + 1) and the nearest LiDAR point's value within `lidar_reach` px (0: none)."""
     h, w = prior.shape
     half = band_half_widths(confidence, prior.shape, config)
-    centre = np.clip(np.rint(prior), 0, w - 1).astype(np.int32)
-    lo = np.maximum(centre - half, 0)
-    hi = centre + half
-    valid = points > 0
-    nearby = np.zeros(prior.shape, np.float32)
-    if config.lidar_reach > 0 and valid.any():  # the band spans the nearest point's value too
-        near, distance = nearest_point(points, valid)
-        close = distance <= config.lidar_reach
-        nearby = np.where(close, near, 0.0).astype(np.float32)
-        g = np.clip(np.rint(near), 0, w - 1).astype(np.int32)
-        lo = np.where(close, np.minimum(lo, np.maximum(g - 1, 0)), lo)
-        hi = np.where(close, np.maximum(hi, g + 1), hi)
-    count = np.clip(hi - lo + 1, 1, MAX_LABELS).astype(np.int32)
+    nearby = np.zeros((h, w), np.float32)
+    if config.lidar_reach > 0:  # the band spans the nearest point's value too
+        _nearest_within(points, np.float32(config.lidar_reach), nearby)
     if confidence is not None and config.refine_below < 1.0:  # the sure pixels keep theirs
         unsure = (confidence < config.refine_below).astype(np.uint8)
         side = 2 * config.refine_margin_px + 1
-        unsure = cv2.dilate(unsure, np.ones((side, side), np.uint8))
-        count[unsure == 0] = 0
-    start = np.zeros(count.size + 1, np.int64)
-    np.cumsum(count, out=start[1:])
-    return lo.astype(np.int32), count, start, nearby
+        refined = cv2.dilate(unsure, np.ones((side, side), np.uint8))
+    else:
+        refined = np.ones((1, 1), np.uint8)
+    lo = np.empty((h, w), np.int32)
+    count = np.empty((h, w), np.int32)
+    _band_limits(prior, half, nearby, refined, lo, count)
+    start = np.empty(count.size + 1, np.int64)
+    _offsets(count, start)
+    return lo, count, start, nearby
+
+
+@numba.njit(cache=True)
+def _offsets(count: np.ndarray, start: np.ndarray) -> None:
+    """The ragged volume's offsets: start[p] = the labels of the pixels before p."""
+    total = 0
+    start[0] = 0
+    for p, n in enumerate(count.ravel()):
+        total += n
+        start[p + 1] = total
+
+
+@numba.njit(cache=True, parallel=True)
+def _band_limits(prior: np.ndarray, half: np.ndarray, nearby: np.ndarray,
+                 refined: np.ndarray, lo: np.ndarray, count: np.ndarray) -> None:
+    """`_bands`' per-pixel part in one pass: the band around the prior (clipped to the image)
+    ± `half`, widened to the nearest point's value `nearby` (0: none within reach), its labels
+    1 … MAX_LABELS, 0 where not `refined` ((1, 1): every pixel is)."""
+    h, w = prior.shape
+    every = refined.shape[0] == 1
+    for y in numba.prange(h):
+        for x in range(w):
+            centre = int(min(max(np.rint(prior[y, x]), 0), w - 1))
+            first, last = max(centre - half[y, x], 0), centre + half[y, x]
+            if nearby[y, x] > 0:
+                g = int(min(max(np.rint(nearby[y, x]), 0), w - 1))
+                first, last = min(first, max(g - 1, 0)), max(last, g + 1)
+            lo[y, x] = first
+            count[y, x] = min(max(last - first + 1, 1), MAX_LABELS) \
+                if every or refined[y, x] else 0
+
+
+@numba.njit(cache=True, parallel=True)
+def _nearest_within(points: np.ndarray, reach: np.float32, nearby: np.ndarray) -> None:
+    """Into `nearby` (zeroed): the value of each pixel's nearest point (`points` > 0) within
+    `reach` px, Euclidean, exact (a tie: the upper row's, then the left one's). Each image row
+    looks at the points of the rows within reach, each over the columns within reach of it:
+    the work grows with the points (~2r + 1 squares each per row), not with the image."""
+    h, w = points.shape
+    rows = np.zeros(h + 1, np.int64)  # the points' columns, row by row (CSR)
+    for y in range(h):
+        rows[y + 1] = rows[y] + np.count_nonzero(points[y] > 0)
+    columns = np.empty(rows[h], np.int64)
+    for y in numba.prange(h):
+        k = rows[y]
+        for x in range(w):
+            if points[y, x] > 0:
+                columns[k] = x
+                k += 1
+    limit = reach * reach
+    span = int(reach)
+    for y in numba.prange(h):
+        best = np.full(w, np.inf, np.float32)
+        for yy in range(max(y - span, 0), min(y + span + 1, h)):
+            dy2 = np.float32((yy - y) * (yy - y))
+            for k in range(rows[yy], rows[yy + 1]):
+                column = columns[k]
+                for x in range(max(column - span, 0), min(column + span + 1, w)):
+                    dx = np.float32(column - x)
+                    d2 = dy2 + dx * dx
+                    if d2 < best[x] and d2 <= limit:
+                        best[x] = d2
+                        nearby[y, x] = points[yy, column]
+
+
+@numba.njit(cache=True, parallel=True)
+def _checked_choice(left: np.ndarray, right: np.ndarray, fallback: np.ndarray,
+                    prior: np.ndarray, lr_max: float, min_change: float,
+                    out: np.ndarray) -> None:
+    """Into `out`: the left winner (`left`, < 0 where rejected) where it agrees with the right
+    view's (`right`) at x − round(d) within `lr_max` and moves the prior by more than
+    `min_change`; `fallback` elsewhere (Hirschmüller's check)."""
+    h, w = left.shape
+    for y in numba.prange(h):
+        for x in range(w):
+            d = left[y, x]
+            out[y, x] = fallback[y, x]
+            if d < 0:
+                continue
+            xr = x - int(np.rint(d))
+            if 0 <= xr < w and abs(d - right[y, xr]) <= lr_max and \
+                    abs(d - prior[y, x]) > min_change:
+                out[y, x] = d
