@@ -12,7 +12,7 @@ from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
 
 # per-frame values in the timings that are not ms
-NOT_LATENCY = ("iterations", "replaced_pct", "refined_pct", "lidar_put_back",
+NOT_LATENCY = ("iterations", "replaced_pct", "refined_pct", "band_skipped", "lidar_put_back",
                "lidar_dx_px", "lidar_dy_px", "lidar_turn_deg", "lidar_noise_px", "lidar_smoothed")
 # the selections' per-frame shares: timings key -> the closing line's name
 SELECTIONS = {"replaced_pct": "LiDAR selection", "refined_pct": "Band refinement"}
@@ -49,6 +49,9 @@ def selection_summary(timings: list[dict]) -> str | None:
             lines.append(f"{name}: replaced a median {np.median(shares):.1f} % of each "
                          f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
                          f"{none} of {len(shares)} frames)")
+    if skipped := int(sum(replaced_shares(timings, "band_skipped"))):
+        lines.append(f"Band refinement: skipped in {skipped} of {len(timings)} frames, where "
+                     "it would have ended after the deadline")
     if line := noise_line(timings):
         lines.append(line)
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):

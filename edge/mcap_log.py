@@ -66,6 +66,8 @@ JSON_SCHEMAS = {
         # per frame that ran it, the % of pixels each selection replaced
         "lidar_select_replaced_pct": {"type": "array", "items": {"type": "number"}},
         "band_refined_pct": {"type": "array", "items": {"type": "number"}},
+        # frames whose band refinement the deadline skipped
+        "band_skipped": {"type": "integer"},
         # the depth map's health (edge.health): level OK / WARN / ERROR and its cause
         "output_health": {"type": "object", "properties": {
             "level": {"type": "string"}, "invalid_pct": {"type": "number"},

@@ -235,6 +235,7 @@ class Runner:
                 lidar_select_replaced_pct=[round(s, 2) for s in replaced_shares(window)],
                 band_refined_pct=[round(s, 2) for s in
                                   replaced_shares(window, "refined_pct")],
+                band_skipped=int(sum(replaced_shares(window, "band_skipped"))),
                 lidar_put_back=[int(s) for s in replaced_shares(window, "lidar_put_back")],
                 lidar_noise_px=[round(s, 2) for s in replaced_shares(window, "lidar_noise_px")],
                 output_health=pipeline.health.diagnostics(),

@@ -148,7 +148,7 @@ def test_deadline_stops_before_the_step_that_would_miss_it(monkeypatch, deadline
     engine = Engine(precision="fp32", threads=1)
     for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
         engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
-    engine._upsample_ms = 5.0  # as learnt from earlier frames
+    engine._after_ms = {"upsample": 5.0}  # as learnt from earlier frames
     _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
     result = engine.infer(left, right, sparse, iters=6, deadline_ms=deadline)
     # encoder ends at 10 ms; after k steps 10 + 10 k; step k + 1 is run if
@@ -165,12 +165,60 @@ def test_the_deadline_counts_from_started_and_the_engine_time_is_its_own(monkeyp
     engine = Engine(precision="fp32", threads=1)
     for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
         engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
-    engine._upsample_ms = 5.0
+    engine._after_ms = {"upsample": 5.0}
     _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
     clock.now = 0.020
     result = engine.infer(left, right, sparse, iters=6, deadline_ms=47.0, started=0.0)
     assert result.iterations == 1  # 20 + 10 + 10 + 10 + 5 > 47
     assert result.timings_ms["engine"] == pytest.approx(25.0)
+
+
+class TimedBand:
+    """The band refinement, taking `ms` of the fake clock."""
+
+    def __init__(self, band, clock, ms):
+        self.band, self.clock, self.ms = band, clock, ms
+
+    def use_threads(self, threads):
+        self.band.use_threads(threads)
+
+    def refine(self, *args, **kwargs):
+        self.clock.now += self.ms / 1000
+        return self.band.refine(*args, **kwargs)
+
+
+@pytest.mark.parametrize("deadline, steps, skipped", [(1e6, 6, False), (47.0, 1, False),
+                                                      (30.0, 1, True), (42.0, 2, True)])
+def test_the_deadline_cuts_the_steps_first_and_then_the_band(monkeypatch, deadline, steps,
+                                                              skipped):
+    """Encoder 10 ms, steps 10, upsampling 5, the band 20 (as learnt): at 47 ms one step
+    leaves room for the band (10 + 10 + 5 + 20), at 30 ms not even one does; at 42 ms the
+    band cannot end in time after the first step (20 + 5 + 20 > 42), so the steps take the
+    time it would have had (a second ends at 30, + 5 ≤ 42; a third would not)."""
+    clock = FakeClock()
+    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
+    engine = Engine(precision="fp32", threads=1)
+    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
+        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
+    engine.band = TimedBand(engine.band, clock, 20.0)
+    engine._after_ms = {"upsample": 5.0, "band_refine": 20.0}
+    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    result = engine.infer(left, right, sparse, iters=6, deadline_ms=deadline)
+    assert result.iterations == steps
+    assert ("band_skipped" in result.timings_ms) == skipped
+    assert (result.refined_px is None) == skipped
+    assert ("band_refine" in result.timings_ms) != skipped
+
+
+def test_the_closing_summary_counts_the_frames_whose_band_the_deadline_skipped():
+    from edge_depth.frame_summary import selection_summary, summarise
+
+    timings = [dict(engine=40.0, band_skipped=1.0), dict(engine=70.0, band_refine=25.0,
+                                                          refined_pct=4.0),
+               dict(engine=41.0, band_skipped=1.0)]
+    assert "Band refinement: skipped in 2 of 3 frames" in selection_summary(timings)
+    assert "band_skipped" not in summarise(timings)  # a count, not a latency
+    assert selection_summary(timings[1:2]).count("skipped") == 0
 
 
 def test_depth_is_zero_and_invalid_below_the_minimum_disparity():

@@ -425,14 +425,16 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     config = config or BandSgmConfig()
     lap = _Laps(parts_ms)
     h, w = prior.shape
-    grey_l = np.ascontiguousarray(np.clip(left, 0, 255).astype(np.uint8))
-    grey_r = np.ascontiguousarray(np.clip(right, 0, 255).astype(np.uint8))
+    grey_l, grey_r = np.empty((h, w), np.uint8), np.empty((h, w), np.uint8)
+    finite, points = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+    certain = None if confidence is None else np.empty((h, w), np.float32)
+    _inputs(np.ascontiguousarray(left), np.ascontiguousarray(right),
+            np.ascontiguousarray(prior, np.float32), np.ascontiguousarray(sparse, np.float32),
+            np.zeros((1, 1), np.float32) if confidence is None else
+            np.ascontiguousarray(confidence, np.float32),
+            grey_l, grey_r, finite, points,
+            np.zeros((1, 1), np.float32) if certain is None else certain)
     known = np.isfinite(prior)
-    finite = np.ascontiguousarray(np.where(known, prior, 0.0), np.float32)
-    certain = None if confidence is None else np.ascontiguousarray(
-        np.clip(np.nan_to_num(confidence, nan=0.0), 0.0, 1.0), np.float32)
-    points = np.ascontiguousarray(np.where(np.isfinite(sparse) & (sparse > 0), sparse, 0.0),
-                                  np.float32)  # LiDAR disparity, 0 where none
     lap("inputs")
     lo, count, start, nearby = _bands(finite, certain, points, config)
     labels = int(start[-1])
@@ -466,6 +468,29 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     out[~known] = prior[~known]
     lap("check")
     return out, int(np.count_nonzero(out[known] != finite[known]))
+
+
+@numba.njit(cache=True, parallel=True)
+def _inputs(left: np.ndarray, right: np.ndarray, prior: np.ndarray, sparse: np.ndarray,
+            confidence: np.ndarray, grey_l: np.ndarray, grey_r: np.ndarray,
+            finite: np.ndarray, points: np.ndarray, certain: np.ndarray) -> None:
+    """`refine`'s inputs in one pass: the grey levels saturated to 0–255 and cut to uint8
+    (NaN: 0), the prior with 0 where it is not finite, the LiDAR disparity with 0 where none
+    (not finite or ≤ 0) and the confidence clipped to 0–1, NaN read as 0 (`confidence` (1, 1):
+    none, `certain` untouched)."""
+    h, w = prior.shape
+    with_confidence = confidence.shape[0] == h and confidence.shape[1] == w
+    for y in numba.prange(h):
+        for x in range(w):
+            a, b = left[y, x], right[y, x]
+            grey_l[y, x] = np.uint8(min(max(a, 0), 255)) if a == a else 0
+            grey_r[y, x] = np.uint8(min(max(b, 0), 255)) if b == b else 0
+            d, g = prior[y, x], sparse[y, x]
+            finite[y, x] = d if np.isfinite(d) else 0.0
+            points[y, x] = g if np.isfinite(g) and g > 0 else 0.0
+            if with_confidence:
+                c = confidence[y, x]
+                certain[y, x] = min(max(c, 0.0), 1.0) if c == c else 0.0
 
 
 class _Laps:

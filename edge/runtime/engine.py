@@ -107,7 +107,8 @@ class Engine:
         # refine "off", the network's estimate after the selection): `_refine`
         self.median = None if resolved.edge_median == OFF else \
             EdgeMedian(str(resolved.edge_median))
-        self._upsample_ms = 0.0  # running estimate for the deadline
+        # each stage after the steps: its running time estimate (ms), for the deadline
+        self._after_ms: dict[str, float] = {}
         self._last: tuple[dict, FitPlan] | None = None  # the last frame's encoding
         self._plans: dict[tuple[int, int], FitPlan] = {}
 
@@ -164,6 +165,7 @@ class Engine:
         w, h = camera or self.size
         blank = np.zeros((h, w), np.uint8)
         self.infer(blank, blank, np.zeros((h, w), np.float32), iters=iters)
+        self._after_ms = {}  # its times (numba's kernels loaded, pages first touched) mislead
 
     @property
     def bf16_encoder(self) -> bool:
@@ -216,10 +218,11 @@ class Engine:
         disp, confidence = self._upsample(frame, enc, disparity, hidden)
         frame.counts["counted_px"] = disp.size  # the grid the stages count on
         disp, confidence = self._select(frame, disp, confidence)
-        disp = self._refine(frame, disp, confidence)
+        disp = self._refine(frame, disp, confidence, deadline_ms)
         disp = self._median(frame, disp, confidence)
-        self._upsample_ms = frame.after_steps_ms if self._upsample_ms == 0 else \
-            0.8 * self._upsample_ms + 0.2 * frame.after_steps_ms  # for the deadline
+        for name in frame.after_steps:  # for the deadline
+            ms = frame.timings[name]
+            self._after_ms[name] = 0.8 * self._after_ms.get(name, ms) + 0.2 * ms
         if not plan.identity:
             disp = plan.restore(disp, disparity=True)
             confidence = None if confidence is None else plan.restore(confidence, False)
@@ -289,14 +292,20 @@ class Engine:
     def _iterate(self, frame: _Frame, enc: dict, iters: int,
                  deadline_ms: float | None) -> tuple[np.ndarray, np.ndarray]:
         """Up to `iters` GRU steps; with a deadline, none that the prediction (this frame's
-        slowest step plus what follows the steps) says would end after it; at least one."""
+        slowest step plus what follows the steps) says would end after it; at least one.
+        What follows includes the band refinement while it can still end in time (it has
+        the first claim on the time left); once it cannot, the steps take that time and
+        `_refine` skips it."""
         state = {k: enc[k] for k in self.graphs.step_state}
         disparity, hidden = enc["disparity"], enc["hidden"]
         step_ms: list[float] = []
         for i in range(iters):
             if deadline_ms is not None and i > 0:
                 elapsed = (time.perf_counter() - frame.t0) * 1000
-                if elapsed + max(step_ms) + self._upsample_ms > deadline_ms:
+                after = sum(self._after_ms.values())
+                if elapsed + after > deadline_ms:  # the band cannot end in time: not waited for
+                    after -= self._after_ms.get("band_refine", 0.0)
+                if elapsed + max(step_ms) + after > deadline_ms:
                     break
             t = time.perf_counter()
             feeds = dict(state, disparity=disparity, hidden=hidden)
@@ -344,14 +353,26 @@ class Engine:
             frame.stage("select", t)
         return disp, confidence
 
-    def _refine(self, frame: _Frame, disp: np.ndarray,
-                confidence: np.ndarray | None) -> np.ndarray:
+    def _refine(self, frame: _Frame, disp: np.ndarray, confidence: np.ndarray | None,
+                deadline_ms: float | None = None) -> np.ndarray:
         """The band refinement (`edge.runtime.band_sgm`), unless `refine` is "off" (without
         the bundle's confidence every band is its widest); its changed pixels are the frame's
-        refined ones. Its threads are set on every call: numba keeps them per calling thread
-        (the pipelined daemon and the ROS 2 node infer on threads of their own)."""
+        refined ones. With a deadline, skipped (`band_skipped` 1 in the frame's timings)
+        where it and the median after it would end after it, as their recent times predict:
+        the steps are cut first (`_iterate` counts the band's time in), the band last. Its
+        threads are set on every call: numba keeps them per calling thread (the pipelined
+        daemon and the ROS 2 node infer on threads of their own)."""
         if self.band is None:
             return disp
+        if deadline_ms is not None and "band_refine" in self._after_ms:
+            elapsed = (time.perf_counter() - frame.t0) * 1000
+            if elapsed + self._after_ms["band_refine"] + \
+                    self._after_ms.get("edge_median", 0.0) > deadline_ms:
+                frame.timings["band_skipped"] = 1.0
+                # an estimate that only skips is never measured again: let it fall until the
+                # band is tried (a slow frame, a busier minute once, need not skip it for good)
+                self._after_ms["band_refine"] *= 0.9
+                return disp
         left, right = self._stage_pair()
         t = time.perf_counter()
         self.band.use_threads(self.options.threads)
@@ -386,7 +407,7 @@ class _Frame:
     steps: int = 0
     lidar_offset: Offset | None = None  # the LiDAR map's misregistration, where looked for
     lidar_noise_px: float | None = None  # the LiDAR map's noise level, where measured
-    after_steps_ms: float = 0.0  # what follows the last step, for the deadline's prediction
+    after_steps: list[str] = field(default_factory=list)  # the stages after the steps, run
 
     def feed(self, part: str, feeds: dict) -> dict:
         if self.record is not None:
@@ -396,7 +417,7 @@ class _Frame:
     def stage(self, name: str, started: float) -> None:
         """A stage after the steps took from `started` (perf_counter) to now."""
         self.timings[name] = (time.perf_counter() - started) * 1000
-        self.after_steps_ms += self.timings[name]
+        self.after_steps.append(name)
 
 
 def load_band_refinement(options: EngineOptions):
