@@ -101,22 +101,30 @@ def census(grey: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
 def _census(padded: np.ndarray, out: np.ndarray) -> None:
     """`census` of the image inside `padded` (its border CENSUS_H // 2 rows and
     CENSUS_W // 2 columns wide) into `out`: one pass over a row per neighbour, in SIMD
-    lanes."""
+    lanes, the first 30 neighbours' bits in one 32-bit word and the last 32 in another
+    (twice the lanes 64-bit words have), joined at the end into the same 62 bits."""
     ry, rx = CENSUS_H // 2, CENSUS_W // 2
     h, w = padded.shape[0] - 2 * ry, padded.shape[1] - 2 * rx
-    one = np.uint64(1)
+    one = np.uint32(1)
+    first_word = CENSUS_W * CENSUS_H - 1 - 32  # the neighbours in the high word
     for y in numba.prange(h):
         centre = padded[y + ry, rx:rx + w]
-        bits = out[y]
-        bits[:] = 0
+        high = np.zeros(w, np.uint32)
+        low = np.zeros(w, np.uint32)
+        k = 0
         for dy in range(-ry, ry + 1):
             row = padded[y + ry + dy]
             for dx in range(-rx, rx + 1):
                 if dy == 0 and dx == 0:
                     continue
                 neighbour = row[rx + dx:rx + dx + w]
+                bits = high if k < first_word else low
                 for x in range(w):
-                    bits[x] = (bits[x] << one) | np.uint64(neighbour[x] < centre[x])
+                    bits[x] = (bits[x] << one) | np.uint32(neighbour[x] < centre[x])
+                k += 1
+        row_out = out[y]
+        for x in range(w):
+            row_out[x] = (np.uint64(high[x]) << np.uint64(32)) | np.uint64(low[x])
 
 
 @numba.njit(cache=True, inline="always")
