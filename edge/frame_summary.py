@@ -50,8 +50,9 @@ def selection_summary(timings: list[dict]) -> str | None:
                          f"frame's pixels (p95 {np.percentile(shares, 95):.1f} %; none in "
                          f"{none} of {len(shares)} frames)")
     if skipped := int(sum(replaced_shares(timings, "band_skipped"))):
-        lines.append(f"Band refinement: skipped in {skipped} of {len(timings)} frames, where "
-                     "it would have ended after the deadline")
+        engine_frames = sum(1 for t in timings if "band_refine" in t or "band_skipped" in t)
+        lines.append(f"Band refinement: skipped in {skipped} of {engine_frames} frames the "
+                     "engine ran on, where it would have ended after the deadline")
     if line := noise_line(timings):
         lines.append(line)
     if (put_back := replaced_shares(timings, "lidar_put_back")) and any(put_back):

@@ -13,5 +13,5 @@ export OPENBLAS_CORETYPE=Haswell
 # numba compiles for Haswell (AVX2, no AVX-512): the name alone is not enough, numba then keeps
 # the host's features (AVX-512 included); with a feature list LLVM takes Haswell's own
 export NUMBA_CPU_NAME=haswell
-export NUMBA_CPU_FEATURES="+64bit,+adx,+aes,+avx,+avx2,+bmi,+bmi2,+cmov,+cx16,+f16c,+fma,+fsgsbase,+fxsr,+lzcnt,+mmx,+movbe,+pclmul,+popcnt,+rdrnd,+sahf,+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,+xsave,+xsaveopt"
+export NUMBA_CPU_FEATURES="+64bit,+aes,+avx,+avx2,+bmi,+bmi2,+cmov,+cx16,+f16c,+fma,+fsgsbase,+fxsr,+lzcnt,+mmx,+movbe,+pclmul,+popcnt,+rdrnd,+sahf,+sse,+sse2,+sse3,+sse4.1,+sse4.2,+ssse3,+xsave,+xsaveopt"
 exec "$@"

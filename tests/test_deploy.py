@@ -140,8 +140,8 @@ class TimedSession:
         return self.session.run(feeds)
 
 
-@pytest.mark.parametrize("deadline, expected", [(None, 6), (1e6, 6), (0.0, 1), (37.0, 2),
-                                                (47.0, 3)])
+@pytest.mark.parametrize("deadline, expected", [(None, 6), (1e6, 6), (0.0, 6), (1e-3, 1),
+                                                (37.0, 2), (47.0, 3)])
 def test_deadline_stops_before_the_step_that_would_miss_it(monkeypatch, deadline, expected):
     clock = FakeClock()
     monkeypatch.setattr(engine_module.time, "perf_counter", clock)
@@ -152,7 +152,7 @@ def test_deadline_stops_before_the_step_that_would_miss_it(monkeypatch, deadline
     _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
     result = engine.infer(left, right, sparse, iters=6, deadline_ms=deadline)
     # encoder ends at 10 ms; after k steps 10 + 10 k; step k + 1 is run if
-    # 10 + 10 k + 10 + 5 <= deadline
+    # 10 + 10 k + 10 + 5 <= deadline (0: no deadline, as the options say)
     assert result.iterations == expected
 
 
@@ -210,13 +210,36 @@ def test_the_deadline_cuts_the_steps_first_and_then_the_band(monkeypatch, deadli
     assert ("band_refine" in result.timings_ms) != skipped
 
 
+def test_a_band_that_never_fits_is_skipped_and_measured_again_every_eleventh_frame(monkeypatch):
+    """The band takes 20 ms where 30 - 25 = 5 are left: skipped, its estimate kept (not let
+    fall towards a time it does not take), run once after RETRY_BAND_AFTER skips in a row,
+    and its measured time is the estimate again. A deadline of 0 is none."""
+    clock = FakeClock()
+    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
+    engine = Engine(precision="fp32", threads=1)
+    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
+        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
+    engine.band = TimedBand(engine.band, clock, 20.0)
+    engine._after_ms = {"upsample": 5.0, "band_refine": 20.0}
+    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    ran = ["band_skipped" not in engine.infer(left, right, sparse, iters=2,
+                                              deadline_ms=30.0).timings_ms
+           for _ in range(2 * engine_module.RETRY_BAND_AFTER + 2)]
+    every = engine_module.RETRY_BAND_AFTER
+    assert [i for i, r in enumerate(ran) if r] == [every - 1, 2 * every - 1]
+    assert engine._after_ms["band_refine"] == pytest.approx(20.0)
+    unbounded = engine.infer(left, right, sparse, iters=2, deadline_ms=0.0)
+    assert unbounded.iterations == 2 and "band_skipped" not in unbounded.timings_ms
+
+
 def test_the_closing_summary_counts_the_frames_whose_band_the_deadline_skipped():
     from edge_depth.frame_summary import selection_summary, summarise
 
     timings = [dict(engine=40.0, band_skipped=1.0), dict(engine=70.0, band_refine=25.0,
                                                           refined_pct=4.0),
-               dict(engine=41.0, band_skipped=1.0)]
-    assert "Band refinement: skipped in 2 of 3 frames" in selection_summary(timings)
+               dict(engine=41.0, band_skipped=1.0), dict(propagate=5.0)]  # a carried frame
+    assert "Band refinement: skipped in 2 of 3 frames the engine ran on" in \
+        selection_summary(timings)
     assert "band_skipped" not in summarise(timings)  # a count, not a latency
     assert selection_summary(timings[1:2]).count("skipped") == 0
 

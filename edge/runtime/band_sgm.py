@@ -44,6 +44,7 @@ import cv2
 import numba
 import numpy as np
 
+from edge_depth.errors import InvalidDataError
 from edge_depth.runtime.cells import Scratch
 
 CENSUS_W, CENSUS_H = 9, 7
@@ -179,8 +180,8 @@ def _make_step(summed: bool):
         lanes; the few labels beyond (a band's ends, or bands apart) are read one by one, a
         label the previous pixel does not have counting as BIG. Every index in the SIMD loop
         is unsigned (numba tests signed ones for wrap-around; the offset's wrap-around
-        cancels in the sum). One loop a path and pixel: at ~30 labels a pixel, each loop's
-        set-up costs as much as its labels."""
+        cancels in the sum). No per-pixel buffer is laid out, cleared or copied: at ~30
+        labels a pixel, each loop's set-up costs about as much as its labels."""
         # signed (numba's int() of an unsigned stays unsigned)
         shift = int(np.int64(lo_p) - np.int64(lo_q))  # j = i + shift
         labels_q, labels_p = int(np.int64(n_q)), int(np.int64(n_p))
@@ -228,7 +229,8 @@ _step_alone = _make_step(False)
 @numba.njit(fastmath=True, inline="always")
 def _fresh(cost: np.ndarray, c: np.uint64, n_p: np.uint64, out: np.ndarray, o: np.uint64,
            total: np.ndarray, partner: np.ndarray, po: np.uint64, summed: bool) -> np.float32:
-    """A path that starts at this pixel: L(p, ·) = its costs; returns their minimum."""
+    """A path that starts at this pixel: L(p, ·) = its costs into `out[o:]` and, `summed`,
+    `total[c + i]` = its cost + `partner[po + i]`; returns their minimum."""
     lowest = BIG32
     for i in range(n_p):
         out[o + i] = cost[c + i]
@@ -313,7 +315,7 @@ def aggregate(cost: np.ndarray, lo: np.ndarray, count: np.ndarray, start: np.nda
                totals[half])
 
 
-@numba.njit(cache=True, fastmath=True, inline="always")
+@numba.njit(cache=True, inline="always")
 def _right_view(total: np.ndarray, s: int, m: int, x: int, r_first: int,
                 right_cost: np.ndarray, right: np.ndarray) -> None:
     """Left pixel x's part in the right view's winners: its labels i < m (from `total[s]`)
@@ -431,6 +433,7 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     whose prior is not finite keep it; a negative prior is searched from 0. `parts_ms`, if
     given, gets each part's time (ms) added (`experiments/band_parts.py`)."""
     config = config or BandSgmConfig()
+    _check_shapes(prior.shape, left=left, right=right, sparse=sparse, confidence=confidence)
     lap = _Laps(parts_ms)
     h, w = prior.shape
     grey_l, grey_r = np.empty((h, w), np.uint8), np.empty((h, w), np.uint8)
@@ -448,8 +451,8 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     labels = int(start[-1])
     lap("bands")
     scratch = _SCRATCH
-    census_l = census(grey_l, scratch.take("census_l", h, w, np.uint64))
-    census_r = census(grey_r, scratch.take("census_r", h, w, np.uint64))
+    census_l = census(grey_l, scratch.take("census_l", h * w, 1, np.uint64).reshape(h, w))
+    census_r = census(grey_r, scratch.take("census_r", h * w, 1, np.uint64).reshape(h, w))
     lap("census")
     cost = scratch.take("cost", labels, 1).reshape(labels)
     band_cost(census_l, census_r, lo, count, start, points, finite,
@@ -472,7 +475,7 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
         left_d, right_d = cv2.medianBlur(left_d, 3), cv2.medianBlur(right_d, 3)
     out = np.empty((h, w), np.float32)
     _checked_choice(left_d, right_d, fallback if config.choose_fallback else finite, finite,
-                    config.lr_max, config.min_change, out)
+                    np.float32(config.lr_max), np.float32(config.min_change), out)
     out[~known] = prior[~known]
     lap("check")
     return out, int(np.count_nonzero(out[known] != finite[known]))
@@ -499,6 +502,14 @@ def _inputs(left: np.ndarray, right: np.ndarray, prior: np.ndarray, sparse: np.n
             if with_confidence:
                 c = confidence[y, x]
                 certain[y, x] = min(max(c, 0.0), 1.0) if c == c else 0.0
+
+
+def _check_shapes(shape: tuple[int, ...], **images: np.ndarray | None) -> None:
+    """The kernels index every image by the prior's shape: each given one must have it."""
+    for name, image in images.items():
+        if image is not None and np.shape(image) != shape:
+            raise InvalidDataError(f"band refinement: {name}", f"the prior's shape {shape}",
+                                   np.shape(image))
 
 
 class _Laps:
@@ -554,9 +565,9 @@ def _band_limits(prior: np.ndarray, half: np.ndarray, nearby: np.ndarray,
                  refined: np.ndarray, lo: np.ndarray, count: np.ndarray) -> None:
     """`_bands`' per-pixel part in one pass: the band around the prior (clipped to the image)
     ± `half`, widened to the nearest point's value `nearby` (0: none within reach), its labels
-    1 … MAX_LABELS, 0 where not `refined` ((1, 1): every pixel is)."""
+    1 … MAX_LABELS, 0 where not `refined` (another shape than the prior's: every pixel is)."""
     h, w = prior.shape
-    every = refined.shape[0] == 1
+    every = refined.shape != prior.shape
     for y in numba.prange(h):
         for x in range(w):
             centre = int(min(max(np.rint(prior[y, x]), 0), w - 1))
@@ -604,7 +615,7 @@ def _nearest_within(points: np.ndarray, reach: np.float32, nearby: np.ndarray) -
 
 @numba.njit(cache=True, parallel=True)
 def _checked_choice(left: np.ndarray, right: np.ndarray, fallback: np.ndarray,
-                    prior: np.ndarray, lr_max: float, min_change: float,
+                    prior: np.ndarray, lr_max: np.float32, min_change: np.float32,
                     out: np.ndarray) -> None:
     """Into `out`: the left winner (`left`, < 0 where rejected) where it agrees with the right
     view's (`right`) at x − round(d) within `lr_max` and moves the prior by more than

@@ -5,7 +5,9 @@ The encoder runs once per frame, the update step up to `iters` times, the convex
 once after the last step (with a bundle that has the refinement stage, it also returns the
 per-pixel confidence 0-1 that the disparity is within 1 px). With a deadline, the engine
 stops iterating when the next step, predicted from this frame's steps so far plus the
-upsampling time of earlier frames, would finish after it; it always runs at least one step.
+running times of the stages after the steps on earlier frames, would finish after it (it
+always runs at least one step), and skips the band refinement where it would end after it
+(`Engine._refine`).
 """
 
 from __future__ import annotations
@@ -45,6 +47,9 @@ NATIVE_MIN_STRIDES = 8
 # the encoder's outputs made from the LiDAR (the seed and the anchors at 1/8); the others are
 # the images' alone, so a stereo-only pass can reuse them (`Engine.stereo_only`)
 LIDAR_OUTPUTS = ("disparity", "sparse_low", "valid_low")
+# with a deadline the band refinement runs after this many skips in a row anyway, to measure
+# its time again (`Engine._band_late`): one frame in eleven may end late while it does not fit
+RETRY_BAND_AFTER = 10
 
 
 class Engine:
@@ -109,6 +114,7 @@ class Engine:
             EdgeMedian(str(resolved.edge_median))
         # each stage after the steps: its running time estimate (ms), for the deadline
         self._after_ms: dict[str, float] = {}
+        self._band_skips = 0  # frames in a row whose band the deadline skipped
         self._last: tuple[dict, FitPlan] | None = None  # the last frame's encoding
         self._plans: dict[tuple[int, int], FitPlan] = {}
 
@@ -207,6 +213,7 @@ class Engine:
         began; default now. `record`, if given, collects each graph's input feeds
         (quantization calibration)."""
         t_engine = time.perf_counter()
+        deadline_ms = deadline_ms or None  # 0: none
         iters = self.default_iters if iters is None else int(iters)
         if iters < 1:
             raise ConfigError("iters", ">= 1", iters)
@@ -364,15 +371,9 @@ class Engine:
         daemon and the ROS 2 node infer on threads of their own)."""
         if self.band is None:
             return disp
-        if deadline_ms is not None and "band_refine" in self._after_ms:
-            elapsed = (time.perf_counter() - frame.t0) * 1000
-            if elapsed + self._after_ms["band_refine"] + \
-                    self._after_ms.get("edge_median", 0.0) > deadline_ms:
-                frame.timings["band_skipped"] = 1.0
-                # an estimate that only skips is never measured again: let it fall until the
-                # band is tried (a slow frame, a busier minute once, need not skip it for good)
-                self._after_ms["band_refine"] *= 0.9
-                return disp
+        if deadline_ms is not None and self._band_late(frame, deadline_ms):
+            frame.timings["band_skipped"] = 1.0
+            return disp
         left, right = self._stage_pair()
         t = time.perf_counter()
         self.band.use_threads(self.options.threads)
@@ -380,6 +381,25 @@ class Engine:
             left, right, disp, confidence, self._inputs["sparse"][0, 0])
         frame.stage("band_refine", t)
         return disp
+
+    def _band_late(self, frame: _Frame, deadline_ms: float) -> bool:
+        """Whether the band refinement and the median after it would end after the deadline,
+        as their running times predict. An estimate that only skips is never measured again,
+        so after RETRY_BAND_AFTER skips in a row the band runs once anyway (ending late) and
+        its time replaces the estimate: a slow minute need not skip it for good."""
+        estimate = self._after_ms.get("band_refine")
+        if estimate is None:
+            return False
+        elapsed = (time.perf_counter() - frame.t0) * 1000
+        if elapsed + estimate + self._after_ms.get("edge_median", 0.0) <= deadline_ms:
+            self._band_skips = 0
+            return False
+        self._band_skips += 1
+        if self._band_skips < RETRY_BAND_AFTER:
+            return True
+        self._band_skips = 0
+        del self._after_ms["band_refine"]  # this run's time is the estimate again
+        return False
 
     def _median(self, frame: _Frame, disp: np.ndarray,
                 confidence: np.ndarray | None) -> np.ndarray:

@@ -67,8 +67,9 @@ class EngineOptions:
                          bounds=(0, 64))
     deadline_ms: float = _option(0.0, "stop iterating before the step that would end after "
                                  "this (ms from the frame's start), and skip the band "
-                                 "refinement where even one step leaves it no room; "
-                                 "0 = no deadline",
+                                 "refinement where it would end after it (as its recent "
+                                 "times predict; tried again after 10 skips); 0 = no "
+                                 "deadline",
                                  bounds=(0.0, 60_000.0))
     denoise_lidar: bool = _option(False, "a noisy LiDAR map (its points off the line through "
                                   "their row neighbours by more than 0.3 px, robustly) "
