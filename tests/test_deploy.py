@@ -187,6 +187,19 @@ class TimedBand:
         return self.band.refine(*args, **kwargs)
 
 
+def engine_with_a_timed_band(monkeypatch):
+    """An engine on a fake clock: encoder 10 ms, steps 10, upsampling 5 and the band 20 (as
+    learnt from earlier frames); and a frame's inputs."""
+    clock = FakeClock()
+    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
+    engine = Engine(precision="fp32", threads=1)
+    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
+        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
+    engine.band = TimedBand(engine.band, clock, 20.0)
+    engine._after_ms = {"upsample": 5.0, "band_refine": 20.0}
+    return engine, scene_inputs(1_000_005, (640, 400), "beams16")[1:]
+
+
 @pytest.mark.parametrize("deadline, steps, skipped", [(1e6, 6, False), (47.0, 1, False),
                                                       (30.0, 1, True), (42.0, 2, True)])
 def test_the_deadline_cuts_the_steps_first_and_then_the_band(monkeypatch, deadline, steps,
@@ -195,14 +208,7 @@ def test_the_deadline_cuts_the_steps_first_and_then_the_band(monkeypatch, deadli
     leaves room for the band (10 + 10 + 5 + 20), at 30 ms not even one does; at 42 ms the
     band cannot end in time after the first step (20 + 5 + 20 > 42), so the steps take the
     time it would have had (a second ends at 30, + 5 ≤ 42; a third would not)."""
-    clock = FakeClock()
-    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
-    engine = Engine(precision="fp32", threads=1)
-    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
-        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
-    engine.band = TimedBand(engine.band, clock, 20.0)
-    engine._after_ms = {"upsample": 5.0, "band_refine": 20.0}
-    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    engine, (left, right, sparse) = engine_with_a_timed_band(monkeypatch)
     result = engine.infer(left, right, sparse, iters=6, deadline_ms=deadline)
     assert result.iterations == steps
     assert ("band_skipped" in result.timings_ms) == skipped
@@ -214,14 +220,7 @@ def test_a_band_that_never_fits_is_skipped_and_measured_again_every_eleventh_fra
     """The band takes 20 ms where 30 - 25 = 5 are left: skipped, its estimate kept (not let
     fall towards a time it does not take), run once after RETRY_BAND_AFTER skips in a row,
     and its measured time is the estimate again. A deadline of 0 is none."""
-    clock = FakeClock()
-    monkeypatch.setattr(engine_module.time, "perf_counter", clock)
-    engine = Engine(precision="fp32", threads=1)
-    for part, ms in (("encoder", 10.0), ("step", 10.0), ("upsample", 5.0)):
-        engine.sessions[part] = TimedSession(engine.sessions[part], clock, ms)
-    engine.band = TimedBand(engine.band, clock, 20.0)
-    engine._after_ms = {"upsample": 5.0, "band_refine": 20.0}
-    _, left, right, sparse = scene_inputs(1_000_005, (640, 400), "beams16")
+    engine, (left, right, sparse) = engine_with_a_timed_band(monkeypatch)
     ran = ["band_skipped" not in engine.infer(left, right, sparse, iters=2,
                                               deadline_ms=30.0).timings_ms
            for _ in range(2 * engine_module.RETRY_BAND_AFTER + 2)]
