@@ -121,6 +121,68 @@ def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows):
             assert nearby[y, x] == expected, (y, x)
 
 
+def test_the_winners_are_the_plain_minimum_of_each_view():
+    """Left: the first label at S's minimum with the parabola's step (−1 at a band's edge);
+    right: for each right pixel the lowest S over the left pixels that meet it (a tie: the
+    leftmost), −1 where none does — written plainly against the kernel."""
+    rng = np.random.default_rng(11)
+    h, w = 6, 30
+    lo = rng.integers(0, 8, (h, w)).astype(np.int32)
+    count = rng.integers(3, 9, (h, w)).astype(np.int32)
+    count[2, 5] = 0  # a pixel not refined
+    start = np.zeros(count.size + 1, np.int64)
+    np.cumsum(count, out=start[1:])
+    totals = rng.integers(0, 40, (2, start[-1])).astype(np.float32)  # ties among them
+    summed = totals[0] + totals[1]
+    prior = np.zeros((h, w), np.float32)
+    left, right, fallback = (np.empty((h, w), np.float32) for _ in range(3))
+    band_sgm.winners(totals, lo, count, start, 0, prior, np.zeros_like(prior), left, right,
+                     fallback)
+    for y in range(h):
+        best_right = {}
+        for x in range(w):
+            s, n = start[y * w + x], count[y, x]
+            costs = summed[s:s + n]
+            if n == 0:
+                assert left[y, x] == -1.0
+                continue
+            i = int(np.argmin(costs))
+            if 0 < i < n - 1:
+                a, b, c = costs[i - 1], costs[i], costs[i + 1]
+                step = 0.0 if a - 2 * b + c <= 0 else (a - c) / (2 * (a - 2 * b + c))
+                assert left[y, x] == pytest.approx(lo[y, x] + i + step, abs=1e-5)
+            else:
+                assert left[y, x] == -1.0
+            for i in range(n):
+                r = x - (lo[y, x] + i)
+                if r >= 0 and (r not in best_right or costs[i] < best_right[r][0]):
+                    best_right[r] = (costs[i], lo[y, x] + i)
+        expected = [best_right[r][1] if r in best_right else -1 for r in range(w)]
+        np.testing.assert_array_equal(right[y], np.array(expected, np.float32))
+    assert 0 < np.count_nonzero(left >= 0) < left.size  # inside a band and at its edge
+
+
+def test_the_check_keeps_a_winner_only_where_both_views_agree_and_it_moves_the_prior():
+    rng = np.random.default_rng(12)
+    h, w = 5, 40
+    left = rng.uniform(0, 20, (h, w)).astype(np.float32)
+    left[rng.random((h, w)) < 0.2] = -1.0  # rejected
+    right = np.where(rng.random((h, w)) < 0.5, left, left + 3).astype(np.float32)
+    prior = (left + rng.choice([0.5, 2.0], (h, w))).astype(np.float32)
+    fallback = np.full((h, w), 99.0, np.float32)
+    out = np.empty((h, w), np.float32)
+    band_sgm._checked_choice(left, right, fallback, prior, np.float32(1.0), np.float32(1.0),
+                             out)
+    for y in range(h):
+        for x in range(w):
+            d = left[y, x]
+            xr = x - int(np.rint(d)) if d >= 0 else -1
+            keep = d >= 0 and 0 <= xr < w and abs(d - right[y, xr]) <= 1.0 \
+                and abs(d - prior[y, x]) > 1.0
+            assert out[y, x] == (d if keep else 99.0), (y, x)
+    assert 0 < np.count_nonzero(out != 99.0) < out.size  # both outcomes met
+
+
 def test_the_volumes_are_reused_and_a_refinement_repeats_exactly():
     left, right = shifted_pair(random_texture(), disparity=7)
     prior = np.full(left.shape, 10.0, np.float32)
