@@ -13,7 +13,7 @@ import pytest
 
 from edge_depth.errors import ConfigError
 from edge_depth.guided_sgm import GuidedSgmConfig, aggregate, census_cost
-from edge_depth.runtime import band_sgm
+from edge_depth.runtime import band_paths, band_sgm
 from edge_depth.runtime.band_sgm import BandSgmConfig, refine
 from edge_depth.runtime.engine import Engine
 from edge_depth.sim import RigConfig, make_sample
@@ -35,7 +35,7 @@ def test_the_aggregation_is_guided_sgms_on_a_band_over_the_whole_range():
                        zero, zero, zero, 10.0, 1.0, 1.0, cost)
     penalties = np.maximum(10, 120 // np.maximum(np.arange(256), 1)).astype(np.float32)
     totals = np.empty((2, start[-1]), np.float32)
-    band_sgm.aggregate(cost, lo, count, start, left.astype(np.int32), np.float32(10),
+    band_paths.aggregate(cost, lo, count, start, left.astype(np.int32), np.float32(10),
                        penalties, True, totals)
     summed = (totals[0] + totals[1]).reshape(shape + (17,))
     np.testing.assert_array_equal(summed, expected.astype(np.float32))
@@ -89,7 +89,7 @@ def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
     grey = rng.integers(0, 256, (h, w)).astype(np.int32)
     penalties = np.maximum(10, 120 // np.maximum(np.arange(256), 1)).astype(np.float32)
     totals = np.empty((2, start[-1]), np.float32)
-    band_sgm.aggregate(flat, lo, count, start, grey, np.float32(10), penalties, diagonals,
+    band_paths.aggregate(flat, lo, count, start, grey, np.float32(10), penalties, diagonals,
                        totals)
     got = totals[0] + totals[1]
     cost = [[flat[start[y * w + x]:start[y * w + x + 1]].astype(np.float64) for x in range(w)]
