@@ -119,8 +119,8 @@ class DepthResult:
     timings_ms: stage name -> milliseconds for this frame. confidence: (H, W) float32 0-1,
     the model's estimate that the disparity is within 1 px (None when the model has none).
     selected_px: pixels the LiDAR selection replaced by a LiDAR value (None when the engine
-    ran no selection). refined_px: pixels the band refinement changed (its match or the
-    LiDAR's nearest point; None when it did not run).
+    ran no selection). refined_px: pixels the band refinement moved by more than 1 px (its
+    match or the LiDAR's nearest point; None when it did not run).
     counted_px: the pixels of the grid those counts were taken on (the engine's, scaled and
     padded; None: the disparity's own), so that a share is count / counted_px.
     lidar_offset: the LiDAR map's misregistration as its depth edges against the image's show

@@ -19,9 +19,10 @@ pixel's by their absolute disparity. The cost is the census Hamming distance, pl
 confidence, times Poggi et al.'s inverted Gaussian at each LiDAR pixel (CVPR 2019). The winner
 of the summed cost, with the parabola through its neighbours, replaces the estimate where it
 is inside the band and agrees with the right view's winner within `lr_max` (Hirschmüller's
-check, the right view's disparity read from the left's sums) after a 3×3 median of both, and
-differs from the estimate by more than `min_change` (the network's own 1 px); elsewhere the
-estimate stays, or the nearest LiDAR point's value where the summed cost is lower there. Only
+check, the right view's disparity read from the left's sums) after a 3×3 median of both, also
+where it is within a pixel of the estimate (its parabola is the finer value: docs/experiments.md,
+2026-12-07 22:43); elsewhere the estimate stays, or the nearest LiDAR point's value where the
+summed cost is lower there. Only
 the pixels whose confidence is under `refine_below` (0.9), and those within
 `refine_margin_px` of them, are refined; the paths start afresh after the others, which keep
 the network's estimate (the aggregation's cost is per pixel: this halves it).
@@ -68,7 +69,6 @@ class BandSgmConfig:
     c: float = 1.0
     lr_max: float = 1.0  # left-right check tolerance (px)
     uniqueness: int = 0  # % by which the winner's S must be below the next (beyond ±1)
-    min_change: float = 1.0  # px: the prior stays where the match is this close to it
     quantile: float = 0.0  # the band: this interval of the confidence's error model; 0 = linear
     net_weight: float = 1.0  # the network's −log p(d) in the cost: census units per nat
     lidar_reach: float = 8.0  # px: the band also spans the nearest LiDAR point within this
@@ -272,11 +272,11 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
            confidence: np.ndarray | None, sparse: np.ndarray,
            config: BandSgmConfig | None = None,
            parts_ms: dict[str, float] | None = None) -> tuple[np.ndarray, int]:
-    """The prior (H, W) float32 px refined by SGM in its band: (disparity, pixels changed).
-    `left`, `right` rectified grey (uint8 or float 0-255); `confidence` 0-1 (NaN read as 0;
-    None: every band its widest, no error model); `sparse` LiDAR disparity, 0 = none. Pixels
-    whose prior is not finite keep it; a negative prior is searched from 0. `parts_ms`, if
-    given, gets each part's time (ms) added (`experiments/band_parts.py`)."""
+    """The prior (H, W) float32 px refined by SGM in its band: (disparity, pixels moved by more
+    than 1 px). `left`, `right` rectified grey (uint8 or float 0-255); `confidence` 0-1 (NaN
+    read as 0; None: every band its widest, no error model); `sparse` LiDAR disparity, 0 =
+    none. Pixels whose prior is not finite keep it; a negative prior is searched from 0.
+    `parts_ms`, if given, gets each part's time (ms) added (`experiments/band_parts.py`)."""
     config = config or BandSgmConfig()
     _check_shapes(prior.shape, left=left, right=right, sparse=sparse, confidence=confidence)
     lap = _Laps(parts_ms)
@@ -319,11 +319,13 @@ def refine(left: np.ndarray, right: np.ndarray, prior: np.ndarray,
     if config.median:  # a 3×3 median of both views' winners (the rejected: −1)
         left_d, right_d = cv2.medianBlur(left_d, 3), cv2.medianBlur(right_d, 3)
     out = np.empty((h, w), np.float32)
-    _checked_choice(left_d, right_d, fallback if config.choose_fallback else finite, finite,
-                    np.float32(config.lr_max), np.float32(config.min_change), out)
+    _checked_choice(left_d, right_d, fallback if config.choose_fallback else finite,
+                    np.float32(config.lr_max), out)
     out[~known] = prior[~known]
     lap("check")
-    return out, int(np.count_nonzero(out[known] != finite[known]))
+    # moved by more than a pixel (NaN, where the prior is not finite, compares false): what the
+    # band corrected, not its parabola's sub-pixel steps, which touch most refined pixels
+    return out, int(np.count_nonzero(np.abs(out - finite) > 1.0))
 
 
 @numba.njit(cache=True, parallel=True)
@@ -451,11 +453,10 @@ def _nearest_within(points: np.ndarray, reach: np.float32, nearby: np.ndarray) -
 
 @numba.njit(cache=True, parallel=True)
 def _checked_choice(left: np.ndarray, right: np.ndarray, fallback: np.ndarray,
-                    prior: np.ndarray, lr_max: np.float32, min_change: np.float32,
-                    out: np.ndarray) -> None:
+                    lr_max: np.float32, out: np.ndarray) -> None:
     """Into `out`: the left winner (`left`, < 0 where rejected) where it agrees with the right
-    view's (`right`) at x − round(d) within `lr_max` and moves the prior by more than
-    `min_change`; `fallback` elsewhere (Hirschmüller's check)."""
+    view's (`right`) at x − round(d) within `lr_max`; `fallback` elsewhere (Hirschmüller's
+    check)."""
     h, w = left.shape
     for y in numba.prange(h):
         for x in range(w):
@@ -464,6 +465,5 @@ def _checked_choice(left: np.ndarray, right: np.ndarray, fallback: np.ndarray,
             if d < 0:
                 continue
             xr = x - int(np.rint(d))
-            if 0 <= xr < w and abs(d - right[y, xr]) <= lr_max and \
-                    abs(d - prior[y, x]) > min_change:
+            if 0 <= xr < w and abs(d - right[y, xr]) <= lr_max:
                 out[y, x] = d
