@@ -6,8 +6,8 @@ outputs are equal to the bit, and each one's time (docs/experiments.md).
     python experiments/band_ab.py runs/band_inputs.npz --rev HEAD~1 [--rounds 3]
     bash experiments/avx2_kernels.sh .venv/bin/python experiments/band_ab.py ...
 
-`--rev`'s edge/runtime/band_sgm.py is imported from a copy under runs/ (its numba kernels
-compiled there once); the two alternate pair by pair, after an untimed call each. Per round:
+`--rev`'s edge/runtime/band_sgm.py (and its band_paths.py) is imported from a copy under
+runs/ (its numba kernels compiled there once); the two alternate pair by pair, after an untimed call each. Per round:
 the mean time a pair of each.
 """
 
@@ -29,19 +29,37 @@ KEYS = ("left", "right", "prior", "confidence", "sparse")
 
 
 def module_at(rev: str):
-    """band_sgm as it was at `rev`."""
-    text = subprocess.run(["git", "show", f"{rev}:edge/runtime/band_sgm.py"], check=True,
-                          capture_output=True, text=True).stdout
+    """band_sgm as it was at `rev`, with the aggregation (band_paths) of `rev` too where it had
+    one."""
+    short = subprocess.run(["git", "rev-parse", "--short", rev], check=True,
+                           capture_output=True, text=True).stdout.strip()
     folder = Path("runs/band_ab")
     folder.mkdir(parents=True, exist_ok=True)
-    name = "band_sgm_" + subprocess.run(["git", "rev-parse", "--short", rev], check=True,
-                                        capture_output=True, text=True).stdout.strip()
+    text = _at(rev, "edge/runtime/band_sgm.py")
+    paths = _at(rev, "edge/runtime/band_paths.py", missing_ok=True)
+    if paths is not None:
+        _load(folder, f"band_paths_{short}", paths)
+        text = text.replace("from edge_depth.runtime.band_paths import",
+                            f"from band_paths_{short} import")
+    return _load(folder, f"band_sgm_{short}", text)
+
+
+def _at(rev: str, path: str, missing_ok: bool = False) -> str | None:
+    done = subprocess.run(["git", "show", f"{rev}:{path}"], capture_output=True, text=True)
+    if done.returncode != 0 and missing_ok:
+        return None
+    done.check_returncode()
+    return done.stdout
+
+
+def _load(folder: Path, name: str, text: str):
+    """`text` as module `name`, from a file in `folder` (numba caches its kernels there)."""
     path = folder / f"{name}.py"
     path.write_text(text)
     spec = importlib.util.spec_from_file_location(name, path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module  # dataclasses look their module up
+    sys.modules[name] = module  # dataclasses look their module up; band_sgm imports it
     spec.loader.exec_module(module)
     return module
 
