@@ -22,6 +22,7 @@ from edge_depth.sim.motion import (
     KINDS,
     Motion,
     lift,
+    mover_index,
     mover_mask,
     moving_sample,
     plane_of,
@@ -68,6 +69,30 @@ def test_a_background_point_seen_driving_forward_has_the_disparity_geometry_give
     np.testing.assert_allclose(got, expected, rtol=1e-9)
     assert np.all(expected > background0.disparity(LEFT, uv[:, 0], uv[:, 1], RIG.cx,
                                                    RIG.cy))  # nearer now
+
+
+def test_a_moving_layers_texture_moves_with_its_plane():
+    motion = Motion(speed_mps=0.3, yaw_dps=15.0, mover_mps=(0.3, 0.0, 0.0))
+    t = 0.5
+    scene0, scene1 = world(), scene_at(world(), t, motion)
+    yaw = np.radians(15.0 * t)
+    R = np.array([[np.cos(yaw), 0, -np.sin(yaw)], [0, 1, 0], [np.sin(yaw), 0, np.cos(yaw)]])
+    mover = mover_index(scene0)
+    checked = 0
+    for k, (layer0, layer1) in enumerate(zip(scene0.layers, scene1.layers, strict=True)):
+        # pixels of the layer at t = 0 lifted onto its plane, moved, seen at t: the texture
+        # there must be the one they showed at t = 0 (the corners: any point of the plane)
+        uv = np.array([[10.0, 12.0], [170.0, 20.0], [30.0, 100.0], [150.0, 95.0]])
+        points = lift(plane_of(layer0, RIG), uv, RIG)
+        own = np.array(motion.mover_mps) * t if k == mover else np.zeros(3)
+        seen = (points + own - np.array([0.0, 0.0, 0.3 * t])) @ R.T
+        u = RIG.cx + RIG.focal_px * seen[:, 0] / seen[:, 2]
+        v = RIG.cy + RIG.focal_px * seen[:, 1] / seen[:, 2]
+        before = layer0.tex_affine @ np.stack([uv[:, 0], uv[:, 1], np.ones(4)])
+        after = layer1.tex_homography @ np.stack([u, v, np.ones(4)])
+        np.testing.assert_allclose(after[:2] / after[2], before, atol=1e-6)
+        checked += 1
+    assert checked == len(scene0.layers) > 1
 
 
 def test_only_the_mover_moves_against_the_world():

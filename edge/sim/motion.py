@@ -8,9 +8,12 @@ frame): the mover's points by `mover_mps`·t, so its plane becomes m / (1 + m ·
 sits at c(t) = `speed_mps`·t forward, turned by `yaw_dps`·t about its y axis, and sees a point
 P as R(t) (P − c(t)), so a plane becomes R m / (1 − m · c). Outlines are carried by their
 vertices (an ellipse as a 48-gon): each is lifted onto its plane at t = 0, moved, and
-projected again; the texture's affine map is refitted to three of them (exact for a plane
-seen fronto-parallel, a small shear otherwise: the appearance, never the ground truth). A
-layer whose points would reach behind the camera leaves the scene.
+projected again. The texture moves with its plane exactly: a point of the plane seen at
+p0 at t = 0 is seen at G p0, G = K R (I + (o − c) mᵀ) K⁻¹ (o the layer's own offset), so
+the texture at time t is the one at t = 0 through G⁻¹ (`Layer.tex_homography`). (Until
+2026-12-07 it was an affine map refitted to three points, which a turn of a degree left
+2–4 px from where the geometry went: docs/experiments.md.) A layer whose points would reach
+behind the camera leaves the scene.
 
 `moving_sample(seed, t, motion)`: the frame at time t of the world `start_world(seed)` (the
 scene `make_sample(seed)` draws, its nearest surfaces at half the rig's disparity range),
@@ -133,14 +136,10 @@ def moved_layer(layer: Layer, rig: RigConfig, t: float, motion: Motion,
     frame (a point behind or nearer than MIN_DEPTH_M)."""
     m = plane_of(layer, rig)
     verts = outline(layer, rig)
-    w, h = rig.width, rig.height
-    anchors = np.array([[0.0, 0.0], [w - 1.0, 0.0], [0.0, h - 1.0]]) if verts is None else \
-        verts[[0, len(verts) // 3, 2 * len(verts) // 3]]
-    points = lift(m, np.concatenate([anchors] if verts is None else [anchors, verts]), rig)
     R, c = camera_pose(t, motion)
     offset = velocity * t
-    seen = (points + offset - c) @ R.T
-    if verts is not None and seen[:, 2].min() < MIN_DEPTH_M:
+    seen = None if verts is None else (lift(m, verts, rig) + offset - c) @ R.T
+    if seen is not None and seen[:, 2].min() < MIN_DEPTH_M:
         return None
     moved_by = 1.0 + m @ offset
     if abs(moved_by) < 1e-9:  # the plane moved onto the first camera's centre
@@ -152,14 +151,29 @@ def moved_layer(layer: Layer, rig: RigConfig, t: float, motion: Motion,
     m_seen = (R @ m_world) / denominator
     if verts is None and m_seen[2] <= 0:  # the background turned away or passed
         return None
-    uv = project(seen, rig)
-    assert layer.tex_affine is not None, "a textured layer has its affine map"
-    texture = layer.tex_affine @ np.concatenate([anchors, np.ones((3, 1))], axis=1).T
-    fitted = np.linalg.solve(np.concatenate([uv[:3], np.ones((3, 1))], axis=1), texture.T).T
-    changes = dict(plane=layer_plane(m_seen, rig), tex_affine=fitted)
-    if verts is not None:
-        changes.update(kind="polygon", vertices=uv[3:])
+    changes = dict(plane=layer_plane(m_seen, rig),
+                   tex_homography=texture_map(layer) @ np.linalg.inv(
+                       plane_motion(m, R, offset - c, rig)))
+    if seen is not None:
+        changes.update(kind="polygon", vertices=project(seen, rig))
     return replace(layer, **changes)
+
+
+def texture_map(layer: Layer) -> np.ndarray:
+    """The layer's map from left-image (u, v, 1) to its texture as a 3×3 homography."""
+    if layer.tex_homography is not None:
+        return layer.tex_homography
+    assert layer.tex_affine is not None, "a textured layer has its affine map"
+    return np.vstack([layer.tex_affine, [0.0, 0.0, 1.0]])
+
+
+def plane_motion(m: np.ndarray, R: np.ndarray, shift: np.ndarray, rig: RigConfig
+                 ) -> np.ndarray:
+    """G (3×3): where a point of the plane m · P = 1 seen at left-image (u, v) is seen after
+    the points move by `shift` and the camera turns by R (P' = R (P + shift)): G (u, v, 1),
+    up to scale. On the plane P + shift = (I + shift mᵀ) P."""
+    K = np.array([[rig.focal_px, 0.0, rig.cx], [0.0, rig.focal_px, rig.cy], [0.0, 0.0, 1.0]])
+    return K @ R @ (np.eye(3) + np.outer(shift, m)) @ np.linalg.inv(K)
 
 
 def scene_at(scene: Scene, t: float, motion: Motion) -> Scene:

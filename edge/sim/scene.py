@@ -84,7 +84,9 @@ class Layer:
     kind: "background", "polygon" (vertices (K, 2), counter-clockwise in image coordinates) or
     "ellipse" (centre, semi-axes, angle). The outline lives in left-image pixel coordinates.
     texture: index into the scene's texture list; tex_affine (2, 3) maps (u_left, v) to texture
-    pixels; brightness, contrast: grey levels.
+    pixels, or tex_homography (3, 3) where given (a moved layer: a plane's texture seen from
+    another pose, `edge.sim.motion`), (x, y, w) = H (u_left, v, 1) and the texture pixel
+    (x / w, y / w); brightness, contrast: grey levels.
     """
 
     plane: tuple[float, float, float]
@@ -95,6 +97,7 @@ class Layer:
     angle: float = 0.0
     texture: int = 0
     tex_affine: np.ndarray | None = None
+    tex_homography: np.ndarray | None = None
     brightness: float = 128.0
     contrast: float = 40.0
 
@@ -244,9 +247,13 @@ class Scene:
             u_left = xs.astype(np.float64)
             if view == RIGHT:
                 u_left = u_left + disparity[ys, xs]
-            assert layer.tex_affine is not None, "a textured layer has its affine map"
-            coords = layer.tex_affine @ np.stack([u_left, ys.astype(np.float64),
-                                                  np.ones_like(u_left)])
+            seen = np.stack([u_left, ys.astype(np.float64), np.ones_like(u_left)])
+            if layer.tex_homography is not None:
+                coords = layer.tex_homography @ seen
+                coords = coords[:2] / coords[2]
+            else:
+                assert layer.tex_affine is not None, "a textured layer has its affine map"
+                coords = layer.tex_affine @ seen
             sample = sample_bilinear(self.textures[layer.texture], coords[0], coords[1],
                                      cv2.BORDER_WRAP)
             image[ys, xs] = layer.brightness + layer.contrast * sample
