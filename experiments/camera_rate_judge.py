@@ -122,10 +122,10 @@ def main() -> None:
             base = rows["per frame"]["stable"]
             for name in METHODS:
                 r = rows[name]
-                print(f"| {kind} | {seed} | {name} | {r['key'][0]:.3f} / {r['key'][1]:.2f} | "
-                      f"{r['between'][0]:.3f} / {r['between'][1]:.2f} | "
+                print(f"| {kind} | {seed} | {name} | {r['key'][0]:.4f} / {r['key'][1]:.2f} | "
+                      f"{r['between'][0]:.4f} / {r['between'][1]:.2f} | "
                       f"{r['between'][0] / r['key'][0]:.2f} | "
-                      f"{r['mbetween'] / r['mkey']:.2f} | {r['stable']:.3f}; {r['raw']:.3f} | "
+                      f"{r['mbetween'] / r['mkey']:.2f} | {r['stable']:.4f}; {r['raw']:.4f} | "
                       f"{r['stable'] / base:.2f} | {r['ms']:.1f} |", flush=True)
 
 
