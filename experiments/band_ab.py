@@ -7,8 +7,8 @@ outputs are equal to the bit, and each one's time (docs/experiments.md).
     bash experiments/avx2_kernels.sh .venv/bin/python experiments/band_ab.py ...
 
 `--rev`'s edge/runtime/band_sgm.py (and its band_paths.py) is imported from a copy under
-runs/ (its numba kernels compiled there once); the two alternate pair by pair, after an untimed call each. Per round:
-the mean time a pair of each.
+runs/ (its numba kernels compiled there once); the two alternate pair by pair, after an
+untimed call each. Per round: the mean time a pair of each.
 """
 
 from __future__ import annotations
