@@ -20,12 +20,12 @@ confidence, times Poggi et al.'s inverted Gaussian at each LiDAR pixel (CVPR 201
 of the summed cost, with the parabola through its neighbours, replaces the estimate where it
 is inside the band and agrees with the right view's winner within `lr_max` (Hirschmüller's
 check, the right view's disparity read from the left's sums) after a 3×3 median of both, also
-where it is within a pixel of the estimate (its parabola is the finer value: docs/experiments.md,
-2026-12-07 22:43); elsewhere the estimate stays, or the nearest LiDAR point's value where the
-summed cost is lower there. Only
-the pixels whose confidence is under `refine_below` (0.9), and those within
-`refine_margin_px` of them, are refined; the paths start afresh after the others, which keep
-the network's estimate (the aggregation's cost is per pixel: this halves it).
+where it is within a pixel of the estimate (its parabola is the finer value; docs/experiments.md
+has the judge); elsewhere the estimate stays, or the nearest LiDAR point's value where the
+summed cost is lower there. Only the pixels whose confidence is under `refine_below` (0.9),
+and those within `refine_margin_px` of them, are refined; the paths start afresh after the
+others, which keep the network's estimate (the aggregation's cost is per pixel: this halves
+it).
 
 Constants are the papers' (census 9×7, P1 = 10, P2' = 120, k = 10, c = 1 px, check 1 px);
 the band's widths, the Laplace weight, the reach and the rest are this stage's own, chosen on

@@ -10,10 +10,11 @@ P as R(t) (P − c(t)), so a plane becomes R m / (1 − m · c). Outlines are ca
 vertices (an ellipse as a 48-gon): each is lifted onto its plane at t = 0, moved, and
 projected again. The texture moves with its plane exactly: a point of the plane seen at
 p0 at t = 0 is seen at G p0, G = K R (I + (o − c) mᵀ) K⁻¹ (o the layer's own offset), so
-the texture at time t is the one at t = 0 through G⁻¹ (`Layer.tex_homography`). (Until
-2026-12-07 it was an affine map refitted to three points, which a turn of a degree left
-2–4 px from where the geometry went: docs/experiments.md.) A layer whose points would reach
-behind the camera leaves the scene.
+the texture at time t is the one at t = 0 through G⁻¹ (`Layer.tex_homography`): an affine
+map through three points is exact only while a plane stays fronto-parallel, and a turn of
+half a degree leaves it 2–4 px from where its surface went, where the optical flow and the
+ground truth then disagree. A layer whose points would reach behind the camera leaves the
+scene.
 
 `moving_sample(seed, t, motion)`: the frame at time t of the world `start_world(seed)` (the
 scene `make_sample(seed)` draws, its nearest surfaces at half the rig's disparity range),
