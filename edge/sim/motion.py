@@ -11,9 +11,9 @@ vertices (an ellipse as a 48-gon): each is lifted onto its plane at t = 0, moved
 projected again. The texture moves with its plane exactly: a point of the plane seen at
 p0 at t = 0 is seen at G p0, G = K R (I + (o − c) mᵀ) K⁻¹ (o the layer's own offset), so
 the texture at time t is the one at t = 0 through G⁻¹ (`Layer.tex_homography`): an affine
-map through three points is exact only while a plane stays fronto-parallel, and a turn of
-half a degree leaves it 2–4 px from where its surface went, where the optical flow and the
-ground truth then disagree. A layer whose points would reach behind the camera leaves the
+map through three points is exact only while a plane stays fronto-parallel, and a turn of a
+degree leaves it pixels from where its surface went, where the optical flow and the ground
+truth then disagree. A layer whose points would reach behind the camera leaves the
 scene.
 
 `moving_sample(seed, t, motion)`: the frame at time t of the world `start_world(seed)` (the
