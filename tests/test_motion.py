@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
+from unittest import mock as unittest_mock
 from dataclasses import replace
 
 import cv2
@@ -281,6 +282,34 @@ def test_the_cameras_motion_fitted_to_the_flow_gives_each_carried_pixels_new_dis
     assert np.abs(carried / now - 1).max() > 0.02  # which the key frame's is not
     chaos = rng.normal(0.0, 5.0, flow.shape).astype(np.float32)
     assert depth_change(chaos, carried, np.zeros((h, w), np.uint8), f, b, (cx, cy)) is None
+
+
+def test_an_object_moving_on_its_own_does_not_move_the_fitted_camera():
+    """A quarter of the frame is an object that moved 6 px right of where the camera's motion
+    puts it: the fit leaves it out (its residual is far over the rest's), so the camera's
+    motion comes out as without it; Huber's weights alone let it pull the fit."""
+    from edge_depth.runtime import propagate
+
+    h, w, f, b = 240, 320, 250.0, 0.075
+    cx, cy = (w - 1) / 2, (h - 1) / 2
+    rng = np.random.default_rng(5)
+    now = np.repeat(rng.uniform(6.0, 20.0, (h // 8, w // 8)), 8, 0).repeat(8, 1)
+    x, y = np.meshgrid(np.arange(w) - cx, np.arange(h) - cy)
+    z = f * b / now
+    points = np.stack([x * z / f, y * z / f, z], -1)
+    truth = np.array([0.002, -0.010, 0.001, 0.004, -0.002, 0.015])
+    key = points @ cv2.Rodrigues(truth[:3])[0].T + truth[3:]
+    flow = np.stack([f * key[..., 0] / key[..., 2] - x, f * key[..., 1] / key[..., 2] - y],
+                    -1).astype(np.float32)
+    flow[: h // 2, : w // 2, 0] += 6.0  # the mover
+    carried = (f * b / key[..., 2]).astype(np.float32)
+    args = (flow, carried, np.ones((h, w), bool), f, b, (cx, cy))
+    motion, residual, used = propagate.ego_motion(*args)
+    assert used > 1000 and residual < 0.1
+    np.testing.assert_allclose(motion, truth, atol=2e-3)
+    with unittest_mock.patch.object(propagate, "OUTLIER_SIGMAS", np.inf):  # Huber alone
+        pulled, _, _ = propagate.ego_motion(*args)
+    assert np.abs(pulled - truth).max() > 5 * np.abs(motion - truth).max()
 
 
 def test_the_motion_kinds_the_config_and_synth_name_are_the_simulators():

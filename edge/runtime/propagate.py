@@ -35,7 +35,12 @@ MAX_KEY_AGE_S = 0.25  # a key frame carried no further than this (a stalled LiDA
 LOST_RESIDUAL = 32.0
 INTERPOLATION = cv2.INTER_NEAREST
 FIT_PIXELS = 4000  # the motion fit reads a grid of about this many pixels (every 8th at 640x400)
-FIT_MIN_PIXELS = 500
+# the fewest grid pixels it fits (200 equations for 6 unknowns): a noisier camera leaves few
+# within FIT_MAX_GREY (on the moving sim worlds 51-465 of ~4000 on a third of the frames)
+FIT_MIN_PIXELS = 100
+# after the Huber passes, a last one without the pixels whose residual is over this many
+# robust σ (1.4826 × the median absolute deviation) above the median: what moves on its own
+OUTLIER_SIGMAS = 3.0
 FIT_MAX_GREY = 8  # a grid pixel is fitted where the carried image is within this of the frame's
 # the fit is unsure where the median pixel's flow misses the rigid motion's by more than
 # this (px: DIS's own error on the sim worlds is a few tenths) or where it would change a
@@ -133,7 +138,9 @@ def ego_motion(flow: np.ndarray, disparity: np.ndarray, usable: np.ndarray, foca
     `usable` pixels whose flow stays in the image: a point p of the frame is R p + T in the
     key frame's, R ≈ I + [ω]×, and its image moves by ((f Tx − x Tz) d / (f B) + …, …) plus
     the rotation's terms (x, y from the principal point), linear in (ω, T). Huber-weighted
-    least squares (three passes, 1 px). Returns ((ωx, ωy, ωz, Tx, Ty, Tz): rad, m), the
+    least squares (three passes, 1 px), then once more without the pixels over OUTLIER_SIGMAS
+    robust σ above the median residual (an object moving on its own weighs nothing, not
+    merely less). Returns ((ωx, ωy, ωz, Tx, Ty, Tz): rad, m), the
     median residual (px) and the pixels used; None with fewer than FIT_MIN_PIXELS or a
     singular system."""
     f, b = float(focal_px), float(baseline_m)
@@ -157,17 +164,28 @@ def ego_motion(flow: np.ndarray, disparity: np.ndarray, usable: np.ndarray, foca
     A, rhs = np.concatenate([rows_u, rows_v]), np.concatenate([u, v])
     weight = np.ones(len(A))
     try:
-        for _ in range(3):  # the normal equations (6 x 6), columns scaled to one size
-            Aw = A * weight[:, None]
-            norm = np.sqrt(np.einsum("ij,ij->j", Aw, A)) + 1e-12
-            motion = np.linalg.solve((Aw.T @ A) / np.outer(norm, norm),
-                                     (Aw.T @ rhs) / norm) / norm
-            miss = A @ motion - rhs
-            residual = np.hypot(miss[:len(x)], miss[len(x):])
+        for _ in range(3):
+            motion, residual = _solve(A, rhs, weight, len(x))
             weight = np.tile(1.0 / np.maximum(residual, 1.0), 2)  # Huber at 1 px
+        centre = np.median(residual)
+        spread = 1.4826 * np.median(np.abs(residual - centre))
+        inlier = residual <= centre + OUTLIER_SIGMAS * max(spread, 1e-3)
+        motion, residual = _solve(A, rhs, np.tile(inlier, 2) * weight, len(x))
     except np.linalg.LinAlgError:  # e.g. every usable pixel on one line
         return None
     return motion, float(np.median(residual)), len(x)
+
+
+def _solve(A: np.ndarray, rhs: np.ndarray, weight: np.ndarray, pixels: int
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """The weighted least squares of A m = rhs by its normal equations (6 × 6), the columns
+    scaled to one size: (m, each pixel's residual, px — its u and v rows the first and second
+    `pixels` of A)."""
+    Aw = A * weight[:, None]
+    norm = np.sqrt(np.einsum("ij,ij->j", Aw, A)) + 1e-12
+    motion = np.linalg.solve((Aw.T @ A) / np.outer(norm, norm), (Aw.T @ rhs) / norm) / norm
+    miss = A @ motion - rhs
+    return motion, np.hypot(miss[:pixels], miss[pixels:])
 
 
 def depth_change(flow: np.ndarray, disparity: np.ndarray, residual: np.ndarray,
