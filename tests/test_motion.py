@@ -7,8 +7,8 @@ from __future__ import annotations
 import json
 import re
 from collections import Counter
-from unittest import mock as unittest_mock
 from dataclasses import replace
+from unittest import mock as unittest_mock
 
 import cv2
 import numpy as np
