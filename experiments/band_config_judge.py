@@ -54,6 +54,12 @@ def parsed(items: list[str]) -> dict:
     return {k: type(getattr(shipped, k))(v) for k, v in (i.split("=", 1) for i in items)}
 
 
+def refine_with(engine: Engine, config: band_sgm.BandSgmConfig) -> None:
+    """The engine's band refinement with `config`'s constants from now on."""
+    engine.band = types.SimpleNamespace(  # type: ignore[assignment]
+        use_threads=band_sgm.use_threads, refine=lambda *a: band_sgm.refine(*a, config))
+
+
 def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("folders", nargs="*", type=Path)
@@ -74,9 +80,7 @@ def main() -> None:
                 photo(scene.right, np.random.default_rng(SEED), change)
             row = {"set": f"{folder.name}/{name}"}
             for label, config in configs.items():
-                engine.band = types.SimpleNamespace(  # type: ignore[assignment]
-                    use_threads=band_sgm.use_threads,
-                    refine=lambda *a, c=config: band_sgm.refine(*a, c))
+                refine_with(engine, config)
                 row[label] = score(engine.infer(scene.left, right, sparse).disparity,
                                    scene.disp)
             worst_epe = max(worst_epe, row["changed"][0] / row["shipped"][0] - 1)
@@ -85,9 +89,7 @@ def main() -> None:
     if args.rig:
         scenes = [read_scene_folder(f) for f in sorted(args.rig.iterdir()) if f.is_dir()]
         for label, config in configs.items():
-            engine.band = types.SimpleNamespace(  # type: ignore[assignment]
-                use_threads=band_sgm.use_threads,
-                refine=lambda *a, c=config: band_sgm.refine(*a, c))
+            refine_with(engine, config)
             rows = [score(engine.infer(s.left, s.right, s.sparse).disparity, s.disp)
                     for s in scenes]
             print(f"{args.rig} ({len(rows)} scenes), {label}: EPE {np.mean(rows, axis=0)[0]:.3f}"

@@ -254,25 +254,37 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
                                                   scaled=scaled, scans=3)
 
 
+RIGID = (250.0, 0.075, 159.5, 119.5)  # f px, B m, cx, cy of a 320×240 camera
+
+
+def rigid_scene(rng: np.random.Generator, truth: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A 320×240 frame of fronto-parallel 8×8 px patches at disparities 6–20 px (drawn from
+    `rng`), seen from a camera that moved `truth` (ωx, ωy, ωz rad, Tx, Ty, Tz m) since its key
+    frame: (the frame's disparity, the flow frame → key frame (H, W, 2), the key frame's
+    disparity carried to the frame)."""
+    h, w = 240, 320
+    f, b, cx, cy = RIGID
+    now = np.repeat(rng.uniform(6.0, 20.0, (h // 8, w // 8)), 8, 0).repeat(8, 1)
+    x, y = np.meshgrid(np.arange(w) - cx, np.arange(h) - cy)
+    z = f * b / now
+    points = np.stack([x * z / f, y * z / f, z], -1)
+    key = points @ cv2.Rodrigues(truth[:3])[0].T + truth[3:]  # the points in the key frame's
+    flow = np.stack([f * key[..., 0] / key[..., 2] - x, f * key[..., 1] / key[..., 2] - y],
+                    -1).astype(np.float32)
+    return now, flow, (f * b / key[..., 2]).astype(np.float32)
+
+
 def test_the_cameras_motion_fitted_to_the_flow_gives_each_carried_pixels_new_disparity():
     """A rigid scene seen from a camera that moved (ω, T) since its key frame: the motion
     fitted to the flow is the motion, and the key frame's disparity carried to the frame and
     scaled is the frame's own; a flow no rigid motion explains leaves it unscaled."""
     from edge_depth.runtime.propagate import depth_change, ego_motion
 
-    h, w, f, b = 240, 320, 250.0, 0.075
-    cx, cy = (w - 1) / 2, (h - 1) / 2
     rng = np.random.default_rng(3)
-    now = np.repeat(rng.uniform(6.0, 20.0, (h // 8, w // 8)), 8, 0).repeat(8, 1)
-    x, y = np.meshgrid(np.arange(w) - cx, np.arange(h) - cy)
-    z = f * b / now
-    points = np.stack([x * z / f, y * z / f, z], -1)
     truth = np.array([0.004, -0.012, 0.002, 0.006, -0.003, 0.02])  # ω rad, T m
-    R = cv2.Rodrigues(truth[:3])[0]
-    key = points @ R.T + truth[3:]  # the frame's points in the key frame's camera
-    flow = np.stack([f * key[..., 0] / key[..., 2] - x, f * key[..., 1] / key[..., 2] - y],
-                    -1).astype(np.float32)
-    carried = (f * b / key[..., 2]).astype(np.float32)  # the key frame's disparity, carried
+    now, flow, carried = rigid_scene(rng, truth)
+    h, w, f, b, cx, cy = *now.shape, *RIGID
     motion, residual, used = ego_motion(flow, carried, np.ones((h, w), bool), f, b, (cx, cy))
     assert used > 1000 and residual < 0.1
     np.testing.assert_allclose(motion, truth, atol=2e-3)
@@ -290,19 +302,10 @@ def test_an_object_moving_on_its_own_does_not_move_the_fitted_camera():
     motion comes out as without it; Huber's weights alone let it pull the fit."""
     from edge_depth.runtime import propagate
 
-    h, w, f, b = 240, 320, 250.0, 0.075
-    cx, cy = (w - 1) / 2, (h - 1) / 2
-    rng = np.random.default_rng(5)
-    now = np.repeat(rng.uniform(6.0, 20.0, (h // 8, w // 8)), 8, 0).repeat(8, 1)
-    x, y = np.meshgrid(np.arange(w) - cx, np.arange(h) - cy)
-    z = f * b / now
-    points = np.stack([x * z / f, y * z / f, z], -1)
     truth = np.array([0.002, -0.010, 0.001, 0.004, -0.002, 0.015])
-    key = points @ cv2.Rodrigues(truth[:3])[0].T + truth[3:]
-    flow = np.stack([f * key[..., 0] / key[..., 2] - x, f * key[..., 1] / key[..., 2] - y],
-                    -1).astype(np.float32)
+    _, flow, carried = rigid_scene(np.random.default_rng(5), truth)
+    h, w, f, b, cx, cy = *flow.shape[:2], *RIGID
     flow[: h // 2, : w // 2, 0] += 6.0  # the mover
-    carried = (f * b / key[..., 2]).astype(np.float32)
     args = (flow, carried, np.ones((h, w), bool), f, b, (cx, cy))
     motion, residual, used = propagate.ego_motion(*args)
     assert used > 1000 and residual < 0.1
