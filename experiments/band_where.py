@@ -66,7 +66,7 @@ def share(mask: np.ndarray, ok: np.ndarray) -> float:
     return 100.0 * np.count_nonzero(mask & ok) / np.count_nonzero(ok)
 
 
-def by_confidence(s, sparse: np.ndarray, out, prior, sgm: np.ndarray) -> None:
+def by_confidence(s, out, prior, sgm: np.ndarray) -> None:
     """The engine's, the network's and SGM's bad-3 by confidence and visibility."""
     gt = s.disp
     ok = np.isfinite(gt) & (gt > 0)
@@ -125,7 +125,7 @@ def main() -> None:
             sgm = (guided_sgm_filled(s.left, s.right, config) if args.no_lidar
                    else guided_sgm_lidar(s.left, s.right, sparse, config))
             print(f"{folder}{', stereo only' if args.no_lidar else ''}:")
-            by_confidence(s, sparse, engine.infer(s.left, s.right, sparse),
+            by_confidence(s, engine.infer(s.left, s.right, sparse),
                           bare.infer(s.left, s.right, sparse), sgm)
             by_winner(s, sparse, sgm, unmedianed, kept)
     finally:
