@@ -68,6 +68,7 @@ class Prepared:
     points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
     points_stamp_ns: int | None = None  # ... their stamp in the camera's clock
     carried: bool = False  # [engine] rate = "camera": the key frame's depth carried here
+    ahead: bool = False  # ... gone on before the scans nearest it arrived: carried
     arrived: float | None = None  # live: perf_counter as the frame entered the capture queue
 
 
@@ -216,6 +217,13 @@ class Pipeline:
         with self._lock:
             return self.engine is None or self.lidar is None or self.sync.ready(stamp_ns)
 
+    def goes_ahead(self, stamp_ns: int) -> bool:
+        """At the camera's rate, whether a frame may go on without waiting for its scans:
+        the last key frame can be carried to it (the frame before a scan is carried from the
+        key frame before; the frame after the scan, which needs no wait, is the next key
+        frame)."""
+        return self.propagator is not None and self.propagator.can_carry(stamp_ns)
+
     def lidar_delivering(self, stamp_ns: int) -> bool:
         with self._lock:
             return self.lidar is not None and self.sync.recent(stamp_ns)
@@ -280,6 +288,9 @@ class Pipeline:
             return None
         t1 = time.perf_counter()
         with self._lock:
+            # at the camera's rate: a frame that did not wait for the scans nearest it
+            ahead = self.lidar is not None and not self.sync.ready(frame.stamp_ns) and \
+                self.goes_ahead(frame.stamp_ns)
             points = self.sync.points_for(frame.stamp_ns)
             points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
             times = self.sync.last_points_times_ns
@@ -297,7 +308,7 @@ class Pipeline:
         return Prepared(frame, left, right, sparse, gt, t0, dict(
             rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
             points=points if len(points) else None, points_stamp_ns=points_stamp_ns,
-            arrived=arrived)
+            arrived=arrived, ahead=ahead)
 
     def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
         """The points' sparse disparity. While the camera turns, each point is first moved by
@@ -326,11 +337,13 @@ class Pipeline:
         p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
             - p.timings["project"]
         carry = self.propagator
-        if carry is not None and not carry.wants_engine(p.frame.stamp_ns, p.points_stamp_ns):
+        if carry is not None and (p.ahead or not carry.wants_engine(p.frame.stamp_ns,
+                                                                     p.points_stamp_ns)):
             carried = carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m,
                                   self.principal_point)
             if carried is not None:  # else the flow is lost: a key frame
                 p.carried = True
+                carry.ahead += p.ahead
                 return carried
         result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,

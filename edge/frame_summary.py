@@ -35,7 +35,9 @@ def rate_summary(propagator) -> str | None:
     return (f"Camera rate: {propagator.keys} key frames (the engine) on {propagator.scans} "
             f"scans{lost}, "
             f"{propagator.carried} carried along the optical flow between scans "
-            f"({propagator.scaled} scaled by the camera's motion fitted to it)")
+            f"({propagator.scaled} scaled by the camera's motion fitted to it"
+            + (f"; {propagator.ahead} without waiting for their scans" if propagator.ahead
+               else "") + ")")
 
 
 def selection_summary(timings: list[dict]) -> str | None:

@@ -248,15 +248,17 @@ class Runner:
     def _wait_for_lidar(self, frame: StereoFrame) -> float:
         """Live: hold a frame (host time, at most wait_ms) while a delivering LiDAR has not
         yet sent the scans that cover it — or, within STARTUP_S of the first frame, while no
-        scan has come yet (the first frames' scans may come after them); returns the ms
-        waited."""
+        scan has come yet (the first frames' scans may come after them) — unless, at the
+        camera's rate, the last key frame can be carried to it (`Pipeline.goes_ahead`: it is
+        carried, and the engine never idles waiting for a scan); returns the ms waited."""
         pipeline, start = self.pipeline, time.monotonic()
         if self.first_frame_at is None:
             self.first_frame_at = start
         starting = (pipeline.lidar is not None and not pipeline.stats.scans
                     and start - self.first_frame_at < STARTUP_S)
         while not pipeline.frame_ready(frame.stamp_ns) and not self.stop.is_set() \
-                and (starting or pipeline.lidar_delivering(frame.stamp_ns)):
+                and (starting or pipeline.lidar_delivering(frame.stamp_ns)) \
+                and not pipeline.goes_ahead(frame.stamp_ns):
             if time.monotonic() - start >= self.wait_ms / 1000:
                 pipeline.sync.waited_out += 1
                 break
@@ -265,14 +267,16 @@ class Runner:
 
     def _flush(self, latest_ns: int | None, everything: bool = False) -> None:
         """Replay: process held frames, oldest first, while each is ready, has waited
-        wait_ms of stream time (up to the newest frame's stamp) or the stream has ended."""
+        wait_ms of stream time (up to the newest frame's stamp), may go on without its scans
+        (`Pipeline.goes_ahead`: the camera's rate, as live) or the stream has ended."""
         while self.waiting and not self.stop.is_set():
             head = self.waiting[0]
             ready = self.pipeline.frame_ready(head.stamp_ns)
+            ahead = not ready and self.pipeline.goes_ahead(head.stamp_ns)
             timed_out = latest_ns is not None and latest_ns - head.stamp_ns > self.wait_ms * 1e6
-            if not (ready or timed_out or everything):
+            if not (ready or ahead or timed_out or everything):
                 return
-            if not ready and self.pipeline.lidar is not None:
+            if not (ready or ahead) and self.pipeline.lidar is not None:
                 self.pipeline.sync.waited_out += 1
             self.process(self.waiting.popleft())
 
@@ -390,6 +394,8 @@ class Runner:
                 self._flush(latest)
                 self.waiting.append(event)
             else:
+                if isinstance(event, LidarScan) and self.pipeline.propagator is not None:
+                    self._flush(latest)  # the camera's rate: what goes on before this scan
                 self.handle(event)
                 if not isinstance(event, GroundTruth):
                     self._flush(latest)

@@ -101,14 +101,17 @@ def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
                                        expected[y][x], rtol=0, atol=1e-3)
 
 
-@pytest.mark.parametrize("rows", [2, 40])
-def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows):
-    rng = np.random.default_rng(rows)
+@pytest.mark.parametrize("rows, per_row", [(2, 12), (40, 12), (40, 2), (12, 30), (30, 0)])
+def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows, per_row):
+    """Rows of many points (a scan line, walked along the image row) and of few (walked point
+    by point; 0: a random count per row, both kinds mixed), each against every point written
+    plainly."""
+    rng = np.random.default_rng(rows * 100 + per_row)
     h, w = 40, 50
     points = np.zeros((h, w), np.float32)
     ys = rng.choice(h, rows, replace=False)
     for y in ys:  # scan lines, and points anywhere
-        xs = rng.choice(w, 12, replace=False)
+        xs = rng.choice(w, per_row or int(rng.integers(1, 20)), replace=False)
         points[y, xs] = rng.uniform(1, 60, len(xs)).astype(np.float32)
     nearby = np.zeros((h, w), np.float32)
     band_sgm._nearest_within(points, np.float32(8.0), nearby)

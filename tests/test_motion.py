@@ -241,7 +241,9 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     found = re.match(r"Camera rate: (\d+) key frames .*?, (\d+) carried", line)
     assert found, line
     keys, carried = int(found[1]), int(found[2])
-    assert keys + carried == 9 and 3 <= keys <= 5 and carried >= 4
+    # the engine on the frames of the three scans; the frames just before the second and the
+    # third scan carried without waiting for them (`ahead`)
+    assert (keys, carried) == (3, 6)
     assert sum("carried from the key frame" in x for x in out.splitlines()) == carried
     assert "over 9 frames with ground truth" in out
     with (tmp_path / "out.mcap").open("rb") as f:
@@ -251,7 +253,7 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     assert 0 < scaled <= carried  # driving forward: the carried disparity is changed
     assert "on 3 scans" in line  # the recording's three, each once
     assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0,
-                                                  scaled=scaled, scans=3)
+                                                  scaled=scaled, scans=3, ahead=2)
 
 
 RIGID = (250.0, 0.075, 159.5, 119.5)  # f px, B m, cx, cy of a 320×240 camera
@@ -325,3 +327,44 @@ def test_the_motion_kinds_the_config_and_synth_name_are_the_simulators():
     commands = next(a for a in build_parser()._actions if a.choices and "synth" in a.choices)
     motion = next(a for a in commands.choices["synth"]._actions if a.dest == "motion")
     assert set(motion.choices) == set(KINDS)
+
+
+def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_waiting_for_it():
+    """Live, paired by "nearest", the frame just before a scan would wait for that scan while
+    nothing else can run (what follows needs its key frame). At the camera's rate it is
+    carried at once from the key frame before, and the frame after the scan, which needs no
+    wait, is the next key frame (a replay does the same in the stream's order)."""
+    import time
+
+    from edge_depth.daemon import Pipeline
+    from edge_depth.runner import Runner
+    from edge_depth.runtime.engine import Engine
+    from edge_depth.runtime.options import EngineOptions
+
+    source = SimSource(4, SEED, RIG, period_ms=1000 / 30, motion=KINDS["forward"],
+                       scan_every=3)
+    events = list(source)  # scan 0, frames 0, 1, 2, scan 3, frame 3 (and their truths)
+    frames = [e for e in events if isinstance(e, StereoFrame)]
+    scans = [e for e in events if isinstance(e, LidarScan)]
+    pipeline = Pipeline(Engine(options=EngineOptions(rate="camera", precision="int8",
+                                                     threads=2)), *source.calibration)
+    runner = Runner(source, pipeline, threaded=True)  # its events are fed here instead
+    pipeline.on_scan(replace(scans[0], stamp_ns=scans[0].stamp_ns - 100_000_000))
+    pipeline.on_scan(scans[0])  # two revolutions: the LiDAR's period is known
+
+    def live(frame):
+        waited = runner._wait_for_lidar(frame)
+        prepared = pipeline.prepare(frame, None, waited, arrived=time.perf_counter())
+        return waited, prepared, pipeline.infer(prepared)
+
+    _, _, key = live(frames[0])
+    _, same_scan, _ = live(frames[1])
+    assert key.iterations > 0 and same_scan.carried and not same_scan.ahead
+    waited, before_scan, _ = live(frames[2])
+    assert before_scan.ahead and before_scan.carried
+    assert waited < 0.25 * pipeline.sync.config.wait_ms  # not held for the next scan
+    pipeline.on_scan(scans[1])
+    _, after_scan, result = live(frames[3])
+    assert not after_scan.carried and result.iterations > 0  # the next key frame
+    assert pipeline.propagator.counters() == dict(key_frames=2, carried=2, lost=0, scaled=2,
+                                                  scans=2, ahead=1)

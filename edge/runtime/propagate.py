@@ -66,15 +66,23 @@ class Propagator:
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
         self.scaled = 0  # carried frames whose disparity the fitted motion scaled
+        self.ahead = 0  # carried frames that went on before the scans nearest them arrived
         self.scans = 0  # scans a key frame ran with (each once)
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # pixel coordinates (x, y)
 
     def counters(self) -> dict[str, int]:
         """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
         whose flow was lost; `scans`: the scans they ran with, each counted once) and frames
-        carried (`scaled`: of them, those whose disparity the fitted motion changed)."""
+        carried (`scaled`: of them, those whose disparity the fitted motion changed; `ahead`:
+        those that went on before the scans nearest them arrived)."""
         return dict(key_frames=self.keys, carried=self.carried, lost=self.lost,
-                    scaled=self.scaled, scans=self.scans)
+                    scaled=self.scaled, scans=self.scans, ahead=self.ahead)
+
+    def can_carry(self, stamp_ns: int) -> bool:
+        """Whether the last key frame may be carried to a frame at `stamp_ns` (it is not
+        older than MAX_KEY_AGE_S and not after the frame)."""
+        last = self.last
+        return last is not None and 0 <= stamp_ns - last.stamp_ns <= MAX_KEY_AGE_S * 1e9
 
     def wants_engine(self, stamp_ns: int, scan_ns: int | None) -> bool:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
