@@ -7,7 +7,7 @@ place, on variants of the real pairs (docs/experiments.md, 2026-12-07 22:16).
 
 Each folder × KINDS is one set (the map from `lidar_align_gate.variant`, the right camera
 from `band_judge.photo`, seed SEED); the engine at its defaults (ONNX Runtime) runs each set
-twice, with `band_sgm._nearest_within` as shipped and with the chamfer version below.
+twice, with `band_sgm.nearest_within` as shipped and with the chamfer version below.
 """
 
 from __future__ import annotations
@@ -41,7 +41,7 @@ KINDS = {  # (σ px, mixed share, mixed reach px, drop share, turn °, dx, dy), 
 
 
 def chamfer_within(points: np.ndarray, reach: np.float32, nearby: np.ndarray) -> None:
-    """`_nearest_within` as it was: OpenCV's labelled distance transform (5×5 chamfer)."""
+    """`nearest_within` as it was: OpenCV's labelled distance transform (5×5 chamfer)."""
     valid = points > 0
     if valid.any():
         near, distance = nearest_point(points, valid)
@@ -53,7 +53,7 @@ def main() -> None:
     p.add_argument("folders", nargs="+", type=Path)
     args = p.parse_args()
     engine = Engine(options=EngineOptions(runtime="onnxruntime"))
-    exact = band_sgm._nearest_within
+    exact = band_sgm.nearest_within
     worst_epe, worst_bad3 = -np.inf, -np.inf
     for folder in args.folders:
         scene = read_scene_folder(folder)
@@ -63,10 +63,10 @@ def main() -> None:
                 photo(scene.right, np.random.default_rng(SEED), change)
             row = {"set": f"{folder.name}/{name}"}
             for label, nearest in (("exact", exact), ("chamfer", chamfer_within)):
-                band_sgm._nearest_within = nearest
+                band_sgm.nearest_within = nearest
                 row[label] = score(engine.infer(scene.left, right, sparse).disparity,
                                    scene.disp)
-            band_sgm._nearest_within = exact
+            band_sgm.nearest_within = exact
             worst_epe = max(worst_epe, row["exact"][0] / row["chamfer"][0] - 1)
             worst_bad3 = max(worst_bad3, row["exact"][1] - row["chamfer"][1])
             print(json.dumps(row), flush=True)

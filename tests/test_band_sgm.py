@@ -16,6 +16,7 @@ from edge_depth.guided_sgm import GuidedSgmConfig, aggregate, census_cost
 from edge_depth.runtime import band_paths, band_sgm
 from edge_depth.runtime.band_sgm import BandSgmConfig, refine
 from edge_depth.runtime.engine import Engine
+from edge_depth.runtime.nearest_point import nearest_within
 from edge_depth.sim import RigConfig, make_sample
 
 from .test_guided_sgm import random_texture, shifted_pair
@@ -114,7 +115,7 @@ def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows, per_row
         xs = rng.choice(w, per_row or int(rng.integers(1, 20)), replace=False)
         points[y, xs] = rng.uniform(1, 60, len(xs)).astype(np.float32)
     nearby = np.zeros((h, w), np.float32)
-    band_sgm._nearest_within(points, np.float32(8.0), nearby)
+    nearest_within(points, np.float32(8.0), nearby)
     py, px = np.nonzero(points)  # row-major: a tie goes to the upper row, then the left
     for y in range(h):
         for x in range(w):
