@@ -72,6 +72,7 @@ class Prepared:
     arrived: float | None = None  # live: perf_counter as the frame entered the capture queue
 
 
+NO_POINTS = np.zeros((0, 3), np.float32)
 # frames of timings kept for the summaries: a daemon runs for days, and a frame's dict of ~22
 # timings holds ~1.4 kB (10 000 of them took half an hour of a 5 frames/s soak to fill)
 HISTORY = 1_000
@@ -288,13 +289,14 @@ class Pipeline:
             return None
         t1 = time.perf_counter()
         with self._lock:
-            # at the camera's rate: a frame that did not wait for the scans nearest it
+            # at the camera's rate, a frame that did not wait for the scans nearest it is
+            # carried: it is not paired (nor counted unpaired) with the scans there are
             ahead = self.lidar is not None and not self.sync.ready(frame.stamp_ns) and \
                 self.goes_ahead(frame.stamp_ns)
-            points = self.sync.points_for(frame.stamp_ns)
+            points = NO_POINTS if ahead else self.sync.points_for(frame.stamp_ns)
             points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
             times = self.sync.last_points_times_ns
-        if self.lidar is not None:
+        if self.lidar is not None and not ahead:
             self._check_pairing(frame.stamp_ns, len(points) > 0)
         if self.turn is not None and self.lidar is not None:
             self.turn.frame(frame.stamp_ns, left)
@@ -469,6 +471,9 @@ def lidar_summary(pipeline: Pipeline) -> str:
                  f"{pipeline.sync.median_gap_ms():+.0f} ms)")
     if counters["frames_gone_before_their_scans"]:
         line += f"; {counters['frames_gone_before_their_scans']} went on before their scans arrived"
+    if pipeline.propagator is not None and pipeline.propagator.ahead:
+        line += (f"; {pipeline.propagator.ahead} more carried at the camera's rate before their "
+                 f"scans arrived (not paired)")
     if stats.deskewed:
         line += (f"; deskewed by the camera's turn in {len(stats.deskewed)} frames (points "
                  f"moved up to a median {np.median(stats.deskewed):.1f} px)")

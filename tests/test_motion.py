@@ -362,6 +362,9 @@ def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_wait
     assert key.iterations > 0 and same_scan.carried and not same_scan.ahead
     waited, before_scan, _ = live(frames[2])
     assert before_scan.ahead and before_scan.carried
+    assert before_scan.points is None  # not paired with the old scan, nor counted unpaired
+    sync = pipeline.sync.counters()
+    assert (sync["frames_with_lidar"], sync["frames_without_lidar"]) == (2, 0)
     assert waited < 0.25 * pipeline.sync.config.wait_ms  # not held for the next scan
     pipeline.on_scan(scans[1])
     _, after_scan, result = live(frames[3])
