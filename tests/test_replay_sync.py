@@ -233,12 +233,16 @@ def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_proces
     sync = SimpleNamespace(counters=lambda: dict(frames_with_lidar=293, frames_without_lidar=7,
                                                  frames_gone_before_their_scans=0),
                            median_gap_ms=lambda: 40.0)
-    pipeline = SimpleNamespace(sync=sync, lidar=object(),
+    pipeline = SimpleNamespace(sync=sync, lidar=object(), propagator=None,
                                stats=SimpleNamespace(frames=135, scans=300, deskewed=[]))
     line = lidar_summary(pipeline)
     assert line.startswith("frames with LiDAR: 293 of 300 paired (165 of them dropped before "
                            "the engine)")
-    assert "+40 ms" in line
+    assert "+40 ms" in line and "camera's rate" not in line
+    # at the camera's rate the frames carried before their scans arrived are counted apart
+    pipeline.propagator = SimpleNamespace(ahead=93)
+    assert "; 93 more carried at the camera's rate before their scans arrived (not paired)" \
+        in lidar_summary(pipeline)
 
 
 @pytest.mark.parametrize("scans_after_frames", [False, True])
