@@ -86,7 +86,8 @@ class EngineOptions:
                         "experiment, a spinning LiDAR paired by \"nearest\"): the engine on "
                         "key frames (a fresh scan, or where the optical flow is lost) and, on "
                         "the frames between, the key frame's depth carried along the flow "
-                        "(~5 ms a frame; edge.runtime.propagate)", choices=("lidar", "camera"))
+                        "(~5 ms a frame; edge.runtime.propagate), without waiting for the "
+                        "next scan", choices=("lidar", "camera"))
     refine: str = _option("band", "band: the network's estimate refined by semi-global "
                           "matching in a band around it as wide as its confidence says, the "
                           "LiDAR and the network guiding the cost, then the weighted median "
