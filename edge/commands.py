@@ -21,9 +21,16 @@ from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration_watch import EVERY as WATCH_EVERY
 from edge_depth.capture.sync import SyncConfig
 from edge_depth.config import LogConfig, check_output_path
-from edge_depth.daemon import Pipeline, PipelineStats, lidar_summary, watch_summary
+from edge_depth.daemon import Pipeline, PipelineStats
 from edge_depth.errors import ConfigError
-from edge_depth.frame_summary import format_latency, rate_summary, selection_summary, summarise
+from edge_depth.frame_summary import (
+    format_latency,
+    lidar_summary,
+    rate_summary,
+    selection_summary,
+    summarise,
+    watch_summary,
+)
 from edge_depth.loggers import open_logger
 from edge_depth.runner import StopFlag, run
 from edge_depth.runtime.engine import Engine

@@ -23,7 +23,6 @@ import numpy as np
 
 from edge_depth.calibration.model import LidarExtrinsics, StereoCalibration
 from edge_depth.calibration.projection import project_to_disparity
-from edge_depth.calibration_verdict import fixes
 from edge_depth.calibration_watch import CalibrationWatch, stereo_reference
 from edge_depth.camera_turn import TurnMeter, deskewed
 from edge_depth.capture.sync import LidarSync, SyncConfig
@@ -73,6 +72,15 @@ class Prepared:
 
 
 NO_POINTS = np.zeros((0, 3), np.float32)
+
+
+def _median_gap(stamps) -> float:
+    """The median positive gap between consecutive stamps (ns); 0 with fewer than two."""
+    gaps = np.diff(np.asarray(stamps, np.int64))
+    gaps = gaps[gaps > 0]
+    return float(np.median(gaps)) if gaps.size else 0.0
+
+
 # frames of timings kept for the summaries: a daemon runs for days, and a frame's dict of ~22
 # timings holds ~1.4 kB (10 000 of them took half an hour of a 5 frames/s soak to fill)
 HISTORY = 1_000
@@ -176,6 +184,10 @@ class Pipeline:
         self._lock = threading.Lock()
         # the last frame's (seq, error map), the map None without ground truth
         self._last_error: tuple[int, np.ndarray | None] | None = None
+        # [engine] rate = "camera": the frames gone on before their scans (`goes_ahead`), and
+        # the last frames' stamps (the camera's period)
+        self.ahead_frames = 0
+        self._frame_stamps: deque[int] = deque(maxlen=16)
         # [engine] rate = "camera": key frames and the frames between (edge.runtime.propagate)
         self.propagator = Propagator() if engine is not None and \
             engine.options.rate == "camera" else None
@@ -219,11 +231,24 @@ class Pipeline:
             return self.engine is None or self.lidar is None or self.sync.ready(stamp_ns)
 
     def goes_ahead(self, stamp_ns: int) -> bool:
-        """At the camera's rate, whether a frame may go on without waiting for its scans:
-        the last key frame can be carried to it (the frame before a scan is carried from the
-        key frame before; the frame after the scan, which needs no wait, is the next key
-        frame)."""
-        return self.propagator is not None and self.propagator.can_carry(stamp_ns)
+        """At the camera's rate, whether a frame may go on without waiting for its scans: the
+        frame before a scan is carried from the key frame before, and the frame nearest the
+        scan, after it has arrived, is the next key frame. Only paired by "nearest", from a
+        key frame with a scan that can be carried to it (`Propagator.can_carry`), and only
+        before the next scan is due less half a frame period (the scan's own frame waits for
+        it, as every frame does at the LiDAR's rate)."""
+        with self._lock:
+            return self._goes_ahead(stamp_ns)
+
+    def _goes_ahead(self, stamp_ns: int) -> bool:
+        """`goes_ahead`, the lock held."""
+        carry = self.propagator
+        if carry is None or self.sync.config.mode != "nearest" or carry.last is None or \
+                carry.last.scan_ns is None or not carry.can_carry(stamp_ns):
+            return False
+        scan_period, frame_period = self.sync.period_ns(), _median_gap(self._frame_stamps)
+        return scan_period > 0 and frame_period > 0 and \
+            stamp_ns < carry.last.scan_ns + scan_period - frame_period / 2
 
     def lidar_delivering(self, stamp_ns: int) -> bool:
         with self._lock:
@@ -291,8 +316,10 @@ class Pipeline:
         with self._lock:
             # at the camera's rate, a frame that did not wait for the scans nearest it is
             # carried: it is not paired (nor counted unpaired) with the scans there are
-            ahead = self.lidar is not None and not self.sync.ready(frame.stamp_ns) and \
-                self.goes_ahead(frame.stamp_ns)
+            ahead = self.lidar is not None and self._goes_ahead(frame.stamp_ns) and \
+                not self.sync.ready(frame.stamp_ns)
+            self.ahead_frames += ahead
+            self._frame_stamps.append(frame.stamp_ns)
             points = NO_POINTS if ahead else self.sync.points_for(frame.stamp_ns)
             points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
             times = self.sync.last_points_times_ns
@@ -339,9 +366,10 @@ class Pipeline:
         p.queued_ms = (time.perf_counter() - p.t0) * 1000 - p.timings["rectify"] \
             - p.timings["project"]
         carry = self.propagator
-        if carry is not None and (p.ahead or not carry.wants_engine(p.frame.stamp_ns,
-                                                                     p.points_stamp_ns)):
-            carried = carry.carry(p.frame.stamp_ns, p.left, self.focal_px, self.baseline_m,
+        stamp = p.frame.stamp_ns  # ahead: unless a new calibration dropped the key frame
+        if carry is not None and ((p.ahead and carry.can_carry(stamp)) or
+                                  not carry.wants_engine(stamp, p.points_stamp_ns)):
+            carried = carry.carry(stamp, p.left, self.focal_px, self.baseline_m,
                                   self.principal_point)
             if carried is not None:  # else the flow is lost: a key frame
                 p.carried = True
@@ -432,52 +460,6 @@ class Pipeline:
             if metrics is not None:
                 self.stats.metrics.add(metrics)
         return FrameOutput(result, p.sparse, p.left, metrics, p.gt)
-
-
-def watch_summary(pipeline: Pipeline, recording: str | None = None,
-                  calibration: str | None = None) -> str | None:
-    """The closing line about the calibration watch (None when it did not run), with the
-    command that fixes it when the level is not OK."""
-    watch = pipeline.watch
-    if watch is None:
-        return None
-    estimate = watch.estimate()
-    line = f"LiDAR-camera calibration watch: {estimate.describe()}"
-    if samples := pipeline.stats.watch_ms:
-        line += (f" ({len(samples)} samples, median {np.median(samples):.0f} ms each, between "
-                 "frames)")
-    offset = 0 if pipeline.lidar is None else pipeline.lidar.time_offset_ns
-    if todo := fixes(estimate, recording, calibration, offset):
-        line += f"; {todo}"
-    return line
-
-
-def lidar_summary(pipeline: Pipeline) -> str:
-    """The closing line about the LiDAR: how many frames had it, or why none did. Counted
-    over the frames that were paired with scans (pipelined, some of those are dropped before
-    the engine: the frames processed are fewer)."""
-    counters, stats = pipeline.sync.counters(), pipeline.stats
-    paired = counters["frames_with_lidar"]
-    frames = paired + counters["frames_without_lidar"]
-    if pipeline.lidar is None:
-        return "no LiDAR extrinsics: stereo only (add a [lidar] section to the calibration)"
-    if stats.scans == 0:
-        return f"frames with LiDAR: 0 of {frames} (no scan arrived: stereo only)"
-    line = f"frames with LiDAR: {paired} of {frames}"
-    if frames > stats.frames:  # pipelined: say why this is more than the frames processed
-        line += f" paired ({frames - stats.frames} of them dropped before the engine)"
-    if paired < frames and pipeline.sync.median_gap_ms() is not None:
-        line += (f" (unpaired frames: median nearest-scan minus frame stamp "
-                 f"{pipeline.sync.median_gap_ms():+.0f} ms)")
-    if counters["frames_gone_before_their_scans"]:
-        line += f"; {counters['frames_gone_before_their_scans']} went on before their scans arrived"
-    if pipeline.propagator is not None and pipeline.propagator.ahead:
-        line += (f"; {pipeline.propagator.ahead} more carried at the camera's rate before their "
-                 f"scans arrived (not paired)")
-    if stats.deskewed:
-        line += (f"; deskewed by the camera's turn in {len(stats.deskewed)} frames (points "
-                 f"moved up to a median {np.median(stats.deskewed):.1f} px)")
-    return line
 
 
 # the stages' pixel counts (DepthResult) -> the share of the frame each is, % (frame_summary)

@@ -2,12 +2,15 @@
 stages' median / p95 latency (`summarise`) and the closing lines about the LiDAR selection,
 the band refinement and the LiDAR map's checks (`selection_summary`); the daemon,
 `replay` and the demo print them, `/diagnostics` carries the per-frame values
-(`replaced_shares`)."""
+(`replaced_shares`). Also the closing lines from a pipeline's counters: the LiDAR's
+pairing (`lidar_summary`), the calibration watch's (`watch_summary`) and the camera rate's
+(`rate_summary`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from edge_depth.calibration_verdict import fixes
 from edge_depth.runtime.lidar_align import jump_px
 from edge_depth.runtime.lidar_denoise import THRESHOLD_PX as NOISE_THRESHOLD_PX
 
@@ -104,3 +107,53 @@ def format_latency(summary: dict[str, dict[str, float]]) -> str:
     """'encoder 9.1/10.2, steps ...': median / p95 ms of each stage of a `summarise`."""
     return ", ".join(f"{k} {v['median']:.1f}/{v['p95']:.1f}" for k, v in summary.items()
                      if k != "step_mean")
+
+
+def watch_summary(pipeline, recording: str | None = None,
+                  calibration: str | None = None) -> str | None:
+    """The closing line about the calibration watch (None when it did not run), with the
+    command that fixes it when the level is not OK."""
+    watch = pipeline.watch
+    if watch is None:
+        return None
+    estimate = watch.estimate()
+    line = f"LiDAR-camera calibration watch: {estimate.describe()}"
+    if samples := pipeline.stats.watch_ms:
+        line += (f" ({len(samples)} samples, median {np.median(samples):.0f} ms each, between "
+                 "frames)")
+    offset = 0 if pipeline.lidar is None else pipeline.lidar.time_offset_ns
+    if todo := fixes(estimate, recording, calibration, offset):
+        line += f"; {todo}"
+    return line
+
+
+def lidar_summary(pipeline) -> str:
+    """The closing line about the LiDAR: how many frames had it, or why none did. Counted
+    over the frames that were paired with scans (pipelined, some of those are dropped before
+    the engine: the frames processed are fewer)."""
+    counters, stats = pipeline.sync.counters(), pipeline.stats
+    paired = counters["frames_with_lidar"]
+    frames = paired + counters["frames_without_lidar"]
+    ahead = pipeline.ahead_frames  # the camera's rate: gone on before their scans, not paired
+    if pipeline.lidar is None:
+        return "no LiDAR extrinsics: stereo only (add a [lidar] section to the calibration)"
+    if stats.scans == 0:
+        return f"frames with LiDAR: 0 of {frames} (no scan arrived: stereo only)"
+    line = f"frames with LiDAR: {paired} of {frames}"
+    dropped = frames + ahead - stats.frames  # pipelined: frames paired, then dropped
+    if ahead:
+        line += (f"{' paired' if dropped > 0 else ''}, and {ahead} more gone on at the "
+                 f"camera's rate before their scans (" +
+                 (f"{dropped} of the {frames + ahead} dropped before the engine)"
+                  if dropped > 0 else "not paired)"))
+    elif dropped > 0:
+        line += f" paired ({dropped} of them dropped before the engine)"
+    if paired < frames and pipeline.sync.median_gap_ms() is not None:
+        line += (f" (unpaired frames: median nearest-scan minus frame stamp "
+                 f"{pipeline.sync.median_gap_ms():+.0f} ms)")
+    if counters["frames_gone_before_their_scans"]:
+        line += f"; {counters['frames_gone_before_their_scans']} went on before their scans arrived"
+    if stats.deskewed:
+        line += (f"; deskewed by the camera's turn in {len(stats.deskewed)} frames (points "
+                 f"moved up to a median {np.median(stats.deskewed):.1f} px)")
+    return line

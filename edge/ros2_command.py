@@ -305,8 +305,13 @@ def node_exit(stats, pipeline, source, outputs, seconds: float) -> int:
 def print_node_summary(stats, pipeline, source, outputs, elapsed: float) -> None:
     """The node's closing lines: frames, drops, what came in and went out, the LiDAR's and
     the calibration watch's lines, the latency."""
-    from edge_depth.daemon import lidar_summary, watch_summary
-    from edge_depth.frame_summary import format_latency, rate_summary, summarise
+    from edge_depth.frame_summary import (
+        format_latency,
+        lidar_summary,
+        rate_summary,
+        summarise,
+        watch_summary,
+    )
 
     counters = source.counters()
     print(f"{stats.frames} frames in {elapsed:.1f} s, {stats.scans} scans, {stats.drops} "

@@ -371,3 +371,48 @@ def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_wait
     assert not after_scan.carried and result.iterations > 0  # the next key frame
     assert pipeline.propagator.counters() == dict(key_frames=2, carried=2, lost=0, scaled=2,
                                                   scans=2, ahead=1)
+    assert pipeline.ahead_frames == 1
+
+    # only the frames before the next scan is due, less half a frame period, go ahead: the
+    # scan's own frame waits for it (a camera as fast as the LiDAR: every frame)
+    due = scans[1].stamp_ns + 100_000_000
+    assert pipeline.goes_ahead(due - 40_000_000) and not pipeline.goes_ahead(due - 10_000_000)
+    # a new calibration between a frame's preparation and its inference drops the key frame:
+    # the frame that went ahead runs the engine instead of failing
+    ahead = pipeline.prepare(replace(frames[3], stamp_ns=due - 40_000_000, seq=5), None)
+    assert ahead.ahead
+    pipeline.set_calibration(pipeline.stereo, pipeline.lidar)
+    assert pipeline.infer(ahead).iterations > 0 and not ahead.carried
+
+
+def test_at_the_camera_rate_no_frame_goes_ahead_without_a_spinning_lidars_scans():
+    """Accumulated points (a 2-D scanner) or a key frame without a scan (none yet, a stalled
+    LiDAR): every frame waits or is a key frame, as at the LiDAR's rate."""
+    from edge_depth.capture.sync import LidarSync, SyncConfig
+    from edge_depth.daemon import Pipeline
+    from edge_depth.runtime.engine import Engine
+    from edge_depth.runtime.options import EngineOptions
+
+    source = SimSource(3, SEED, RIG, period_ms=1000 / 30, motion=KINDS["forward"],
+                       scan_every=3)
+    frames = [e for e in source if isinstance(e, StereoFrame)]
+    pipeline = Pipeline(Engine(options=EngineOptions(rate="camera", precision="int8",
+                                                     threads=2)), *source.calibration)
+    for stamp in (-105_000_000, -5_000_000):
+        pipeline.on_scan(LidarScan(frames[0].stamp_ns + stamp,
+                                   np.array([[0.0, 0.0, 5.0]], np.float32)))
+    for frame in frames[:2]:
+        pipeline.prepare(frame, None)  # the camera's period
+    shape = (RIG.height, RIG.width)
+    result = DepthResult(0, np.ones(shape, np.float32), np.ones(shape, np.float32),
+                         np.ones(shape, bool), 1)
+    later = frames[1].stamp_ns + 30_000_000
+    pipeline.propagator.key(frames[0].stamp_ns, frames[0].stamp_ns - 5_000_000,
+                            frames[0].left, result)
+    assert pipeline.goes_ahead(later)
+    pipeline.propagator.key(frames[0].stamp_ns, None, frames[0].left, result)  # no scan
+    assert not pipeline.goes_ahead(later)
+    pipeline.propagator.key(frames[0].stamp_ns, frames[0].stamp_ns - 5_000_000,
+                            frames[0].left, result)
+    pipeline.sync = LidarSync(SyncConfig(mode="accumulate"))
+    assert not pipeline.goes_ahead(later)

@@ -228,21 +228,28 @@ def test_the_lidar_line_counts_over_the_frames_that_were_paired_not_those_proces
     the closing line must not say "293 of 135"."""
     from types import SimpleNamespace
 
-    from edge_depth.daemon import lidar_summary
+    from edge_depth.frame_summary import lidar_summary
 
     sync = SimpleNamespace(counters=lambda: dict(frames_with_lidar=293, frames_without_lidar=7,
                                                  frames_gone_before_their_scans=0),
                            median_gap_ms=lambda: 40.0)
-    pipeline = SimpleNamespace(sync=sync, lidar=object(), propagator=None,
+    pipeline = SimpleNamespace(sync=sync, lidar=object(), ahead_frames=0,
                                stats=SimpleNamespace(frames=135, scans=300, deskewed=[]))
     line = lidar_summary(pipeline)
     assert line.startswith("frames with LiDAR: 293 of 300 paired (165 of them dropped before "
                            "the engine)")
     assert "+40 ms" in line and "camera's rate" not in line
-    # at the camera's rate the frames carried before their scans arrived are counted apart
-    pipeline.propagator = SimpleNamespace(ahead=93)
-    assert "; 93 more carried at the camera's rate before their scans arrived (not paired)" \
-        in lidar_summary(pipeline)
+    # at the camera's rate the frames gone on before their scans are counted apart, and in
+    # the frames dropped before the engine
+    pipeline.ahead_frames = 93
+    line = lidar_summary(pipeline)
+    assert line.startswith("frames with LiDAR: 293 of 300 paired, and 93 more gone on at the "
+                           "camera's rate before their scans (258 of the 393 dropped before "
+                           "the engine)")
+    pipeline.stats.frames = 393  # none dropped
+    assert lidar_summary(pipeline).startswith(
+        "frames with LiDAR: 293 of 300, and 93 more gone on at the camera's rate before their "
+        "scans (not paired)")
 
 
 @pytest.mark.parametrize("scans_after_frames", [False, True])
