@@ -74,11 +74,13 @@ class Prepared:
 NO_POINTS = np.zeros((0, 3), np.float32)
 
 
-def _median_gap(stamps) -> float:
-    """The median positive gap between consecutive stamps (ns); 0 with fewer than two."""
+def _frame_period(stamps) -> float:
+    """The camera's frame period from consecutive stamps (ns; 0 with fewer than two): the
+    lower quartile of the positive gaps, which a dropped frame (a gap of two periods) moves
+    only when most are drops."""
     gaps = np.diff(np.asarray(stamps, np.int64))
     gaps = gaps[gaps > 0]
-    return float(np.median(gaps)) if gaps.size else 0.0
+    return float(np.percentile(gaps, 25)) if gaps.size else 0.0
 
 
 # frames of timings kept for the summaries: a daemon runs for days, and a frame's dict of ~22
@@ -246,7 +248,7 @@ class Pipeline:
         if carry is None or self.sync.config.mode != "nearest" or carry.last is None or \
                 carry.last.scan_ns is None or not carry.can_carry(stamp_ns):
             return False
-        scan_period, frame_period = self.sync.period_ns(), _median_gap(self._frame_stamps)
+        scan_period, frame_period = self.sync.period_ns(), _frame_period(self._frame_stamps)
         return scan_period > 0 and frame_period > 0 and \
             stamp_ns < carry.last.scan_ns + scan_period - frame_period / 2
 

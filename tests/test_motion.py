@@ -416,3 +416,10 @@ def test_at_the_camera_rate_no_frame_goes_ahead_without_a_spinning_lidars_scans(
                             frames[0].left, result)
     pipeline.sync = LidarSync(SyncConfig(mode="accumulate"))
     assert not pipeline.goes_ahead(later)
+
+
+def test_the_cameras_period_holds_while_every_other_frame_is_dropped():
+    from edge_depth.daemon import _frame_period
+
+    assert _frame_period([0, 33, 100, 133, 200, 233, 300]) == 33  # half the gaps are drops
+    assert _frame_period([0, 33, 66, 66, 99]) == 33 and _frame_period([5]) == 0.0
