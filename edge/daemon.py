@@ -233,12 +233,14 @@ class Pipeline:
             return self.engine is None or self.lidar is None or self.sync.ready(stamp_ns)
 
     def goes_ahead(self, stamp_ns: int) -> bool:
-        """At the camera's rate, whether a frame may go on without waiting for its scans: the
-        frame before a scan is carried from the key frame before, and the frame nearest the
-        scan, after it has arrived, is the next key frame. Only paired by "nearest", from a
-        key frame with a scan that can be carried to it (`Propagator.can_carry`), and only
-        before the next scan is due less half a frame period (the scan's own frame waits for
-        it, as every frame does at the LiDAR's rate)."""
+        """At the camera's rate, whether a frame goes on without waiting for its scans, and
+        is carried unpaired: a frame nearer the next scan than the key frame's own (by
+        "nearest" it would pair with the next and wait for it) but before that scan is due,
+        less half a frame period. So the frame nearest each scan is its key frame whether
+        that scan has arrived when the frame is taken or not (a backlog, a replay's order),
+        and the frames before it are carried from the key frame before. Only paired by
+        "nearest", from a key frame with a scan that can be carried to it
+        (`Propagator.can_carry`)."""
         with self._lock:
             return self._goes_ahead(stamp_ns)
 
@@ -249,8 +251,9 @@ class Pipeline:
                 carry.last.scan_ns is None or not carry.can_carry(stamp_ns):
             return False
         scan_period, frame_period = self.sync.period_ns(), _frame_period(self._frame_stamps)
+        since = stamp_ns - carry.last.scan_ns
         return scan_period > 0 and frame_period > 0 and \
-            stamp_ns < carry.last.scan_ns + scan_period - frame_period / 2
+            scan_period / 2 < since < scan_period - frame_period / 2
 
     def lidar_delivering(self, stamp_ns: int) -> bool:
         with self._lock:
@@ -316,10 +319,9 @@ class Pipeline:
             return None
         t1 = time.perf_counter()
         with self._lock:
-            # at the camera's rate, a frame that did not wait for the scans nearest it is
-            # carried: it is not paired (nor counted unpaired) with the scans there are
-            ahead = self.lidar is not None and self._goes_ahead(frame.stamp_ns) and \
-                not self.sync.ready(frame.stamp_ns)
+            # at the camera's rate, a frame before the scan nearest it is due is carried: it
+            # is not paired (nor counted unpaired) with the scans there are
+            ahead = self.lidar is not None and self._goes_ahead(frame.stamp_ns)
             self.ahead_frames += ahead
             self._frame_stamps.append(frame.stamp_ns)
             points = NO_POINTS if ahead else self.sync.points_for(frame.stamp_ns)

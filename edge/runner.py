@@ -249,7 +249,7 @@ class Runner:
         """Live: hold a frame (host time, at most wait_ms) while a delivering LiDAR has not
         yet sent the scans that cover it — or, within STARTUP_S of the first frame, while no
         scan has come yet (the first frames' scans may come after them) — unless, at the
-        camera's rate, the last key frame can be carried to it (`Pipeline.goes_ahead`: it is
+        camera's rate, it is a frame before its scan is due (`Pipeline.goes_ahead`: it is
         carried, and the engine never idles waiting for a scan); returns the ms waited."""
         pipeline, start = self.pipeline, time.monotonic()
         if self.first_frame_at is None:
@@ -272,7 +272,7 @@ class Runner:
         while self.waiting and not self.stop.is_set():
             head = self.waiting[0]
             ready = self.pipeline.frame_ready(head.stamp_ns)
-            ahead = not ready and self.pipeline.goes_ahead(head.stamp_ns)
+            ahead = self.pipeline.goes_ahead(head.stamp_ns)
             timed_out = latest_ns is not None and latest_ns - head.stamp_ns > self.wait_ms * 1e6
             if not (ready or ahead or timed_out or everything):
                 return
@@ -394,8 +394,6 @@ class Runner:
                 self._flush(latest)
                 self.waiting.append(event)
             else:
-                if isinstance(event, LidarScan) and self.pipeline.propagator is not None:
-                    self._flush(latest)  # the camera's rate: what goes on before this scan
                 self.handle(event)
                 if not isinstance(event, GroundTruth):
                     self._flush(latest)

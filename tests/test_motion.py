@@ -241,8 +241,8 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     found = re.match(r"Camera rate: (\d+) key frames .*?, (\d+) carried", line)
     assert found, line
     keys, carried = int(found[1]), int(found[2])
-    # the engine on the frames of the three scans; the frames just before the second and the
-    # third scan carried without waiting for them (`ahead`)
+    # the engine on the frames of the three scans; the frames just before the next scan is
+    # due (2, 5 and 8) carried without waiting for it (`ahead`)
     assert (keys, carried) == (3, 6)
     assert sum("carried from the key frame" in x for x in out.splitlines()) == carried
     assert "over 9 frames with ground truth" in out
@@ -253,7 +253,7 @@ def test_replay_at_the_camera_rate_runs_the_engine_on_key_frames_only(tmp_path, 
     assert 0 < scaled <= carried  # driving forward: the carried disparity is changed
     assert "on 3 scans" in line  # the recording's three, each once
     assert diagnostics[-1]["camera_rate"] == dict(key_frames=keys, carried=carried, lost=0,
-                                                  scaled=scaled, scans=3, ahead=2)
+                                                  scaled=scaled, scans=3, ahead=3)
 
 
 RIGID = (250.0, 0.075, 159.5, 119.5)  # f px, B m, cx, cy of a 320×240 camera
@@ -332,8 +332,8 @@ def test_the_motion_kinds_the_config_and_synth_name_are_the_simulators():
 def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_waiting_for_it():
     """Live, paired by "nearest", the frame just before a scan would wait for that scan while
     nothing else can run (what follows needs its key frame). At the camera's rate it is
-    carried at once from the key frame before, and the frame after the scan, which needs no
-    wait, is the next key frame (a replay does the same in the stream's order)."""
+    carried at once from the key frame before, and the frame nearest the scan is the next
+    key frame, whenever the scan arrives (a replay does the same)."""
     import time
 
     from edge_depth.daemon import Pipeline
@@ -377,10 +377,13 @@ def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_wait
     # scan's own frame waits for it (a camera as fast as the LiDAR: every frame)
     due = scans[1].stamp_ns + 100_000_000
     assert pipeline.goes_ahead(due - 40_000_000) and not pipeline.goes_ahead(due - 10_000_000)
+    # behind (the next scan already in when the frame before it is taken) the same frame is
+    # carried: the key frames do not depend on when a scan arrives
+    pipeline.on_scan(replace(scans[1], stamp_ns=due))
+    ahead = pipeline.prepare(replace(frames[3], stamp_ns=due - 40_000_000, seq=5), None)
+    assert ahead.ahead and ahead.points is None
     # a new calibration between a frame's preparation and its inference drops the key frame:
     # the frame that went ahead runs the engine instead of failing
-    ahead = pipeline.prepare(replace(frames[3], stamp_ns=due - 40_000_000, seq=5), None)
-    assert ahead.ahead
     pipeline.set_calibration(pipeline.stereo, pipeline.lidar)
     assert pipeline.infer(ahead).iterations > 0 and not ahead.carried
 
