@@ -67,11 +67,8 @@ class Prepared:
     points: np.ndarray | None = None  # the synced scans' points (LiDAR frame), if any
     points_stamp_ns: int | None = None  # ... their stamp in the camera's clock
     carried: bool = False  # [engine] rate = "camera": the key frame's depth carried here
-    ahead: bool = False  # ... gone on before the scans nearest it arrived: carried
+    ahead: bool = False  # ... before the scan nearest it is due: carried, unpaired
     arrived: float | None = None  # live: perf_counter as the frame entered the capture queue
-
-
-NO_POINTS = np.zeros((0, 3), np.float32)
 
 
 def _frame_period(stamps) -> float:
@@ -318,30 +315,37 @@ class Pipeline:
             self.stats.frames += 1
             return None
         t1 = time.perf_counter()
+        if self.turn is not None and self.lidar is not None:
+            self.turn.frame(frame.stamp_ns, left)
         with self._lock:
             # at the camera's rate, a frame before the scan nearest it is due is carried: it
             # is not paired (nor counted unpaired) with the scans there are
             ahead = self.lidar is not None and self._goes_ahead(frame.stamp_ns)
             self.ahead_frames += ahead
             self._frame_stamps.append(frame.stamp_ns)
-            points = NO_POINTS if ahead else self.sync.points_for(frame.stamp_ns)
-            points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
-            times = self.sync.last_points_times_ns
-        if self.lidar is not None and not ahead:
-            self._check_pairing(frame.stamp_ns, len(points) > 0)
-        if self.turn is not None and self.lidar is not None:
-            self.turn.frame(frame.stamp_ns, left)
-        if len(points) and self.lidar is not None:
-            assert points_stamp_ns is not None
-            sparse = self._project(points, frame.stamp_ns,
-                                   points_stamp_ns if times is None else times)
-        else:
-            sparse = np.zeros(left.shape, np.float32)
+        points, points_stamp_ns, sparse = (None, None, np.zeros(left.shape, np.float32)) \
+            if ahead else self._pair(frame.stamp_ns, left.shape)
         t2 = time.perf_counter()
         return Prepared(frame, left, right, sparse, gt, t0, dict(
             rectify=(t1 - t0) * 1000, project=(t2 - t1) * 1000, sync_wait=sync_wait_ms),
-            points=points if len(points) else None, points_stamp_ns=points_stamp_ns,
-            arrived=arrived, ahead=ahead)
+            points=points, points_stamp_ns=points_stamp_ns, arrived=arrived, ahead=ahead)
+
+    def _pair(self, frame_ns: int, shape: tuple[int, ...]
+              ) -> tuple[np.ndarray | None, int | None, np.ndarray]:
+        """The synced scans of a frame: their points (None: none), their stamp (camera
+        clock) and their sparse disparity (zeros without)."""
+        with self._lock:
+            points = self.sync.points_for(frame_ns)
+            points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
+            times = self.sync.last_points_times_ns
+        if self.lidar is None:
+            return None, None, np.zeros(shape, np.float32)
+        self._check_pairing(frame_ns, len(points) > 0)
+        if not len(points):
+            return None, None, np.zeros(shape, np.float32)
+        assert points_stamp_ns is not None
+        return points, points_stamp_ns, self._project(
+            points, frame_ns, points_stamp_ns if times is None else times)
 
     def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
         """The points' sparse disparity. While the camera turns, each point is first moved by
@@ -379,6 +383,11 @@ class Pipeline:
                 p.carried = True
                 carry.ahead += p.ahead
                 return carried
+        if p.ahead:  # not carried after all (the flow lost, a new calibration): paired now
+            with self._lock:
+                self.ahead_frames -= 1
+            p.ahead = False
+            p.points, p.points_stamp_ns, p.sparse = self._pair(stamp, p.left.shape)
         result = self.engine.infer(p.left, p.right, p.sparse, iters=self.iters,
                                    deadline_ms=self.deadline_ms, focal_px=self.focal_px,
                                    baseline_m=self.baseline_m, stamp_ns=p.frame.stamp_ns,

@@ -383,9 +383,13 @@ def test_live_at_the_camera_rate_the_frame_before_a_scan_is_carried_without_wait
     ahead = pipeline.prepare(replace(frames[3], stamp_ns=due - 40_000_000, seq=5), None)
     assert ahead.ahead and ahead.points is None
     # a new calibration between a frame's preparation and its inference drops the key frame:
-    # the frame that went ahead runs the engine instead of failing
+    # the frame that went ahead runs the engine, with the scans paired then, instead of
+    # failing (so does one whose flow is lost)
+    assert pipeline.ahead_frames == 2
     pipeline.set_calibration(pipeline.stereo, pipeline.lidar)
     assert pipeline.infer(ahead).iterations > 0 and not ahead.carried
+    assert ahead.points is not None and ahead.points_stamp_ns == due
+    assert pipeline.ahead_frames == 1  # counted as paired instead
 
 
 def test_at_the_camera_rate_no_frame_goes_ahead_without_a_spinning_lidars_scans():

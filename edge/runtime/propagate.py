@@ -66,7 +66,7 @@ class Propagator:
         self.last: KeyFrame | None = None
         self.keys = self.carried = self.lost = 0
         self.scaled = 0  # carried frames whose disparity the fitted motion scaled
-        self.ahead = 0  # carried frames that went on before the scans nearest them arrived
+        self.ahead = 0  # carried frames that went on before the scan nearest them was due
         self.scans = 0  # scans a key frame ran with (each once)
         self._grid: tuple[np.ndarray, np.ndarray] | None = None  # pixel coordinates (x, y)
 
@@ -74,7 +74,7 @@ class Propagator:
         """Since the start, for /diagnostics: key frames (the engine; `lost`: of them, those
         whose flow was lost; `scans`: the scans they ran with, each counted once) and frames
         carried (`scaled`: of them, those whose disparity the fitted motion changed; `ahead`:
-        those that went on before the scans nearest them arrived)."""
+        those that went on before the scan nearest them was due)."""
         return dict(key_frames=self.keys, carried=self.carried, lost=self.lost,
                     scaled=self.scaled, scans=self.scans, ahead=self.ahead)
 
