@@ -102,11 +102,12 @@ def test_the_ragged_aggregation_is_hirschmullers_recurrence(diagonals):
                                        expected[y][x], rtol=0, atol=1e-3)
 
 
-@pytest.mark.parametrize("rows, per_row", [(2, 12), (40, 12), (40, 2), (12, 30), (30, 0)])
-def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows, per_row):
+@pytest.mark.parametrize("rows, per_row, reach", [(2, 12, 8.0), (40, 12, 8.0), (40, 2, 8.0),
+                                                  (12, 30, 8.0), (30, 0, 8.0), (30, 0, 7.5)])
+def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows, per_row, reach):
     """Rows of many points (a scan line, walked along the image row) and of few (walked point
     by point; 0: a random count per row, both kinds mixed), each against every point written
-    plainly."""
+    plainly; a reach between whole pixels too."""
     rng = np.random.default_rng(rows * 100 + per_row)
     h, w = 40, 50
     points = np.zeros((h, w), np.float32)
@@ -115,13 +116,13 @@ def test_the_nearest_point_within_reach_is_the_exact_euclidean_one(rows, per_row
         xs = rng.choice(w, per_row or int(rng.integers(1, 20)), replace=False)
         points[y, xs] = rng.uniform(1, 60, len(xs)).astype(np.float32)
     nearby = np.zeros((h, w), np.float32)
-    nearest_within(points, np.float32(8.0), nearby)
+    nearest_within(points, np.float32(reach), nearby)
     py, px = np.nonzero(points)  # row-major: a tie goes to the upper row, then the left
     for y in range(h):
         for x in range(w):
             d2 = (py - y) ** 2 + (px - x) ** 2
             best = int(np.argmin(d2))
-            expected = points[py[best], px[best]] if d2[best] <= 64 else 0.0
+            expected = points[py[best], px[best]] if d2[best] <= reach * reach else 0.0
             assert nearby[y, x] == expected, (y, x)
 
 
