@@ -405,9 +405,12 @@ def test_at_the_camera_rate_no_frame_goes_ahead_without_a_spinning_lidars_scans(
     frames = [e for e in source if isinstance(e, StereoFrame)]
     pipeline = Pipeline(Engine(options=EngineOptions(rate="camera", precision="int8",
                                                      threads=2)), *source.calibration)
-    for stamp in (-105_000_000, -5_000_000):
-        pipeline.on_scan(LidarScan(frames[0].stamp_ns + stamp,
-                                   np.array([[0.0, 0.0, 5.0]], np.float32)))
+    def two_scans():  # two revolutions: the LiDAR's period is known
+        for stamp in (-105_000_000, -5_000_000):
+            pipeline.on_scan(LidarScan(frames[0].stamp_ns + stamp,
+                                       np.array([[0.0, 0.0, 5.0]], np.float32)))
+
+    two_scans()
     for frame in frames[:2]:
         pipeline.prepare(frame, None)  # the camera's period
     shape = (RIG.height, RIG.width)
@@ -422,7 +425,8 @@ def test_at_the_camera_rate_no_frame_goes_ahead_without_a_spinning_lidars_scans(
     pipeline.propagator.key(frames[0].stamp_ns, frames[0].stamp_ns - 5_000_000,
                             frames[0].left, result)
     pipeline.sync = LidarSync(SyncConfig(mode="accumulate"))
-    assert not pipeline.goes_ahead(later)
+    two_scans()
+    assert pipeline.sync.period_ns() > 0 and not pipeline.goes_ahead(later)
 
 
 def test_the_cameras_period_holds_while_every_other_frame_is_dropped():
