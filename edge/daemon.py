@@ -333,19 +333,18 @@ class Pipeline:
     def _pair(self, frame_ns: int, shape: tuple[int, ...]
               ) -> tuple[np.ndarray | None, int | None, np.ndarray]:
         """The synced scans of a frame: their points (None: none), their stamp (camera
-        clock) and their sparse disparity (zeros without)."""
+        clock) and their sparse disparity (zeros without, or without LiDAR extrinsics)."""
         with self._lock:
             points = self.sync.points_for(frame_ns)
             points_stamp_ns = self.sync.last_points_stamp_ns if len(points) else None
             times = self.sync.last_points_times_ns
-        if self.lidar is None:
-            return None, None, np.zeros(shape, np.float32)
-        self._check_pairing(frame_ns, len(points) > 0)
+        if self.lidar is not None:
+            self._check_pairing(frame_ns, len(points) > 0)
         if not len(points):
             return None, None, np.zeros(shape, np.float32)
         assert points_stamp_ns is not None
-        return points, points_stamp_ns, self._project(
-            points, frame_ns, points_stamp_ns if times is None else times)
+        return points, points_stamp_ns, np.zeros(shape, np.float32) if self.lidar is None \
+            else self._project(points, frame_ns, points_stamp_ns if times is None else times)
 
     def _project(self, points: np.ndarray, frame_ns: int, times_ns) -> np.ndarray:
         """The points' sparse disparity. While the camera turns, each point is first moved by

@@ -18,17 +18,17 @@ def nearest_within(points: np.ndarray, reach: np.float32, nearby: np.ndarray) ->
     to its left and to its right, found once per row of points. The work grows with the
     points, never beyond a pass per row within reach."""
     h, w = points.shape
-    rows = np.zeros(h + 1, np.int64)  # the points' columns, row by row (CSR)
-    for y in range(h):
-        rows[y + 1] = rows[y] + np.count_nonzero(points[y] > 0)
-    columns = np.empty(rows[h], np.int64)
     span = int(reach)
+    rows = np.zeros(h + 1, np.int64)  # the points' columns, row by row (CSR)
     dense = np.full(h, -1, np.int64)  # a dense row's index into left_of and right_of, or -1
     n_dense = 0
     for y in range(h):
-        if (rows[y + 1] - rows[y]) * (2 * span + 1) > w:
+        count = np.count_nonzero(points[y] > 0)
+        rows[y + 1] = rows[y] + count
+        if count * (2 * span + 1) > w:
             dense[y] = n_dense
             n_dense += 1
+    columns = np.empty(rows[h], np.int64)
     # per dense row: each column's nearest point at or left of it, at or right of it (-1: none)
     left_of = np.empty((n_dense, w), np.int32)
     right_of = np.empty((n_dense, w), np.int32)

@@ -88,8 +88,8 @@ class Propagator:
         """Whether a frame is a key frame: no key frame yet, no LiDAR, a scan the key frame
         did not have, or a key frame too old to carry."""
         last = self.last
-        return last is None or scan_ns is None or scan_ns != last.scan_ns or \
-            stamp_ns - last.stamp_ns > MAX_KEY_AGE_S * 1e9 or stamp_ns < last.stamp_ns
+        return last is None or not self.can_carry(stamp_ns) or scan_ns is None or \
+            scan_ns != last.scan_ns
 
     def key(self, stamp_ns: int, scan_ns: int | None, left: np.ndarray,
             result: DepthResult) -> None:
